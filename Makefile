@@ -1,0 +1,37 @@
+# magbench — run `make help` for the list of targets.
+PYTHON ?= python
+VENV ?= .venv
+# The real recordings stay outside the repository (see README, "Real data").
+MAGBENCH_DATA ?= $(if $(wildcard ../shared/data/real),$(abspath ../shared/data/real),)
+export MAGBENCH_DATA
+
+SWEEPS := baseline gamma beta K sigma
+
+.PHONY: help install test test-all lint reproduce $(addprefix sweep-,$(SWEEPS)) report clean-parts
+
+help: ## List the targets
+	@grep -E '^[a-zA-Z_%-]+:.*## ' $(MAKEFILE_LIST) | awk 'BEGIN {FS = ":.*## "}; {printf "  %-16s %s\n", $$1, $$2}'
+
+install: ## Create .venv and install magbench with its dev tools (the README's set-up)
+	$(PYTHON) -m venv $(VENV)
+	$(VENV)/bin/pip install -e '.[dev]'
+
+test: ## Run the test suite (what CI runs; slow tests excluded)
+	$(PYTHON) -m pytest -q
+
+test-all: ## Run every test, the slow ones too
+	$(PYTHON) -m pytest -q -m ''
+
+lint: ## ruff over the package and the tests
+	$(PYTHON) -m ruff check src tests experiments
+
+sweep-%: ## Run one sweep, e.g. `make sweep-gamma` (extra overrides: ARGS="trials=20")
+	$(PYTHON) -m magbench sweep=$* $(ARGS)
+
+reproduce: $(addprefix sweep-,$(SWEEPS)) report ## Every sweep, then the figures and the report
+
+report: ## Regenerate tables, figures and results/report.md from the CSV files
+	$(PYTHON) -m magbench report $(ARGS)
+
+clean-parts: ## Remove unfinished-sweep part files (finished results are kept)
+	rm -rf results/*/parts

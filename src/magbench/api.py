@@ -1,0 +1,197 @@
+"""Public entry points: :func:`calibrate`, :func:`methods` and the method registry.
+
+A method is a plain function ``fit(samples, **options) -> Calibration`` registered under a
+name with :func:`register`. :func:`calibrate` is the only way the harness calls it: it validates
+the input once, brings the data to unit scale by an exact power of two, calls the method, maps
+numerical failures to :class:`~magbench.model.CalibrationFailed` and checks the answer.
+"""
+
+from __future__ import annotations
+
+import inspect
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from magbench.model import Calibration, CalibrationFailed, as_samples
+
+__all__ = ["Method", "calibrate", "get_method", "methods", "register", "unregister"]
+
+#: Display order of the registered methods: the review's seven in its order of presentation,
+#: then the extra methods. Names not listed sort after these, alphabetically.
+DISPLAY_ORDER = (
+    "twostep", "crassidis", "dorveaux", "vasconcelos", "ali", "wu_shi", "magical",
+    "wu_shi_nm", "ellipsoid", "fang", "sphere", "twostep_hi",
+)
+
+
+@dataclass(frozen=True)
+class Method:
+    """A registered calibration method and what the harness needs to know about it."""
+
+    name: str
+    fit: Callable[..., Calibration]
+    label: str
+    min_samples: int
+    family: str = "review"
+    randomized: bool = False
+    needs_gyro: bool = False
+    paper_key: str | None = None
+
+    def option_names(self) -> list[str]:
+        """Keyword options the method's ``fit`` accepts (its tuning values)."""
+        params = inspect.signature(self.fit).parameters.values()
+        return [p.name for p in params if p.kind is inspect.Parameter.KEYWORD_ONLY]
+
+
+_REGISTRY: dict[str, Method] = {}
+
+
+def register(name: str, *, label: str, min_samples: int, family: str = "review",
+             randomized: bool = False, needs_gyro: bool = False,
+             paper_key: str | None = None) -> Callable[[Callable[..., Calibration]],
+                                                       Callable[..., Calibration]]:
+    """Register ``fit`` under ``name`` (decorator).
+
+    Parameters
+    ----------
+    name : str
+        The name users pass to :func:`calibrate` and to ``algorithms=[...]``.
+    label : str
+        Name shown in figures and tables.
+    min_samples : int
+        The smallest K the method can work with (its number of unknowns, at least).
+    family : str
+        ``"review"`` for the review's seven methods, ``"extra"`` for the others.
+    randomized : bool
+        True if ``fit`` takes an ``rng`` option (a ``numpy.random.Generator``).
+    needs_gyro : bool
+        True if ``fit`` needs ``angular_rate`` and ``time``.
+    paper_key : str, optional
+        The method's key in the review's Table 2 (reference data), if it is there.
+    """
+
+    def decorator(fit: Callable[..., Calibration]) -> Callable[..., Calibration]:
+        if name in _REGISTRY:
+            raise ValueError(f"method {name!r} is registered twice")
+        _REGISTRY[name] = Method(name, fit, label, min_samples, family, randomized,
+                                 needs_gyro, paper_key)
+        return fit
+
+    return decorator
+
+
+def unregister(name: str) -> None:
+    """Remove a method (used by tests that register fault-injecting methods)."""
+    _REGISTRY.pop(name, None)
+
+
+def _ensure_loaded() -> None:
+    # Importing the package registers every method module it contains.
+    import magbench.algorithms  # noqa: F401
+
+
+def methods() -> list[str]:
+    """Names of the registered methods, in display order."""
+    _ensure_loaded()
+    order = {name: i for i, name in enumerate(DISPLAY_ORDER)}
+    return sorted(_REGISTRY, key=lambda n: (order.get(n, len(order)), n))
+
+
+def get_method(name: str) -> Method:
+    """The registered :class:`Method` called ``name``; ``ValueError`` if there is none."""
+    _ensure_loaded()
+    try:
+        return _REGISTRY[name]
+    except KeyError:
+        raise ValueError(f"unknown method {name!r}; expected one of: "
+                         f"{', '.join(methods())}") from None
+
+
+def _unit_scale(y: np.ndarray) -> float:
+    """Power of two nearest the RMS sample norm.
+
+    Dividing by a power of two is exact in floating point, so data already near unit norm (the
+    review's setting) pass through bit for bit, and data in any unit (counts, nT, gauss) reach
+    the methods at the scale their tolerances and initial guesses assume.
+    """
+    rms = float(np.sqrt(np.mean(np.einsum("ij,ij->i", y, y))))
+    if not rms > 0.0 or not math.isfinite(rms):
+        raise ValueError("samples are all zero (or overflow); a magnetic field of non-zero "
+                         "magnitude is expected")
+    return 2.0 ** round(math.log2(rms))
+
+
+def _check_geometry(y: np.ndarray, min_samples: int) -> None:
+    """Reject data from which no 3-D ellipsoid can be determined (one clear line each)."""
+    distinct = np.unique(y, axis=0).shape[0]
+    if distinct < min_samples:
+        raise ValueError(f"samples hold only {distinct} distinct measurements; at least "
+                         f"{min_samples} are needed")
+    spread = np.linalg.svd(y - y.mean(axis=0), compute_uv=False)
+    if spread[2] <= 1e-9 * spread[0]:
+        shape = "collinear" if spread[1] <= 1e-9 * spread[0] else "coplanar"
+        raise ValueError(f"samples are {shape} (singular values of the centred data "
+                         f"{spread[0]:.3g}, {spread[1]:.3g}, {spread[2]:.3g}); rotate the sensor "
+                         "through more directions")
+
+
+def calibrate(samples: object, method: str, *, angular_rate: object = None,
+              time: object = None, **options: object) -> Calibration:
+    """Estimate ``T`` and ``h`` of ``y = T m + h + eps`` from magnetometer samples.
+
+    Parameters
+    ----------
+    samples : array_like, shape (K, 3)
+        Magnetometer measurements, one per row, in any unit. The result is in the same unit;
+        the field magnitude is normalised to one, so ``T`` absorbs the field strength.
+    method : str
+        A name from :func:`methods`.
+    angular_rate, time : array_like, optional
+        Gyroscope samples ``(K, 3)`` in rad/s and their timestamps ``(K,)`` in seconds, for the
+        gyro-aided methods; other methods ignore them.
+    **options
+        The method's tuning values (iteration caps, tolerances, ``rng`` for randomised methods).
+
+    Returns
+    -------
+    Calibration
+        Finite ``T`` (invertible) and ``h``, with the method's iteration count and message.
+
+    Raises
+    ------
+    ValueError
+        Bad input: unknown method or option, wrong shape, too few samples, NaN or infinite
+        values, degenerate (collinear or coplanar) data.
+    CalibrationFailed
+        The method could not produce a finite, invertible estimate from these data.
+    """
+    spec = get_method(method)
+    unknown = sorted(set(options) - set(spec.option_names()))
+    if unknown:
+        raise ValueError(f"unknown option(s) {', '.join(unknown)} for method {method!r}; it "
+                         f"accepts: {', '.join(spec.option_names()) or 'no options'}")
+    y = as_samples(samples, min_samples=spec.min_samples)
+    scale = _unit_scale(y)
+    y = y / scale
+    _check_geometry(y, spec.min_samples)
+    if spec.randomized and not isinstance(options.get("rng"), np.random.Generator):
+        options["rng"] = np.random.default_rng(options.get("rng", 0))
+    extra: dict[str, object] = {}
+    if spec.needs_gyro:
+        if angular_rate is None or time is None:
+            raise ValueError(f"method {method!r} needs angular_rate (K, 3) in rad/s and "
+                             "time (K,) in seconds")
+        extra = {"angular_rate": angular_rate, "time": time}
+    try:
+        with np.errstate(all="ignore"):
+            cal = spec.fit(y, **extra, **options)
+    except np.linalg.LinAlgError as exc:
+        raise CalibrationFailed(f"{method}: linear algebra failed ({exc})") from exc
+    if not cal.is_finite:
+        raise CalibrationFailed(f"{method}: estimate is not finite or T is singular "
+                                f"({cal.message or 'no message'})")
+    return Calibration(cal.T * scale, cal.h * scale, cal.n_iter, cal.converged, cal.message,
+                       cal.gyro_bias)

@@ -1,0 +1,23 @@
+"""Shared fixtures: small seeded datasets."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from magbench.synthetic import Dataset, Point, make_dataset
+
+
+def dataset(seed: int = 0, **point: float) -> Dataset:
+    """A dataset of Algorithm 8 at the nominal point, with overrides."""
+    return make_dataset(np.random.default_rng(seed), Point(**point))
+
+
+@pytest.fixture
+def noise_free() -> Dataset:
+    return dataset(seed=1, sigma=0.0)
+
+
+@pytest.fixture
+def nominal() -> Dataset:
+    return dataset(seed=2)

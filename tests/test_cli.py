@@ -1,0 +1,53 @@
+import pandas as pd
+import pytest
+
+from magbench.cli import main
+
+
+def run(*args):
+    return main(list(args))
+
+
+def test_baseline_runs_end_to_end(tmp_path, capsys):
+    assert run("trials=3", f"results_dir={tmp_path}", "progress=false", "n_jobs=1",
+               "nominal.K=40", "algorithms=[magical,dorveaux]") == 0
+    trials = pd.read_csv(tmp_path / "baseline" / "trials.csv")
+    assert len(trials) == 6 and set(trials["algorithm"]) == {"magical", "dorveaux"}
+    summary = pd.read_csv(tmp_path / "baseline" / "summary.csv")
+    assert list(summary["algorithm"]) == ["magical", "dorveaux"]
+    table = (tmp_path / "baseline" / "table2.md").read_text()
+    assert "| MAG.I.C.AL |" in table and "2.28e+05" in table
+    assert "6 rows" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize(
+    ("override", "message"),
+    [
+        ("trials=0", "trials must be an integer >= 1, got 0"),
+        ("trials=abc", "trials must be an integer"),
+        ("sweep=nope", "Could not find 'sweep/nope'"),
+        ("nosuchkey=1", "Could not override 'nosuchkey'"),
+        ("algorithms=[magical,xx]", "unknown algorithm(s) xx"),
+        ("delta=1.5", "delta must be in (0, 1)"),
+        ("nominal.sigma=-1", "nominal.sigma must be >= 0"),
+        ("nominal.K=3", "nominal.K must be an integer >= 4"),
+        ("n_jobs=0", "n_jobs must be a non-zero integer"),
+        ("+options.magical.bogus=1", "unknown option(s) bogus for magical"),
+    ],
+)
+def test_bad_values_stop_with_one_line_and_status_2(override, message, tmp_path, capsys):
+    marker = tmp_path / "baseline" / "trials.csv"
+    marker.parent.mkdir()
+    marker.write_text("keep me")
+    assert run(override, f"results_dir={tmp_path}") == 2
+    err = capsys.readouterr().err
+    assert err.startswith("magbench: error: ") and message in err
+    assert err.count("\n") == 1 and "Traceback" not in err
+    assert marker.read_text() == "keep me"
+
+
+def test_method_options_reach_the_method(tmp_path):
+    assert run("trials=2", f"results_dir={tmp_path}", "progress=false", "n_jobs=1",
+               "algorithms=[magical]", "+options.magical.max_iter=2") == 0
+    trials = pd.read_csv(tmp_path / "baseline" / "trials.csv", keep_default_na=False)
+    assert (trials["n_iter"] == 2).all() and (trials["ok"] == False).all()  # noqa: E712

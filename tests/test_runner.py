@@ -1,0 +1,110 @@
+import numpy as np
+import pandas as pd
+import pytest
+
+from magbench.api import register, unregister
+from magbench.model import Calibration
+from magbench.runner import ROW_COLUMNS, SweepSpec, points_for, run_sweep, run_trial
+from magbench.synthetic import Point
+
+SMALL = Point(K=60)
+
+
+def spec(**kw) -> SweepSpec:
+    base = dict(name="t", points=[SMALL, Point(K=60, gamma=0.5)], trials=6, seed=11,
+                algorithms=["magical", "dorveaux"])
+    base.update(kw)
+    return SweepSpec(**base)
+
+
+def without_time(df: pd.DataFrame) -> pd.DataFrame:
+    return df.drop(columns=["time_s"])
+
+
+def test_rows_have_every_column_and_recomputable_truth():
+    rows = run_trial(SMALL, 0, 1, ["magical", "dorveaux"])
+    assert [r["algorithm"] for r in rows] == ["magical", "dorveaux"]
+    for r in rows:
+        assert list(r) == ROW_COLUMNS
+        assert r["ok"] and r["error"] == "" and r["meaningful"]
+        assert r["J"] == pytest.approx(r["J_h"] + r["J_T"])
+    # both methods saw the same dataset
+    assert rows[0]["h_true_0"] == rows[1]["h_true_0"]
+
+
+def test_same_rows_whatever_the_number_of_workers(tmp_path):
+    one, _ = run_sweep(spec(), tmp_path / "a", n_jobs=1, chunk_size=2)
+    two, _ = run_sweep(spec(), tmp_path / "b", n_jobs=2, chunk_size=4)
+    pd.testing.assert_frame_equal(without_time(one), without_time(two))
+    a = pd.read_csv(tmp_path / "a" / "trials.csv").drop(columns="time_s")
+    b = pd.read_csv(tmp_path / "b" / "trials.csv").drop(columns="time_s")
+    pd.testing.assert_frame_equal(a, b)
+    assert len(one) == 2 * 6 * 2
+    assert not (tmp_path / "a" / "parts").exists()
+
+
+def test_an_interrupted_sweep_finishes_only_the_missing_work(tmp_path):
+    full, _ = run_sweep(spec(), tmp_path / "full", chunk_size=2)
+    calls = []
+
+    def stop_after_two_chunks(n):
+        calls.append(n)
+        if len(calls) == 3:  # the first call reports work already done (none)
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        run_sweep(spec(), tmp_path / "cut", chunk_size=2, progress=stop_after_two_chunks)
+    parts = sorted((tmp_path / "cut" / "parts").glob("p*.csv"))
+    assert len(parts) == 2
+    done = []
+    resumed, _ = run_sweep(spec(), tmp_path / "cut", chunk_size=2, progress=done.append)
+    assert done[0] == 4  # two chunks of two trials were already there
+    pd.testing.assert_frame_equal(without_time(resumed), without_time(full))
+
+
+def test_parts_of_another_spec_are_not_reused(tmp_path):
+    with pytest.raises(KeyboardInterrupt):
+        run_sweep(spec(), tmp_path, chunk_size=2,
+                  progress=lambda n: (_ for _ in ()).throw(KeyboardInterrupt) if n else None)
+    other, _ = run_sweep(spec(seed=12), tmp_path, chunk_size=2)
+    fresh, _ = run_sweep(spec(seed=12), tmp_path / "fresh", chunk_size=2)
+    pd.testing.assert_frame_equal(without_time(other), without_time(fresh))
+
+
+@pytest.fixture
+def failing_methods():
+    def raises(y):
+        raise np.linalg.LinAlgError("boom")
+
+    def capped(y):
+        return Calibration(np.eye(3), np.zeros(3), n_iter=5, converged=False,
+                           message="iteration cap 5 reached")
+
+    register("test_raises", label="raises", min_samples=4)(raises)
+    register("test_capped", label="capped", min_samples=4)(capped)
+    yield
+    unregister("test_raises")
+    unregister("test_capped")
+
+
+def test_failures_are_rows_and_the_run_goes_on(failing_methods, tmp_path):
+    trials, summary = run_sweep(spec(algorithms=["test_raises", "test_capped", "magical"],
+                                     points=[SMALL], trials=3), tmp_path)
+    by = trials.groupby("algorithm")
+    raised = by.get_group("test_raises")
+    assert (~raised["ok"]).all() and raised["J"].isna().all()
+    assert raised["error"].str.contains("linear algebra failed").all()
+    capped = by.get_group("test_capped")
+    assert (~capped["ok"]).all() and capped["error"].str.contains("iteration cap").all()
+    assert capped["J"].notna().all()  # a capped answer is still scored
+    assert by.get_group("magical")["ok"].all()
+    rb = summary.set_index("algorithm")["RB_pct"]
+    assert rb["test_raises"] == 0 and rb["magical"] == 100
+
+
+def test_points_for_varies_one_parameter():
+    pts = points_for(Point(), "K", [50, 150])
+    assert [p.K for p in pts] == [50, 150] and all(p.gamma == 0.05 for p in pts)
+    assert points_for(Point(), None, []) == [Point()]
+    with pytest.raises(ValueError, match="cannot sweep"):
+        points_for(Point(), "alpha", [1])
