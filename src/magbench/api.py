@@ -39,6 +39,7 @@ class Method:
     randomized: bool = False
     needs_gyro: bool = False
     paper_key: str | None = None
+    model: str = "full"
 
     def option_names(self) -> list[str]:
         """Keyword options the method's ``fit`` accepts (its tuning values)."""
@@ -51,8 +52,8 @@ _REGISTRY: dict[str, Method] = {}
 
 def register(name: str, *, label: str, min_samples: int, family: str = "review",
              randomized: bool = False, needs_gyro: bool = False,
-             paper_key: str | None = None) -> Callable[[Callable[..., Calibration]],
-                                                       Callable[..., Calibration]]:
+             paper_key: str | None = None, model: str = "full",
+             ) -> Callable[[Callable[..., Calibration]], Callable[..., Calibration]]:
     """Register ``fit`` under ``name`` (decorator).
 
     Parameters
@@ -71,13 +72,19 @@ def register(name: str, *, label: str, min_samples: int, family: str = "review",
         True if ``fit`` needs ``angular_rate`` and ``time``.
     paper_key : str, optional
         The method's key in the review's Table 2 (reference data), if it is there.
+    model : str
+        What the method estimates: ``"full"`` (any T and h), ``"sphere"`` (``T = r I``, hard
+        iron and one scale) or ``"bias"`` (``T = I``, hard iron only). The contract tests check
+        recovery on data the method's model can represent.
     """
+    if model not in ("full", "sphere", "bias"):
+        raise ValueError(f"model must be 'full', 'sphere' or 'bias', got {model!r}")
 
     def decorator(fit: Callable[..., Calibration]) -> Callable[..., Calibration]:
         if name in _REGISTRY:
             raise ValueError(f"method {name!r} is registered twice")
         _REGISTRY[name] = Method(name, fit, label, min_samples, family, randomized,
-                                 needs_gyro, paper_key)
+                                 needs_gyro, paper_key, model)
         return fit
 
     return decorator
