@@ -84,9 +84,13 @@ def selected_algorithms(cfg: DictConfig) -> list[str]:
 def validate(cfg: DictConfig) -> dict:
     """Check every value a sweep uses; returns the plain values, or raises :class:`UsageError`."""
     from magbench.api import get_method
-    from magbench.runner import POINT_COLUMNS, points_for
+    from magbench.runner import POINT_COLUMNS, load_plugins, points_for
     from magbench.synthetic import Point
 
+    try:
+        load_plugins(list(cfg.plugins or []))
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
     out = {
         "trials": _integer(cfg, "trials", 1),
         "seed": _integer(cfg, "seed", 0),
@@ -98,6 +102,11 @@ def validate(cfg: DictConfig) -> dict:
         raise UsageError(f"n_jobs must be a non-zero integer (-1 = every core), got "
                          f"{cfg.n_jobs!r}")
     out["n_jobs"] = cfg.n_jobs
+    if cfg.backend not in ("loky", "dask"):
+        raise UsageError(f"backend must be 'loky' or 'dask', got {cfg.backend!r}")
+    timeout = cfg.call_timeout_s
+    out["call_timeout_s"] = None if timeout is None else _number(
+        timeout, "call_timeout_s", lambda t: t > 0, "> 0 seconds (or null for no limit)")
     nominal = cfg.nominal
     alpha = list(nominal.alpha) if OmegaConf.is_list(nominal.alpha) else None
     if alpha is None or len(alpha) != 2:
@@ -154,13 +163,16 @@ def run(cfg: DictConfig) -> int:
 
     values = validate(cfg)
     spec = SweepSpec(values["name"], values["points"], values["trials"], values["seed"],
-                     values["algorithms"], values["options"], values["delta"])
+                     values["algorithms"], values["options"], values["delta"],
+                     values["call_timeout_s"], tuple(cfg.plugins or ()))
     out_dir = values["results_dir"] / spec.name
     total = spec.trials * len(spec.points)
     with tqdm(total=total, desc=f"sweep {spec.name}", unit="trial",
               disable=not cfg.progress, file=sys.stderr) as bar:
         trials, summary = run_sweep(spec, out_dir, n_jobs=values["n_jobs"],
-                                    chunk_size=values["chunk_size"], progress=bar.update)
+                                    chunk_size=values["chunk_size"], progress=bar.update,
+                                    backend=cfg.backend,
+                                    scheduler_address=cfg.scheduler_address)
     write_sweep_tables(spec.name, summary, out_dir, delta=spec.delta)
     n_bad = int((~trials["ok"].astype(bool)).sum())
     print(f"sweep {spec.name}: {len(trials)} rows ({n_bad} not ok) -> {out_dir}/trials.csv, "

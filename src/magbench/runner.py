@@ -8,10 +8,14 @@ killed sweep loses at most the chunks in flight, and a restarted one runs only w
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
+import importlib
 import json
 import os
 import shutil
+import signal
+import threading
 import time
 import zlib
 from collections.abc import Callable, Iterable, Sequence
@@ -23,7 +27,6 @@ import pandas as pd
 
 from magbench.api import calibrate, get_method
 from magbench.metrics import accuracy_cost, summarize, trivial_cost
-from magbench.model import CalibrationFailed
 from magbench.synthetic import Point, make_dataset, trial_seed_sequence
 
 __all__ = ["POINT_COLUMNS", "SweepSpec", "run_sweep", "run_trial", "write_csv_atomic"]
@@ -58,6 +61,10 @@ class SweepSpec:
         Per-method keyword options, ``{method: {option: value}}``.
     delta : float
         Robustness threshold of eq. (76), in (0, 1).
+    call_timeout_s : float or None
+        Time limit of one calibration call; a call past it becomes a row with ``ok=False``.
+    plugins : sequence of str
+        Modules imported in every worker before it runs (they register extra methods).
     """
 
     name: str
@@ -67,6 +74,8 @@ class SweepSpec:
     algorithms: Sequence[str]
     options: dict = field(default_factory=dict)
     delta: float = 0.5
+    call_timeout_s: float | None = None
+    plugins: Sequence[str] = ()
 
     def fingerprint(self) -> str:
         """Hash of the spec: part files from a run with another spec are never reused."""
@@ -89,12 +98,51 @@ def _estimate_columns(T: np.ndarray | None, h: np.ndarray | None) -> dict:
             **dict(zip(_T_COLUMNS, T.ravel().tolist(), strict=True))}
 
 
+class CallTimeout(Exception):
+    """A calibration call ran past ``call_timeout_s``."""
+
+
+@contextlib.contextmanager
+def time_limit(seconds: float | None):
+    """Raise :class:`CallTimeout` in the block once ``seconds`` have passed.
+
+    Uses a real-time interval timer, so it works where the work runs in the main thread of its
+    process (in-process runs and joblib's process workers). Elsewhere (threads, such as a Dask
+    worker's) no limit can be imposed safely and the block runs unlimited.
+    """
+    if not seconds or threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def expire(signum, frame):
+        raise CallTimeout(f"call exceeded call_timeout_s = {seconds:g} s")
+
+    previous = signal.signal(signal.SIGALRM, expire)
+    signal.setitimer(signal.ITIMER_REAL, seconds)
+    try:
+        yield
+    finally:
+        signal.setitimer(signal.ITIMER_REAL, 0)
+        signal.signal(signal.SIGALRM, previous)
+
+
+def load_plugins(modules: Iterable[str]) -> None:
+    """Import modules that register extra methods (a user's own, or the tests' faulty ones)."""
+    for name in modules:
+        try:
+            importlib.import_module(name)
+        except ImportError as exc:
+            raise ValueError(f"cannot import plugin module {name!r}: {exc}") from None
+
+
 def run_trial(point: Point, trial: int, seed: int, algorithms: Sequence[str],
-              options: dict | None = None, delta: float = 0.5) -> list[dict]:
+              options: dict | None = None, delta: float = 0.5,
+              call_timeout_s: float | None = None) -> list[dict]:
     """Run every method on the trial's dataset; one row per method, failures included.
 
-    Only the :func:`magbench.calibrate` call is timed. A method that raises, returns a
-    non-finite answer or stops at its iteration cap gets ``ok=False`` and the reason in
+    Only the :func:`magbench.calibrate` call is timed. A method that raises (anything but a
+    programming error in the harness), returns a non-finite answer, runs past
+    ``call_timeout_s`` or stops at its iteration cap gets ``ok=False`` and the reason in
     ``error``; ``meaningful`` is eq. (76), ``J < delta * J0``, wherever an estimate exists.
     """
     options = options or {}
@@ -113,13 +161,14 @@ def run_trial(point: Point, trial: int, seed: int, algorithms: Sequence[str],
         n_iter, error, J, J_h, J_T = 0, "", np.nan, np.nan, np.nan
         start = time.perf_counter()
         try:
-            cal = calibrate(data.y, name, **opts)
+            with time_limit(call_timeout_s):
+                cal = calibrate(data.y, name, **opts)
             elapsed = time.perf_counter() - start
             T, h, n_iter = cal.T, cal.h, cal.n_iter
             J, J_h, J_T = accuracy_cost(T, h, data.T, data.h)
             if not cal.converged:
                 error = cal.message
-        except (CalibrationFailed, ValueError, ArithmeticError) as exc:
+        except Exception as exc:
             elapsed = time.perf_counter() - start
             error = f"{type(exc).__name__}: {exc}"
         rows.append({**base, "algorithm": name, "ok": not error, "error": error,
@@ -130,10 +179,11 @@ def run_trial(point: Point, trial: int, seed: int, algorithms: Sequence[str],
 
 
 def _run_chunk(spec: SweepSpec, point_index: int, trials: range) -> tuple[int, int, list[dict]]:
+    load_plugins(spec.plugins)
     point = spec.points[point_index]
     rows = [row for trial in trials
             for row in run_trial(point, trial, spec.seed, spec.algorithms, spec.options,
-                                 spec.delta)]
+                                 spec.delta, spec.call_timeout_s)]
     return point_index, trials.start, rows
 
 
@@ -166,9 +216,37 @@ def _prepare_parts_dir(out_dir: Path, spec: SweepSpec) -> Path:
     return parts
 
 
+@contextlib.contextmanager
+def parallel_engine(backend: str, n_jobs: int, scheduler_address: str | None = None):
+    """joblib arguments for ``backend``, with a Dask client open for ``"dask"``.
+
+    ``"loky"`` runs worker processes on this machine. ``"dask"`` sends the tasks to the Dask
+    cluster at ``scheduler_address`` or, when that is None, to a ``LocalCluster`` of ``n_jobs``
+    single-threaded worker processes bound to 127.0.0.1.
+    """
+    if backend == "loky":
+        yield {"backend": "loky", "n_jobs": n_jobs}
+        return
+    if backend != "dask":
+        raise ValueError(f"backend must be 'loky' or 'dask', got {backend!r}")
+    from distributed import Client, LocalCluster
+    from joblib import parallel_config
+
+    with contextlib.ExitStack() as stack:
+        if scheduler_address:
+            client = stack.enter_context(Client(scheduler_address))
+        else:
+            cluster = stack.enter_context(LocalCluster(
+                n_workers=max(n_jobs, 1), threads_per_worker=1, processes=True,
+                host="127.0.0.1", dashboard_address=None))
+            client = stack.enter_context(Client(cluster))
+        stack.enter_context(parallel_config(backend="dask"))
+        yield {"n_jobs": -1, "client": client}
+
+
 def run_sweep(spec: SweepSpec, out_dir: Path | str, *, n_jobs: int = 1, chunk_size: int = 25,
-              progress: Callable[[int], None] | None = None,
-              parallel_backend: str = "loky") -> tuple[pd.DataFrame, pd.DataFrame]:
+              progress: Callable[[int], None] | None = None, backend: str = "loky",
+              scheduler_address: str | None = None) -> tuple[pd.DataFrame, pd.DataFrame]:
     """Run (or finish) a sweep and write ``trials.csv`` and ``summary.csv`` under ``out_dir``.
 
     Parameters
@@ -184,8 +262,10 @@ def run_sweep(spec: SweepSpec, out_dir: Path | str, *, n_jobs: int = 1, chunk_si
         the work, small enough that a kill loses little.
     progress : callable, optional
         Called with the number of trials each finished chunk adds (a progress bar's update).
-    parallel_backend : str
-        joblib backend name (``"loky"``, or ``"dask"`` with a registered client).
+    backend : str
+        ``"loky"`` (processes on this machine) or ``"dask"`` (see :func:`parallel_engine`).
+    scheduler_address : str, optional
+        Dask scheduler to use with ``backend="dask"``; a local cluster when None.
 
     Returns
     -------
@@ -205,9 +285,11 @@ def run_sweep(spec: SweepSpec, out_dir: Path | str, *, n_jobs: int = 1, chunk_si
     todo = [t for t in tasks if not part_path(t[0], t[1].start).exists()]
     if progress is not None:
         progress(sum(len(r) for _, r in tasks) - sum(len(r) for _, r in todo))
+    load_plugins(spec.plugins)
     if todo:
-        with Parallel(n_jobs=n_jobs, backend=parallel_backend,
-                      return_as="generator_unordered") as parallel:
+        with parallel_engine(backend, n_jobs, scheduler_address) as engine, \
+                Parallel(n_jobs=engine["n_jobs"], backend=engine.get("backend"),
+                         return_as="generator_unordered") as parallel:
             for point_index, start, rows in parallel(delayed(_run_chunk)(spec, i, r)
                                                      for i, r in todo):
                 write_csv_atomic(pd.DataFrame(rows, columns=ROW_COLUMNS),

@@ -1,0 +1,136 @@
+"""Issue 6: failures contained, nothing lost on a kill, same numbers on every backend."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pandas as pd
+import pytest
+
+from magbench.api import _REGISTRY, unregister
+from magbench.runner import SweepSpec, run_sweep
+from magbench.synthetic import Point
+
+REPO = Path(__file__).resolve().parents[1]
+FAULTY = "tests.plugins.faulty"
+
+
+@pytest.fixture
+def faulty():
+    """Register the fault-injecting methods for one test, and remove them afterwards."""
+    import tests.plugins.faulty  # noqa: F401
+
+    yield
+    for name in [n for n in _REGISTRY if n.startswith("faulty_")]:
+        unregister(name)
+    sys.modules.pop(FAULTY, None)
+
+
+def spec(algorithms, **kw) -> SweepSpec:
+    base = dict(name="rel", points=[Point(K=40)], trials=4, seed=3, algorithms=algorithms,
+                call_timeout_s=0.5, plugins=(FAULTY,))
+    base.update(kw)
+    return SweepSpec(**base)
+
+
+@pytest.mark.parametrize("n_jobs", [1, 2])
+def test_every_kind_of_failure_is_a_row(faulty, tmp_path, n_jobs):
+    algos = ["faulty_raises", "faulty_nan", "faulty_hangs", "magical"]
+    trials, summary = run_sweep(spec(algos, trials=2), tmp_path, n_jobs=n_jobs, chunk_size=1)
+    assert len(trials) == 2 * len(algos)
+    err = trials.groupby("algorithm")["error"].first()
+    assert err["faulty_raises"] == "RuntimeError: deliberate failure"
+    assert err["faulty_nan"].startswith("CalibrationFailed: faulty_nan: estimate is not finite")
+    assert err["faulty_hangs"] == "CallTimeout: call exceeded call_timeout_s = 0.5 s"
+    ok = trials.groupby("algorithm")["ok"].all()
+    assert not ok["faulty_raises"] and not ok["faulty_nan"] and not ok["faulty_hangs"]
+    assert ok["magical"]
+    assert summary.set_index("algorithm").loc["magical", "RB_pct"] == 100
+
+
+def sweep_command(results: Path, *extra: str) -> list[str]:
+    return [sys.executable, "-m", "magbench", f"plugins=[{FAULTY}]",
+            "algorithms=[faulty_slow,magical]", "trials=30", "chunk_size=2", "n_jobs=1",
+            "nominal.K=40", "progress=false", f"results_dir={results}", *extra]
+
+
+def wait_for_parts(folder: Path, count: int, proc: subprocess.Popen, limit: float = 60) -> None:
+    start = time.monotonic()
+    while len(list(folder.glob("p*.csv"))) < count:
+        assert proc.poll() is None, "the sweep ended before it could be interrupted"
+        assert time.monotonic() - start < limit, "no progress"
+        time.sleep(0.05)
+
+
+def read_without_time(path: Path) -> pd.DataFrame:
+    return pd.read_csv(path, keep_default_na=False).drop(columns="time_s")
+
+
+def test_a_killed_sweep_resumes_to_the_same_rows(tmp_path):
+    full = subprocess.run(sweep_command(tmp_path / "full"), cwd=REPO, capture_output=True,
+                          text=True, timeout=120)
+    assert full.returncode == 0, full.stderr
+    proc = subprocess.Popen(sweep_command(tmp_path / "cut"), cwd=REPO, stderr=subprocess.PIPE,
+                            text=True)
+    wait_for_parts(tmp_path / "cut" / "baseline" / "parts", 3, proc)
+    proc.send_signal(signal.SIGKILL)
+    proc.wait(timeout=30)
+    assert not (tmp_path / "cut" / "baseline" / "trials.csv").exists()
+    kept = len(list((tmp_path / "cut" / "baseline" / "parts").glob("p*.csv")))
+    assert 3 <= kept < 15
+    again = subprocess.run(sweep_command(tmp_path / "cut"), cwd=REPO, capture_output=True,
+                           text=True, timeout=120)
+    assert again.returncode == 0, again.stderr
+    a = read_without_time(tmp_path / "full" / "baseline" / "trials.csv")
+    b = read_without_time(tmp_path / "cut" / "baseline" / "trials.csv")
+    pd.testing.assert_frame_equal(a, b)
+    assert not b.duplicated(["trial", "algorithm"]).any() and len(b) == 60
+
+
+def test_sigint_stops_cleanly_with_one_line(tmp_path):
+    proc = subprocess.Popen(sweep_command(tmp_path), cwd=REPO, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    wait_for_parts(tmp_path / "baseline" / "parts", 1, proc)
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=30)
+    assert proc.returncode == 130
+    assert err.strip().splitlines() == [
+        "magbench: interrupted; finished chunks are kept and a rerun completes the rest"]
+
+
+def test_dask_backend_gives_the_same_rows(tmp_path):
+    pytest.importorskip("distributed")
+    s = spec(["magical", "dorveaux"], trials=6, plugins=())
+    local, _ = run_sweep(s, tmp_path / "local", n_jobs=1, chunk_size=2)
+    dask, _ = run_sweep(s, tmp_path / "dask", n_jobs=2, chunk_size=2, backend="dask")
+    pd.testing.assert_frame_equal(local.drop(columns="time_s"), dask.drop(columns="time_s"))
+
+
+def test_cli_rejects_a_missing_plugin(tmp_path):
+    from magbench.cli import main
+
+    assert main(["plugins=[no.such.module]", f"results_dir={tmp_path}"]) == 2
+    assert not any(tmp_path.iterdir())
+
+
+def test_cli_rejects_a_bad_backend_and_timeout(tmp_path, capsys):
+    from magbench.cli import main
+
+    assert main(["backend=spark", f"results_dir={tmp_path}"]) == 2
+    assert "backend must be 'loky' or 'dask'" in capsys.readouterr().err
+    assert main(["call_timeout_s=-1", f"results_dir={tmp_path}"]) == 2
+    assert "call_timeout_s must be > 0" in capsys.readouterr().err
+
+
+@pytest.mark.skipif(os.name != "posix", reason="SIGALRM timers are POSIX only")
+def test_time_limit_interrupts_python_code():
+    from magbench.runner import CallTimeout, time_limit
+
+    with pytest.raises(CallTimeout), time_limit(0.2):
+        while True:
+            pass
