@@ -7,7 +7,7 @@ export MAGBENCH_DATA
 
 SWEEPS := baseline gamma beta K sigma
 
-.PHONY: help install test test-all lint reproduce $(addprefix sweep-,$(SWEEPS)) report clean-parts
+.PHONY: help install test test-all lint bench reproduce $(addprefix sweep-,$(SWEEPS)) report clean-parts
 
 help: ## List the targets
 	@grep -E '^[a-zA-Z_%-]+:.*## ' $(MAKEFILE_LIST) | awk 'BEGIN {FS = ":.*## "}; {printf "  %-16s %s\n", $$1, $$2}'
@@ -29,6 +29,9 @@ sweep-%: ## Run one sweep, e.g. `make sweep-gamma` (extra overrides: ARGS="trial
 	$(PYTHON) -m magbench sweep=$* $(ARGS)
 
 reproduce: $(addprefix sweep-,$(SWEEPS)) report ## Every sweep, then the figures and the report
+
+bench: ## Time every method, peers, scaling with K and the parallel speed-up (results/bench/)
+	$(PYTHON) -m magbench bench $(ARGS)
 
 report: ## Regenerate tables, figures and results/report.md from the CSV files
 	$(PYTHON) -m magbench report $(ARGS)

@@ -180,7 +180,20 @@ def run(cfg: DictConfig) -> int:
     return 0
 
 
-COMMANDS = {"run": run}
+def bench(cfg: DictConfig) -> int:
+    """Time every method (``make bench``); writes ``<results_dir>/bench/``."""
+    from magbench.bench import run_bench
+
+    names = selected_algorithms(cfg)
+    folder = run_bench(Path(str(cfg.results_dir)), names,
+                       progress=(lambda line: print(line, file=sys.stderr)) if cfg.progress
+                       else None)
+    print(f"benchmark written to {folder}/ (calls.csv, scaling.png, peers.csv, parallel.csv, "
+          "bench.md)")
+    return 0
+
+
+COMMANDS = {"run": run, "bench": bench}
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -1,0 +1,259 @@
+"""Speed benchmarks (issue 5): ``python -m magbench bench`` or ``make bench``.
+
+Measures, never assumes: the median and spread of one calibration call per method at the
+nominal setting, the scaling with K, peers on the same datasets where they are installed, and
+the parallel speed-up of a sweep. Unit tests never time anything; this module is where timing
+lives. Results go to ``<results_dir>/bench/``.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import os
+import time
+from collections.abc import Callable, Sequence
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from magbench.api import calibrate, get_method, methods
+from magbench.metrics import accuracy_cost
+from magbench.runner import SweepSpec, run_sweep, write_csv_atomic, write_text_atomic
+from magbench.synthetic import Point, make_dataset
+
+__all__ = ["bench_calls", "bench_parallel", "bench_peers", "bench_report_section", "run_bench"]
+
+SIZES = (50, 150, 300, 1000, 3000, 10000)
+
+
+def _datasets(K: int, n: int, seed: int) -> list:
+    return [make_dataset(np.random.default_rng([seed, K, i]), Point(K=K)) for i in range(n)]
+
+
+def _time_call(fn: Callable[[], object], repeats: int) -> np.ndarray:
+    fn()  # warm-up: first-call imports and caches are not the method's cost
+    times = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - start)
+    return np.asarray(times)
+
+
+def _safe_call(name: str, y: np.ndarray) -> Callable[[], object]:
+    def call() -> object:
+        try:
+            return calibrate(y, name)
+        except Exception as exc:  # a failing dataset still costs time; keep measuring
+            return exc
+    return call
+
+
+def bench_calls(names: Sequence[str], sizes: Sequence[int] = SIZES, datasets: int = 5,
+                repeats: int = 5, seed: int = 0, budget_s: float = 20.0,
+                progress: Callable[[str], None] | None = None) -> pd.DataFrame:
+    """Time ``calibrate`` per method and K: ``datasets`` datasets x ``repeats`` calls each.
+
+    A method whose calls at one K take more than ``budget_s`` in total is not timed at larger K
+    (the row says so) so one slow method cannot stall the benchmark.
+    """
+    rows = []
+    for name in names:
+        skip = False
+        for K in sizes:
+            if skip or K < get_method(name).min_samples:
+                rows.append({"algorithm": name, "K": K, "n": 0, "median_s": np.nan,
+                             "q25_s": np.nan, "q75_s": np.nan, "min_s": np.nan,
+                             "note": "skipped (time budget)" if skip else "K below minimum"})
+                continue
+            start = time.perf_counter()
+            t = np.concatenate([_time_call(_safe_call(name, d.y), repeats)
+                                for d in _datasets(K, datasets, seed)])
+            rows.append({"algorithm": name, "K": K, "n": t.size, "median_s": np.median(t),
+                         "q25_s": np.quantile(t, 0.25), "q75_s": np.quantile(t, 0.75),
+                         "min_s": t.min(), "note": ""})
+            skip = time.perf_counter() - start > budget_s
+            if progress:
+                progress(f"{name} K={K}: median {np.median(t) * 1e3:.3g} ms")
+    return pd.DataFrame(rows)
+
+
+# --- peers: measuring sticks only, imported here and nowhere else -----------------------------
+
+def _normalise(T: np.ndarray, h: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """Rescale T so the calibrated samples have unit mean norm (for scale-free peers)."""
+    m = np.linalg.solve(T, (y - h).T)
+    return T * float(np.mean(np.linalg.norm(m, axis=0)))
+
+
+def _navlib_twostep(y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    from navlib.cal.cal_mag import cal_mag_twostep_hsi
+
+    hard_iron, soft_iron = cal_mag_twostep_hsi(y, np.array([1.0, 0.0, 0.0]))[:2]
+    return np.asarray(soft_iron), np.asarray(hard_iron).ravel()  # navlib's soft_iron is T
+
+
+def _navlib_fang(y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    from navlib.cal.cal_mag import cal_mag_ellipsoid_fit_fang
+
+    hard_iron, soft_iron = cal_mag_ellipsoid_fit_fang(y)[:2]
+    h = np.asarray(hard_iron).ravel()
+    return _normalise(np.asarray(soft_iron), h, y), h
+
+
+def _magcal_ellipsoid(y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    from magcal.core import MagnetometerCalibrator
+
+    params = MagnetometerCalibrator.ellipsoid_fit(None, y)
+    h = np.asarray(params["center"]).ravel()
+    # magcal applies m = W (y - c), so its matrix is T^-1, normalised: invert and rescale.
+    return _normalise(np.linalg.inv(params["transform_matrix"]), h, y), h
+
+
+PEERS = {  # peer -> (package, function, magbench method it is paired with)
+    "navlib.cal_mag_twostep_hsi": ("navlib", _navlib_twostep, "twostep"),
+    "navlib.cal_mag_ellipsoid_fit_fang": ("navlib", _navlib_fang, "fang"),
+    "magcal.ellipsoid_fit": ("magcal", _magcal_ellipsoid, "ellipsoid"),
+}
+
+
+def bench_peers(datasets: int = 20, repeats: int = 3, seed: int = 0) -> pd.DataFrame:
+    """Each installed peer against its magbench counterpart on the same nominal datasets."""
+    rows = []
+    data = _datasets(300, datasets, seed)
+    registered = set(methods())
+    for peer, (package, fn, ours) in PEERS.items():
+        if importlib.util.find_spec(package) is None or ours not in registered:
+            rows.append({"peer": peer, "magbench": ours, "note": f"{package} not installed"
+                         if ours in registered else f"{ours} not registered"})
+            continue
+        t_peer, t_ours, J_peer, J_ours, failures = [], [], [], [], 0
+        for d in data:
+            try:
+                T, h = fn(d.y)
+                J_peer.append(accuracy_cost(T, h, d.T, d.h)[0])
+            except Exception:
+                failures += 1
+            cal = calibrate(d.y, ours)
+            J_ours.append(accuracy_cost(cal.T, cal.h, d.T, d.h)[0])
+            t_peer.append(np.median(_time_call(lambda y=d.y, f=fn: f(y), repeats)))
+            t_ours.append(np.median(_time_call(lambda y=d.y, o=ours: calibrate(y, o), repeats)))
+        rows.append({"peer": peer, "magbench": ours, "peer_median_s": np.median(t_peer),
+                     "magbench_median_s": np.median(t_ours),
+                     "speedup": np.median(t_peer) / np.median(t_ours),
+                     "peer_mean_J": np.mean(J_peer) if J_peer else np.nan,
+                     "magbench_mean_J": np.mean(J_ours), "peer_failures": failures,
+                     "note": ""})
+    return pd.DataFrame(rows)
+
+
+def bench_parallel(trials: int = 100, algorithms: Sequence[str] | None = None,
+                   workdir: Path | None = None) -> pd.DataFrame:
+    """Wall-clock time of one sweep with 1 and with 2 workers, and the speed-up."""
+    import tempfile
+
+    spec = SweepSpec("bench_parallel", [Point()], trials, 0, list(algorithms or methods()))
+    rows = []
+    with tempfile.TemporaryDirectory(dir=workdir) as tmp:
+        for n_jobs in (1, 2):
+            start = time.perf_counter()
+            run_sweep(spec, Path(tmp) / f"n{n_jobs}", n_jobs=n_jobs, chunk_size=10)
+            rows.append({"n_jobs": n_jobs, "wall_s": time.perf_counter() - start,
+                         "trials": trials, "methods": len(spec.algorithms)})
+    out = pd.DataFrame(rows)
+    out["speedup"] = out["wall_s"].iloc[0] / out["wall_s"]
+    return out
+
+
+def plot_scaling(calls: pd.DataFrame, path: Path) -> None:
+    """Log-log time per call against K, one line per method, with a slope-1 guide."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(8, 5.5), layout="constrained")
+    markers = "osD^v<>phX*P"
+    for i, (name, g) in enumerate(calls.dropna(subset=["median_s"]).groupby("algorithm",
+                                                                              sort=False)):
+        style = "-" if get_method(name).family == "review" else "--"
+        ax.errorbar(g["K"], g["median_s"] * 1e3,
+                    yerr=[(g["median_s"] - g["q25_s"]) * 1e3, (g["q75_s"] - g["median_s"]) * 1e3],
+                    label=get_method(name).label, marker=markers[i % len(markers)],
+                    linestyle=style, capsize=2)
+    K = np.array([calls["K"].min(), calls["K"].max()], dtype=float)
+    ax.plot(K, 0.05 * K / K[0], color="0.6", linestyle=":", label="slope 1 (linear in K)")
+    ax.set(xscale="log", yscale="log", xlabel="samples per dataset K",
+           ylabel="time per calibration call (ms)",
+           title="Cost of one calibration call (median, bars: quartiles)")
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(loc="center left", bbox_to_anchor=(1.01, 0.5), fontsize=8)
+    fig.savefig(path, dpi=150)
+    plt.close(fig)
+
+
+def bench_report_section(results_dir: Path | str) -> str:
+    """Markdown for results/report.md from ``<results_dir>/bench/*.csv`` (empty if absent)."""
+    from magbench.report import format_number, paper_values
+
+    folder = Path(results_dir) / "bench"
+    if not (folder / "calls.csv").exists():
+        return ""
+    calls = pd.read_csv(folder / "calls.csv")
+    paper = paper_values()["review"]["table2"]
+    at300 = calls[calls["K"] == 300]
+    lines = ["## Speed (benchmark)", "",
+             "Median time of one `calibrate` call at the nominal setting, K = 300, on this "
+             "machine (Python, one thread), beside the review's MATLAB speeds (Table 2). "
+             "Produced by `make bench`; scaling plot: `bench/scaling.png`.", "",
+             "| method | median (ms) | quartiles (ms) | speed (1/s) | paper speed (1/s) | "
+             "K=10000 / K=1000 |", "|---|---:|---:|---:|---:|---:|"]
+    for r in at300.itertuples(index=False):
+        key = get_method(r.algorithm).paper_key if r.algorithm in methods() else None
+        ref = paper.get(key, {}).get("speed_hz", np.nan) if key else np.nan
+        big = calls[(calls["algorithm"] == r.algorithm) & (calls["K"] == 10000)]["median_s"]
+        small = calls[(calls["algorithm"] == r.algorithm) & (calls["K"] == 1000)]["median_s"]
+        ratio = float(big.iloc[0] / small.iloc[0]) if len(big) and len(small) else np.nan
+        lines.append(f"| {get_method(r.algorithm).label} | {format_number(r.median_s * 1e3)} | "
+                     f"{format_number(r.q25_s * 1e3)}-{format_number(r.q75_s * 1e3)} | "
+                     f"{format_number(1 / r.median_s)} | {format_number(float(ref))} | "
+                     f"{format_number(ratio, 2)} |")
+    if (folder / "peers.csv").exists():
+        peers = pd.read_csv(folder / "peers.csv")
+        lines += ["", "Peers on the same 20 nominal datasets (speed-up = peer time / magbench "
+                  "time; J = eq. 74 after converting conventions):", "",
+                  "| peer | magbench | speed-up | peer mean J | magbench mean J | note |",
+                  "|---|---|---:|---:|---:|---|"]
+        for r in peers.itertuples(index=False):
+            lines.append(f"| {r.peer} | {r.magbench} | "
+                         f"{format_number(getattr(r, 'speedup', np.nan), 3)} | "
+                         f"{format_number(getattr(r, 'peer_mean_J', np.nan))} | "
+                         f"{format_number(getattr(r, 'magbench_mean_J', np.nan))} | "
+                         f"{'' if pd.isna(r.note) else r.note} |")
+    if (folder / "parallel.csv").exists():
+        par = pd.read_csv(folder / "parallel.csv")
+        two = par[par["n_jobs"] == 2].iloc[0]
+        lines += ["", f"Parallel: one baseline sweep of {int(two.trials)} trials x "
+                  f"{int(two.methods)} methods took {format_number(par['wall_s'].iloc[0])} s "
+                  f"with 1 worker and {format_number(two.wall_s)} s with 2 "
+                  f"(speed-up {format_number(two.speedup, 3)}x on {os.cpu_count()} cores)."]
+    return "\n".join(lines) + "\n"
+
+
+def run_bench(results_dir: Path | str, names: Sequence[str] | None = None,
+              sizes: Sequence[int] = SIZES, parallel_trials: int = 100,
+              progress: Callable[[str], None] | None = print) -> Path:
+    """Run every benchmark and write ``calls.csv``, ``peers.csv``, ``parallel.csv``,
+    ``scaling.png`` and ``bench.md`` under ``<results_dir>/bench``."""
+    folder = Path(results_dir) / "bench"
+    folder.mkdir(parents=True, exist_ok=True)
+    names = list(names or [m for m in methods() if not get_method(m).needs_gyro])
+    calls = bench_calls(names, sizes, progress=progress)
+    write_csv_atomic(calls, folder / "calls.csv")
+    plot_scaling(calls, folder / "scaling.png")
+    write_csv_atomic(bench_peers(), folder / "peers.csv")
+    if parallel_trials:
+        write_csv_atomic(bench_parallel(parallel_trials, names), folder / "parallel.csv")
+    write_text_atomic(bench_report_section(results_dir), folder / "bench.md")
+    return folder
