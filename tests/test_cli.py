@@ -1,3 +1,5 @@
+from pathlib import Path
+
 import pandas as pd
 import pytest
 
@@ -51,3 +53,26 @@ def test_method_options_reach_the_method(tmp_path):
                "algorithms=[magical]", "+options.magical.max_iter=2") == 0
     trials = pd.read_csv(tmp_path / "baseline" / "trials.csv", keep_default_na=False)
     assert (trials["n_iter"] == 2).all() and (trials["ok"] == False).all()  # noqa: E712
+
+
+SWEEPS = sorted(p.stem for p in (Path(__file__).resolve().parents[1] / "conf" / "sweep")
+                .glob("*.yaml"))
+
+
+@pytest.mark.parametrize("sweep", SWEEPS)
+def test_every_sweep_config_composes_and_runs(sweep, tmp_path):
+    from magbench.cli import compose_config
+
+    cfg = compose_config([f"sweep={sweep}"])
+    if cfg.sweep.get("kind"):
+        pytest.skip(f"sweep {sweep} is of kind {cfg.sweep.kind}, tested with its own module")
+    assert run(f"sweep={sweep}", "trials=2", f"results_dir={tmp_path}", "progress=false",
+               "n_jobs=1", "algorithms=[magical]", "nominal.K=30") == 0
+    summary = pd.read_csv(tmp_path / sweep / "summary.csv")
+    values = cfg.sweep.get("values") or cfg.sweep.get("points") or [None]
+    assert len(summary) == len(values) and (summary["n"] == 2).all()
+
+
+def test_a_sweep_point_with_an_unknown_parameter_is_rejected(tmp_path, capsys):
+    assert run("sweep=coverage", "+sweep.points=[{tilt: 3}]", f"results_dir={tmp_path}") == 2
+    assert "sweep point sets 'tilt'" in capsys.readouterr().err

@@ -106,5 +106,5 @@ def test_points_for_varies_one_parameter():
     pts = points_for(Point(), "K", [50, 150])
     assert [p.K for p in pts] == [50, 150] and all(p.gamma == 0.05 for p in pts)
     assert points_for(Point(), None, []) == [Point()]
-    with pytest.raises(ValueError, match="cannot sweep"):
+    with pytest.raises(ValueError, match="cannot set alpha"):
         points_for(Point(), "alpha", [1])

@@ -54,3 +54,32 @@ def test_point_key_is_by_value():
 def test_point_rejects_bad_values(kwargs):
     with pytest.raises(ValueError):
         Point(**kwargs)
+
+
+def test_full_sphere_points_keep_their_streams():
+    # The coverage fields must not change the key (and so the data) of full-sphere points.
+    import zlib
+
+    text = "K=300;sigma=0.005;beta=0.05;gamma=0.05;alpha=0.8,1.2"
+    assert Point().key == zlib.crc32(text.encode())
+    assert Point(cap_deg=90).key != Point().key != Point(band_deg=10).key
+
+
+@pytest.mark.parametrize(("kwargs", "z_low", "z_high", "fraction"), [
+    ({}, -1.0, 1.0, 1.0),
+    ({"cap_deg": 90}, 0.0, 1.0, 0.5),
+    ({"cap_deg": 60}, 0.5, 1.0, 0.25),
+    ({"band_deg": 30}, -0.5, 0.5, 0.5),
+])
+def test_partial_coverage_directions(kwargs, z_low, z_high, fraction):
+    p = Point(K=200, **kwargs)
+    m = p.directions
+    np.testing.assert_allclose(np.linalg.norm(m, axis=1), 1.0)
+    assert z_low - 1e-12 <= m[:, 2].min() and m[:, 2].max() <= z_high + 1e-12
+    # evenly spread over the zone: z levels equally spaced and spanning it
+    np.testing.assert_allclose(np.diff(m[:, 2]), -(z_high - z_low) / 200, atol=1e-12)
+    assert p.covered_fraction == pytest.approx(fraction)
+
+
+def test_full_sphere_directions_are_algorithm_8():
+    np.testing.assert_array_equal(Point(K=50).directions, fibonacci_sphere(50))

@@ -84,7 +84,7 @@ def selected_algorithms(cfg: DictConfig) -> list[str]:
 def validate(cfg: DictConfig) -> dict:
     """Check every value a sweep uses; returns the plain values, or raises :class:`UsageError`."""
     from magbench.api import get_method
-    from magbench.runner import POINT_COLUMNS, load_plugins, points_for
+    from magbench.runner import POINT_COLUMNS, load_plugins, point_with
     from magbench.synthetic import Point
 
     try:
@@ -121,20 +121,30 @@ def validate(cfg: DictConfig) -> dict:
     values = list(sweep.get("values") or [])
     if vary and not values:
         raise UsageError(f"sweep {sweep.name!r} varies {vary} but lists no values")
+    # A sweep either varies one parameter over `values`, or lists its points explicitly as
+    # changes to the nominal point (`points: [{cap_deg: 90}, {band_deg: 10}]`).
+    changes = ([{vary: v} for v in values] if vary else
+               [dict(c) for c in (sweep.get("points") or [{}])])
     min_k = max(get_method(a).min_samples for a in out["algorithms"])
     checks = {"K": (lambda k: k >= min_k and k == int(k),
                     f"an integer >= {min_k} (the largest minimum of the chosen methods)"),
               "sigma": (lambda s: s >= 0, ">= 0"), "beta": (lambda b: b >= 0, ">= 0"),
-              "gamma": (lambda g: g >= 0, ">= 0")}
+              "gamma": (lambda g: g >= 0, ">= 0"),
+              "cap_deg": (lambda c: 0 < c <= 180, "in (0, 180] degrees"),
+              "band_deg": (lambda b: 0 < b <= 90, "in (0, 90] degrees")}
     for key in POINT_COLUMNS:
-        ok, expected = checks[key]
-        _number(nominal[key], f"nominal.{key}", ok, expected)
-        if key == vary:
-            for v in values:
-                _number(v, f"sweep value {key}", ok, expected)
+        if key in nominal:
+            ok, expected = checks[key]
+            _number(nominal[key], f"nominal.{key}", ok, expected)
+    for change in changes:
+        for key, v in change.items():
+            if key not in checks:
+                raise UsageError(f"sweep point sets {key!r}; a point has "
+                                 f"{', '.join(POINT_COLUMNS)}")
+            _number(v, f"sweep value {key}", *checks[key])
     base = Point(int(nominal.K), float(nominal.sigma), float(nominal.beta),
                  float(nominal.gamma), lo, hi)
-    out["points"] = points_for(base, vary, values)
+    out["points"] = [point_with(base, c) for c in changes]
     options = OmegaConf.to_container(cfg.options, resolve=True) or {}
     if not isinstance(options, dict):
         raise UsageError("options must map method names to option dicts, e.g. "

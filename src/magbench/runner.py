@@ -31,7 +31,7 @@ from magbench.synthetic import Point, make_dataset, trial_seed_sequence
 
 __all__ = ["POINT_COLUMNS", "SweepSpec", "run_sweep", "run_trial", "write_csv_atomic"]
 
-POINT_COLUMNS = ["K", "sigma", "beta", "gamma"]
+POINT_COLUMNS = ["K", "sigma", "beta", "gamma", "cap_deg", "band_deg"]
 _T_COLUMNS = [f"T_{i}{j}" for i in range(3) for j in range(3)]
 _H_COLUMNS = [f"h_{i}" for i in range(3)]
 TRUTH_COLUMNS = [f"h_true_{i}" for i in range(3)] + [f"T_true_{i}{j}" for i in range(3)
@@ -148,7 +148,7 @@ def run_trial(point: Point, trial: int, seed: int, algorithms: Sequence[str],
     options = options or {}
     data = make_dataset(np.random.default_rng(trial_seed_sequence(seed, point, trial)), point)
     J0 = trivial_cost(data.T, data.h)
-    base = {"K": point.K, "sigma": point.sigma, "beta": point.beta, "gamma": point.gamma,
+    base = {**{c: getattr(point, c) for c in POINT_COLUMNS},
             "trial": int(trial), "seed": int(seed)}
     truth = {**dict(zip(TRUTH_COLUMNS[:3], data.h.tolist(), strict=True)),
              **dict(zip(TRUTH_COLUMNS[3:], data.T.ravel().tolist(), strict=True))}
@@ -312,11 +312,15 @@ def points_for(nominal: Point, vary: str | None, values: Iterable[float]) -> lis
     """The sweep's points: the nominal point with one parameter set to each value in turn."""
     if not vary:
         return [nominal]
-    if vary not in POINT_COLUMNS:
-        raise ValueError(f"cannot sweep {vary!r}; expected one of {', '.join(POINT_COLUMNS)}")
-    out = []
-    for v in values:
-        fields = asdict(nominal)
-        fields[vary] = int(v) if vary == "K" else float(v)
-        out.append(Point(**fields))
-    return out
+    return [point_with(nominal, {vary: v}) for v in values]
+
+
+def point_with(nominal: Point, changes: dict) -> Point:
+    """The nominal point with some parameters (from POINT_COLUMNS) changed."""
+    unknown = sorted(set(changes) - set(POINT_COLUMNS))
+    if unknown:
+        raise ValueError(f"cannot set {', '.join(unknown)}; a point has "
+                         f"{', '.join(POINT_COLUMNS)}")
+    fields = asdict(nominal)
+    fields.update({k: int(v) if k == "K" else float(v) for k, v in changes.items()})
+    return Point(**fields)

@@ -34,6 +34,13 @@ class Point:
         Half-width of the uniform distribution of the elements of e (eq. 68c).
     alpha_low, alpha_high : float
         Range of the uniform gross scale alpha (eq. 68a).
+    cap_deg : float
+        Half-angle of the polar cap the field directions cover; 180 is the whole sphere (the
+        review's setting). Beyond the review: partial coverage, as when a sensor cannot be
+        turned every way.
+    band_deg : float
+        Half-width, in latitude, of the equatorial band the directions cover; 90 is the whole
+        sphere. A narrow band is a land vehicle that mostly yaws.
     """
 
     K: int = 300
@@ -42,6 +49,8 @@ class Point:
     gamma: float = 0.05
     alpha_low: float = 0.8
     alpha_high: float = 1.2
+    cap_deg: float = 180.0
+    band_deg: float = 90.0
 
     def __post_init__(self) -> None:
         if int(self.K) != self.K or self.K < 1:
@@ -53,6 +62,22 @@ class Point:
         if not 0 < self.alpha_low <= self.alpha_high:
             raise ValueError(f"alpha range must satisfy 0 < low <= high, got "
                              f"[{self.alpha_low}, {self.alpha_high}]")
+        if not (0 < self.cap_deg <= 180 and 0 < self.band_deg <= 90):
+            raise ValueError(f"cap_deg must be in (0, 180] and band_deg in (0, 90], got "
+                             f"{self.cap_deg} and {self.band_deg}")
+
+    @property
+    def z_range(self) -> tuple[float, float]:
+        """The range of the directions' z component that the cap and band allow."""
+        z_low = max(np.cos(np.radians(self.cap_deg)), -np.sin(np.radians(self.band_deg)))
+        z_high = min(1.0, np.sin(np.radians(self.band_deg)))
+        return float(z_low), float(z_high)
+
+    @property
+    def covered_fraction(self) -> float:
+        """Fraction of the sphere's area the directions cover (uniform in z on a sphere)."""
+        z_low, z_high = self.z_range
+        return (z_high - z_low) / 2.0
 
     @property
     def key(self) -> int:
@@ -63,7 +88,17 @@ class Point:
         """
         text = (f"K={int(self.K)};sigma={self.sigma!r};beta={self.beta!r};gamma={self.gamma!r};"
                 f"alpha={self.alpha_low!r},{self.alpha_high!r}")
+        # Coverage joins the key only when partial, so full-sphere points keep their streams.
+        if self.cap_deg < 180:
+            text += f";cap={float(self.cap_deg)!r}"
+        if self.band_deg < 90:
+            text += f";band={float(self.band_deg)!r}"
         return zlib.crc32(text.encode())
+
+    @property
+    def directions(self) -> np.ndarray:
+        """The K field directions of this point (the Fibonacci lattice over its coverage)."""
+        return fibonacci_sphere(self.K, z_range=self.z_range)
 
 
 @dataclass(frozen=True)
@@ -88,18 +123,35 @@ class Dataset:
     h: np.ndarray
 
 
-def fibonacci_sphere(K: int, radius: float = 1.0) -> np.ndarray:
+def fibonacci_sphere(K: int, radius: float = 1.0,
+                     z_range: tuple[float, float] = (-1.0, 1.0)) -> np.ndarray:
     """K nearly uniform directions on a sphere (Algorithm 8, steps 2-3).
+
+    Parameters
+    ----------
+    K : int
+        Number of directions.
+    radius : float
+        Sphere radius r.
+    z_range : (float, float)
+        Restrict the lattice to the zone ``z_low <= z / r <= z_high`` (a cap or a band), still
+        evenly spread over it. The default is the whole sphere, exactly Algorithm 8.
 
     Returns
     -------
     ndarray, shape (K, 3)
         ``[r cos(theta) sin(phi), r sin(theta) sin(phi), r cos(phi)]`` with
-        ``theta = 2 pi k / golden_ratio`` and ``phi = arccos(1 - 2 (k - 0.5) / K)``, k = 1..K.
+        ``theta = 2 pi k / golden_ratio`` and ``phi = arccos(1 - 2 (k - 0.5) / K)``, k = 1..K
+        (for the whole sphere; a zone maps ``1 - 2 (k - 0.5) / K`` linearly onto it).
     """
     k = np.arange(1, K + 1, dtype=float)
     theta = 2.0 * np.pi * k / GOLDEN_RATIO
-    phi = np.arccos(1.0 - 2.0 * (k - 0.5) / K)
+    z_low, z_high = z_range
+    if (z_low, z_high) == (-1.0, 1.0):
+        cos_phi = 1.0 - 2.0 * (k - 0.5) / K
+    else:
+        cos_phi = z_high - (z_high - z_low) * (k - 0.5) / K
+    phi = np.arccos(cos_phi)
     return radius * np.column_stack([np.cos(theta) * np.sin(phi), np.sin(theta) * np.sin(phi),
                                      np.cos(phi)])
 
@@ -123,9 +175,10 @@ def make_dataset(rng: np.random.Generator, point: Point,
     point : Point
         The experiment setting.
     directions : ndarray of shape (K, 3), optional
-        Unit field directions; the Fibonacci sphere of ``point.K`` points by default.
+        Unit field directions; by default ``point.directions``, the Fibonacci lattice of
+        ``point.K`` points over the point's coverage (the whole sphere unless cap/band say).
     """
-    m = fibonacci_sphere(point.K) if directions is None else np.asarray(directions, float)
+    m = point.directions if directions is None else np.asarray(directions, float)
     T, h = draw_distortion(rng, point)
     noise = rng.normal(0.0, point.sigma, size=m.shape)
     return Dataset(y=m @ T.T + h + noise, m=m, T=T, h=h)
