@@ -134,3 +134,14 @@ def test_time_limit_interrupts_python_code():
     with pytest.raises(CallTimeout), time_limit(0.2):
         while True:
             pass
+
+
+def test_hydra_multirun_runs_one_job_per_sweep(tmp_path):
+    result = subprocess.run(
+        [sys.executable, "-m", "magbench.hydra_app", "-m", "sweep=baseline,K", "trials=2",
+         "algorithms=[magical]", f"results_dir={tmp_path}", "progress=false", "n_jobs=1",
+         f"hydra.sweep.dir={tmp_path / 'hydra'}"],
+        cwd=REPO, capture_output=True, text=True, timeout=120)
+    assert result.returncode == 0, result.stderr
+    assert len(pd.read_csv(tmp_path / "baseline" / "trials.csv")) == 2
+    assert sorted(pd.read_csv(tmp_path / "K" / "summary.csv")["K"]) == [50, 150, 300]
