@@ -182,6 +182,10 @@ def calibrate(samples: object, method: str, *, angular_rate: object = None,
                          f"accepts: {', '.join(spec.option_names()) or 'no options'}")
     y = as_samples(samples, min_samples=spec.min_samples)
     scale = _unit_scale(y)
+    if spec.model == "bias":
+        # A bias-only method takes the field magnitude as an input in the samples' unit, so
+        # its data must reach it unscaled.
+        scale = 1.0
     y = y / scale
     _check_geometry(y, spec.min_samples)
     if spec.randomized and not isinstance(options.get("rng"), np.random.Generator):
