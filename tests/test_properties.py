@@ -13,6 +13,7 @@ import magbench
 from magbench.model import CalibrationFailed
 from magbench.runner import time_limit
 from magbench.synthetic import Point, make_dataset
+from tests.algorithms.test_contract import SCALE_RTOL
 
 METHODS = [m for m in magbench.methods() if not magbench.get_method(m).needs_gyro]
 PROPERTY = settings(max_examples=15, deadline=None,
@@ -69,8 +70,9 @@ def test_any_magnitude_scales_T_and_h(name, seed, exponent):
     base = answer(y, name)
     scaled = answer(y * s, name, **opts)
     if isinstance(base, magbench.Calibration) and isinstance(scaled, magbench.Calibration):
-        np.testing.assert_allclose(scaled.T / s, base.T, rtol=1e-5, atol=1e-6)
-        np.testing.assert_allclose(scaled.h / s, base.h, rtol=1e-5, atol=1e-6)
+        tol = SCALE_RTOL.get(name, 1e-5)
+        np.testing.assert_allclose(scaled.T / s, base.T, rtol=tol, atol=tol)
+        np.testing.assert_allclose(scaled.h / s, base.h, rtol=tol, atol=tol)
     else:
         assert type(base) is type(scaled)
 

@@ -20,7 +20,24 @@ from tests.conftest import dataset
 METHODS = [m for m in magbench.methods() if not magbench.get_method(m).needs_gyro]
 
 #: Noise-free recovery bound on J (74) per method; 1e-6 (issue 3) unless stated here.
-RECOVERY_BOUND: dict[str, float] = {}
+RECOVERY_BOUND: dict[str, float] = {
+    # The noise-mean correction mu = -3 sigma^2 of eq. (5a), with the assumed sigma = 0.005,
+    # makes TWOSTEP fit a field of norm sqrt(1 - 3 sigma^2): T comes out scaled by exactly
+    # 1/sqrt(1 - 3 sigma^2) on noise-free data (max J 8e-5 over 500 seeds). With sigma=1e-9
+    # it is exact (tests/algorithms/test_twostep.py).
+    "twostep": 2e-4,
+    # A single EKF pass linearises the first samples far from the truth and its covariance
+    # shrinks like 1/k, so those errors are never undone (max J 3.7e-3 over 500 seeds).
+    "crassidis": 1e-2,
+}
+
+#: Relative tolerance of the non-power-of-two scaling test; 1e-5 unless stated here.
+SCALE_RTOL: dict[str, float] = {
+    # The EKF starts from T = I at the data's power-of-two scale, so a residual scale in
+    # [0.71, 1.41] moves its start relative to the truth, and one pass does not forget it
+    # (differences up to 4.4e-3 measured). Power-of-two scaling is exact (tested above).
+    "crassidis": 1e-2,
+}
 
 
 def bound(name: str) -> float:
@@ -91,8 +108,9 @@ def test_power_of_two_scaling_is_exact(name, scale, nominal):
 def test_any_scaling_scales_T_and_h(name, nominal):
     base = magbench.calibrate(nominal.y, name)
     scaled = magbench.calibrate(nominal.y * 1234.5, name)
-    np.testing.assert_allclose(scaled.T, base.T * 1234.5, rtol=1e-5, atol=1e-5 * 1234.5)
-    np.testing.assert_allclose(scaled.h, base.h * 1234.5, rtol=1e-5, atol=1e-5 * 1234.5)
+    tol = SCALE_RTOL.get(name, 1e-5)
+    np.testing.assert_allclose(scaled.T, base.T * 1234.5, rtol=tol, atol=tol * 1234.5)
+    np.testing.assert_allclose(scaled.h, base.h * 1234.5, rtol=tol, atol=tol * 1234.5)
 
 
 @pytest.mark.parametrize("name", METHODS)
