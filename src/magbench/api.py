@@ -24,6 +24,7 @@ __all__ = ["Method", "calibrate", "get_method", "methods", "register", "unregist
 DISPLAY_ORDER = (
     "twostep", "crassidis", "dorveaux", "vasconcelos", "ali", "wu_shi", "magical",
     "wu_shi_nm", "ellipsoid", "fang", "sphere", "twostep_hi",
+    "vasconcelos_printed", "wu_shi_printed",
 )
 
 
@@ -65,7 +66,9 @@ def register(name: str, *, label: str, min_samples: int, family: str = "review",
     min_samples : int
         The smallest K the method can work with (its number of unknowns, at least).
     family : str
-        ``"review"`` for the review's seven methods, ``"extra"`` for the others.
+        ``"review"`` for the review's seven methods, ``"extra"`` for the others, ``"variant"``
+        for a review method run exactly as the review prints it where that print differs from
+        the original paper (kept so that both can be reported side by side).
     randomized : bool
         True if ``fit`` takes an ``rng`` option (a ``numpy.random.Generator``).
     needs_gyro : bool

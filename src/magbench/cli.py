@@ -67,10 +67,13 @@ def selected_algorithms(cfg: DictConfig) -> list[str]:
     """The method names of ``algorithms=`` ('all' or a list), checked against the registry."""
     from magbench.api import methods
 
+    from magbench.api import get_method
+
     known = methods()
     chosen = cfg.algorithms
     if chosen == "all":
-        return known
+        # The static sweeps have no angular rate: 'all' is every magnetometer-only method.
+        return [m for m in known if not get_method(m).needs_gyro]
     if isinstance(chosen, str):
         chosen = [chosen]
     chosen = list(chosen)
@@ -171,6 +174,14 @@ def run(cfg: DictConfig) -> int:
     from magbench.report import write_sweep_tables
     from magbench.runner import SweepSpec, run_sweep
 
+    if cfg.sweep.get("kind") == "gyro":
+        from magbench.gyro_sweep import run_gyro_command
+
+        return run_gyro_command(cfg)
+    if cfg.sweep.get("kind") == "real":
+        from magbench.real import run_real
+
+        return run_real(cfg)
     values = validate(cfg)
     spec = SweepSpec(values["name"], values["points"], values["trials"], values["seed"],
                      values["algorithms"], values["options"], values["delta"],
@@ -203,7 +214,14 @@ def bench(cfg: DictConfig) -> int:
     return 0
 
 
-COMMANDS = {"run": run, "bench": bench}
+def calibrate_command(cfg: DictConfig) -> int:
+    """Calibrate a user's recording (``python -m magbench calibrate file=PATH``)."""
+    from magbench.calibrate_cmd import run_calibrate
+
+    return run_calibrate(cfg)
+
+
+COMMANDS = {"run": run, "bench": bench, "calibrate": calibrate_command}
 
 
 def main(argv: Sequence[str] | None = None) -> int:

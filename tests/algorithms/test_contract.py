@@ -76,6 +76,9 @@ def test_deterministic(name, nominal):
           suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(seed=st.integers(0, 2**31))
 def test_noise_free_recovery_in_the_nominal_ranges(name, seed):
+    if magbench.get_method(name).family == "variant":
+        pytest.skip("a variant reproduces a printed formula known to fail; its own tests "
+                    "measure how")
     d = make_dataset(np.random.default_rng(seed), model_point(name, Point(sigma=0.0)))
     cal = magbench.calibrate(d.y, name)
     J = accuracy_cost(cal.T, cal.h, d.T, d.h)[0]
@@ -84,6 +87,8 @@ def test_noise_free_recovery_in_the_nominal_ranges(name, seed):
 
 @pytest.mark.parametrize("name", METHODS)
 def test_calibrated_noise_free_data_lie_on_the_unit_sphere(name):
+    if magbench.get_method(name).family == "variant":
+        pytest.skip("a variant reproduces a printed formula known to fail")
     d = make_dataset(np.random.default_rng(1), model_point(name, Point(sigma=0.0)))
     cal = magbench.calibrate(d.y, name)
     norms = np.linalg.norm(cal.apply(d.y), axis=1)

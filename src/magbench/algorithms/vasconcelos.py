@@ -24,6 +24,8 @@ default (``safeguard="none"``); ``safeguard="lm"`` adds Levenberg-Marquardt damp
 
 from __future__ import annotations
 
+from functools import partial
+
 import numpy as np
 
 from magbench.algorithms._common import row_norms
@@ -283,3 +285,11 @@ def fit(samples: np.ndarray, *, max_iter: int = 50, rtol: float = 1e-10, tol: fl
     else:
         message = f"iteration cap {max_iter} reached, J (33) {J:.6g}"
     return Calibration(T, h, it, converged, message)
+
+
+# The review's printed initial estimate (40)-(43), four formulas of which are wrong (see the
+# comments at each): registered as its own method so every sweep shows what those formulas do
+# beside the corrected method. It reproduces the review's Figure 3 finding that Vasconcelos
+# "succeeds only for small to moderate" beta.
+register("vasconcelos_printed", label="Vasconcelos (review's printed (40)-(43))",
+         min_samples=9, family="variant")(partial(fit, initial="printed"))
