@@ -65,9 +65,7 @@ def _number(value: object, what: str, ok: Callable[[float], bool], expected: str
 
 def selected_algorithms(cfg: DictConfig) -> list[str]:
     """The method names of ``algorithms=`` ('all' or a list), checked against the registry."""
-    from magbench.api import methods
-
-    from magbench.api import get_method
+    from magbench.api import get_method, methods
 
     known = methods()
     chosen = cfg.algorithms

@@ -14,7 +14,6 @@ samples at once, so an iteration costs O(K) instead of the O(K^3) of the (4K+9)-
 from __future__ import annotations
 
 from dataclasses import dataclass
-
 from functools import partial
 
 import numpy as np
