@@ -63,6 +63,9 @@ def test_non_finite_values_are_value_errors(name, seed, row, col, bad):
 @PROPERTY
 @given(seed=st.integers(0, 1000), exponent=st.floats(-12, 12))
 def test_any_magnitude_scales_T_and_h(name, seed, exponent):
+    if magbench.get_method(name).family == "variant":
+        pytest.skip("a printed-formula variant (e.g. eq. 57's start from R instead of R^-1) "
+                    "errs by an amount that depends on the data's scale")
     y = nominal(seed)
     s = 10.0**exponent
     # A bias-only method takes the field magnitude as an input: scale it with the samples.
