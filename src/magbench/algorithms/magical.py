@@ -47,7 +47,9 @@ def fit(samples: np.ndarray, *, max_iter: int = 2000, tol: float = 1e-24,
     previous = np.inf
     for it in range(1, max_iter + 1):
         T, h = fit_affine(m, y)                                    # (62), (61b)
-        m_tilde = np.linalg.solve(T, (y - h).T).T                  # (64)
+        # (64) for all k at once; one 3x3 inverse and a product beat a K-right-hand-side solve
+        # (profiled: the solve was 40 % of the run time) and T is well conditioned here.
+        m_tilde = (y - h) @ np.linalg.inv(T).T
         m = m_tilde / row_norms(m_tilde)[:, None]                  # (63)
         J = cost(m_tilde)                                          # (65)
         if J <= tol or (it > 1 and abs(previous - J) <= rtol * previous):
