@@ -180,6 +180,10 @@ def run(cfg: DictConfig) -> int:
         from magbench.real import run_real
 
         return run_real(cfg)
+    if cfg.sweep.get("kind") == "wushi":
+        from magbench.wushi_study import run_wushi
+
+        return run_wushi(cfg)
     values = validate(cfg)
     spec = SweepSpec(values["name"], values["points"], values["trials"], values["seed"],
                      values["algorithms"], values["options"], values["delta"],

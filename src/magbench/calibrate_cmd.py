@@ -1,0 +1,192 @@
+"""``python -m magbench calibrate file=PATH [method=NAME] [columns=[mx,my,mz]] [out=DIR]``.
+
+Calibrates a user's own recording: every applicable method (or the one named) is fitted on all
+samples (J_r in sample, eq. 81) and on each half in time with J_r on the other half (out of
+sample), as in the real-data sweep (:mod:`magbench.real`). The methods are ranked, meaningful
+fits first (:func:`magbench.real.is_meaningful`), then by J_r out of sample (in sample where a
+recording is too short to split). The best (or the named) calibration is written as JSON with
+the model ``y = T m + h`` and the correction a firmware applies, ``m = A y + b`` with
+``A = T^-1`` and ``b = -T^-1 h``, in the recording's units; a picture shows the data before and
+after. The preprocessing is ``centre`` (remove the sphere-fit centre and radius first), which
+the real-data sweep found necessary for MAG.I.C.AL and Dorveaux when the offset exceeds the
+field radius; ``+preprocess=scale`` selects the review's.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+from omegaconf import DictConfig, OmegaConf
+
+from magbench.api import get_method, methods
+from magbench.cli import UsageError
+from magbench.real import (
+    DEFAULT_MAX_SAMPLES,
+    PREPROCESSING,
+    Recording,
+    applicability,
+    evaluate_recording,
+    read_samples,
+    recording_summary,
+)
+from magbench.runner import write_csv_atomic, write_text_atomic
+
+__all__ = ["calibration_json", "rank", "run_calibrate"]
+
+
+def _columns(cfg: DictConfig) -> list | None:
+    columns = cfg.get("columns")
+    if columns is None:
+        return None
+    if OmegaConf.is_list(columns):
+        return list(OmegaConf.to_container(columns))
+    raise UsageError(f"columns must be a list of three names or positions, e.g. "
+                     f"columns=[mx,my,mz] or columns=[0,1,2], got {columns!r}")
+
+
+def _candidates(cfg: DictConfig, rec_has_gyro: bool) -> list[str]:
+    name = cfg.get("method")
+    if name is not None:
+        if str(name) not in methods():
+            raise UsageError(f"unknown method {name!r}; expected one of: "
+                             f"{', '.join(methods())}")
+        return [str(name)]
+    return [m for m in methods() if rec_has_gyro or not get_method(m).needs_gyro]
+
+
+def rank(summary: pd.DataFrame) -> pd.DataFrame:
+    """Rows of :func:`magbench.real.recording_summary` in ranked order, with a ``rank`` column.
+
+    Meaningful fits first, by J_r out of sample (in sample if there is none), then fits that
+    ran but are not meaningful, then failures and skipped methods.
+    """
+    key = summary["J_r_out"].where(np.isfinite(summary["J_r_out"]), summary["J_r_in"])
+    group = np.where(summary["meaningful"], 0, np.where(summary["ok"], 1, 2))
+    out = summary.assign(_group=group, _key=key.fillna(np.inf))
+    out = out.sort_values(["_group", "_key"], kind="stable").drop(columns=["_group", "_key"])
+    out.insert(0, "rank", range(1, len(out) + 1))
+    return out.reset_index(drop=True)
+
+
+def calibration_json(row: pd.Series, *, file: str, columns: list, n_file: int,
+                     preprocess: str) -> dict:
+    """The chosen calibration as a JSON-ready dict (model and firmware correction)."""
+    T = np.array([[row[f"T_{i}{j}"] for j in range(3)] for i in range(3)], dtype=float)
+    h = np.array([row[f"h_{i}"] for i in range(3)], dtype=float)
+    A = np.linalg.inv(T)
+    return {
+        "file": file, "columns": columns, "method": row["algorithm"],
+        "label": get_method(row["algorithm"]).label,
+        "units": "as recorded in the file (T, h and b in the file's units, m in field units)",
+        "model": "y = T m + h, ||m|| = 1 (review eq. 2)",
+        "T": T.tolist(), "h": h.tolist(),
+        "correction": {"formula": "m = A y + b", "A": A.tolist(), "b": (-A @ h).tolist()},
+        "J_r_in": float(row["J_r_in"]), "J_r_out": _finite(row["J_r_out"]),
+        "J_r_sphere_fit": float(row["J_r_sphere_in"]), "meaningful": bool(row["meaningful"]),
+        "converged": bool(row["ok"]), "n_iter": int(row["n_iter"]),
+        "preprocess": preprocess, "samples_used": int(row["K"]), "samples_in_file": n_file,
+        "stride": int(row["stride"]),
+    }
+
+
+def _finite(x: float) -> float | None:
+    return float(x) if np.isfinite(x) else None
+
+
+def _fmt(x: float) -> str:
+    return f"{x:11.3g}" if np.isfinite(x) else f"{'-':>11}"
+
+
+def _why_not(r) -> str:
+    if isinstance(r.error, str) and r.error:
+        return r.error
+    if not r.coverage >= 0.5 * r.coverage_sphere:
+        return (f"degenerate: calibrated directions cover {r.coverage:.2f} of the sphere, the "
+                f"sphere fit's {r.coverage_sphere:.2f}")
+    return f"J_r above twice the sphere fit's ({r.J_r_sphere_in:.3g})"
+
+
+def _table(ranked: pd.DataFrame) -> str:
+    lines = [f"{'rank':>4}  {'method':<16}{'J_r in':>11}{'J_r out':>11}{'time ms':>9}  note"]
+    for r in ranked.itertuples(index=False):
+        note = "" if r.meaningful else _why_not(r)
+        lines.append(f"{r.rank:>4}  {r.algorithm:<16}{_fmt(r.J_r_in)}{_fmt(r.J_r_out)}"
+                     f"{1e3 * r.time_s:9.2f}  {note[:70]}")
+    return "\n".join(lines)
+
+
+def run_calibrate(cfg: DictConfig) -> int:
+    """The ``calibrate`` command; a bad file or value raises :class:`UsageError`."""
+    from magbench.plots_real import calibration_picture
+
+    if not cfg.get("file"):
+        raise UsageError("calibrate needs file=PATH, a CSV of magnetometer samples (columns "
+                         "mx,my,mz, or choose them with columns=[...])")
+    path = Path(str(cfg.file))
+    preprocess = str(cfg.get("preprocess", "centre"))
+    if preprocess not in PREPROCESSING:
+        raise UsageError(f"preprocess must be one of {', '.join(PREPROCESSING)}, got "
+                         f"{preprocess!r}")
+    max_samples = cfg.get("max_samples", DEFAULT_MAX_SAMPLES)
+    if isinstance(max_samples, bool) or not isinstance(max_samples, int) or max_samples < 8:
+        raise UsageError(f"max_samples must be an integer >= 8, got {max_samples!r}")
+    columns = _columns(cfg)
+    name = cfg.get("method")
+    need = get_method(str(name)).min_samples if name and str(name) in methods() else min(
+        get_method(m).min_samples for m in methods())
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        try:
+            rec = read_samples(path, columns, min_samples=need)
+        except ValueError as exc:
+            raise UsageError(str(exc)) from None
+    for w in caught:
+        print(f"magbench: warning: {w.message}", file=sys.stderr)
+    candidates = _candidates(cfg, rec.has_gyro)
+    thinned = rec.thinned(max_samples)
+    if name is not None:
+        reason = applicability(str(name), thinned)
+        if reason:
+            raise UsageError(reason.removeprefix("skipped: "))
+    if thinned.stride > 1:
+        print(f"using 1 sample in {thinned.stride}: {thinned.K} of {rec.K} "
+              f"(max_samples={max_samples})")
+    options = OmegaConf.to_container(cfg.options, resolve=True) or {}
+    rows = evaluate_recording(thinned, candidates, [preprocess], options=options,
+                              seed=int(cfg.seed), call_timeout_s=cfg.get("call_timeout_s"))
+    ranked = rank(recording_summary(pd.DataFrame(rows)))
+    print(f"{path.name}: {rec.K} samples, preprocessing '{preprocess}'; J_r (eq. 81) in sample "
+          "and out of sample (fit on one half in time, tested on the other)")
+    print(_table(ranked))
+    usable = ranked[ranked["meaningful"]]
+    if usable.empty:
+        raise UsageError("no method produced a meaningful calibration of this recording (see "
+                         "the table); check that the sensor was turned through many "
+                         "orientations in a steady field")
+    best = usable.iloc[0]
+    out = Path(str(cfg.out)) if cfg.get("out") else Path(f"{path.stem}-calibration")
+    payload = calibration_json(best, file=str(path), columns=list(rec.columns),
+                               n_file=rec.K, preprocess=preprocess)
+    write_text_atomic(json.dumps(payload, indent=2) + "\n", out / "calibration.json")
+    write_csv_atomic(ranked, out / "ranking.csv")
+    fig = _picture(rec, payload, calibration_picture)
+    fig.savefig(out / "calibration.png", dpi=110)
+    print(f"chosen: {payload['label']} (J_r in {payload['J_r_in']:.3g}); wrote "
+          f"{out}/calibration.json (T, h and m = A y + b), ranking.csv, calibration.png")
+    return 0
+
+
+def _picture(rec: Recording, payload: dict, draw):
+    A = np.array(payload["correction"]["A"])
+    b = np.array(payload["correction"]["b"])
+    y = rec.thinned(5000).y
+    before = y / float(np.mean(np.linalg.norm(y, axis=1)))
+    after = y @ A.T + b
+    where = Path(payload["file"])
+    return draw(before, after, f"{where.parent.name}/{where.name}: {payload['label']}, "
+                               f"J_r = {payload['J_r_in']:.3g}")
