@@ -5,7 +5,7 @@ VENV ?= .venv
 MAGBENCH_DATA ?= $(if $(wildcard ../shared/data/real),$(abspath ../shared/data/real),)
 export MAGBENCH_DATA
 
-SWEEPS := baseline gamma beta K sigma
+SWEEPS := baseline gamma beta K sigma coverage wushi gyro real
 
 .PHONY: help install test test-all lint bench reproduce $(addprefix sweep-,$(SWEEPS)) report clean-parts
 
