@@ -25,6 +25,11 @@ test-all: ## Run every test, the slow ones too
 lint: ## ruff over the package and the tests
 	$(PYTHON) -m ruff check src tests experiments
 
+sweep-real: ## Every method on the real recordings in $$MAGBENCH_DATA (skipped when unset)
+	@if [ -z "$(MAGBENCH_DATA)" ]; then \
+	  echo "sweep real skipped: set MAGBENCH_DATA to a folder of recordings (see README, Real data)"; \
+	else $(PYTHON) -m magbench sweep=real $(ARGS); fi
+
 sweep-%: ## Run one sweep, e.g. `make sweep-gamma` (extra overrides: ARGS="trials=20")
 	$(PYTHON) -m magbench sweep=$* $(ARGS)
 
