@@ -1,5 +1,5 @@
 # magbench — run `make help` for the list of targets.
-PYTHON ?= python
+PYTHON ?= $(if $(wildcard .venv/bin/python),.venv/bin/python,python)
 VENV ?= .venv
 # The real recordings stay outside the repository (see README, "Real data").
 MAGBENCH_DATA ?= $(if $(wildcard ../shared/data/real),$(abspath ../shared/data/real),)
@@ -25,7 +25,7 @@ test-all: ## Run every test, the slow ones too
 lint: ## ruff over the package and the tests
 	$(PYTHON) -m ruff check src tests experiments
 
-sweep-real: ## Every method on the real recordings in $$MAGBENCH_DATA (skipped when unset)
+sweep-real: ## Every method on the real recordings in MAGBENCH_DATA (skipped when unset)
 	@if [ -z "$(MAGBENCH_DATA)" ]; then \
 	  echo "sweep real skipped: set MAGBENCH_DATA to a folder of recordings (see README, Real data)"; \
 	else $(PYTHON) -m magbench sweep=real $(ARGS); fi
