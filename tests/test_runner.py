@@ -108,3 +108,20 @@ def test_points_for_varies_one_parameter():
     assert points_for(Point(), None, []) == [Point()]
     with pytest.raises(ValueError, match="cannot set alpha"):
         points_for(Point(), "alpha", [1])
+
+
+def test_methods_with_an_assumed_noise_level_get_the_true_one():
+    seen = []
+
+    def fit(y, *, sigma=0.005):
+        seen.append(sigma)
+        return Calibration(np.eye(3), np.zeros(3))
+
+    register("test_sigma", label="sigma", min_samples=4)(fit)
+    try:
+        run_trial(Point(K=30, sigma=0.03), 0, 1, ["test_sigma"])
+        run_trial(Point(K=30, sigma=0.03), 0, 1, ["test_sigma"], {"test_sigma": {"sigma": 0.1}})
+        run_trial(Point(K=30, sigma=0.0), 0, 1, ["test_sigma"])
+    finally:
+        unregister("test_sigma")
+    assert seen == [0.03, 0.1, 0.005]

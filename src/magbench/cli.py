@@ -223,7 +223,16 @@ def calibrate_command(cfg: DictConfig) -> int:
     return run_calibrate(cfg)
 
 
-COMMANDS = {"run": run, "bench": bench, "calibrate": calibrate_command}
+def report(cfg: DictConfig) -> int:
+    """Regenerate the figures and ``<results_dir>/report.md`` from the CSV files."""
+    from magbench.report import write_report
+
+    path = write_report(Path(str(cfg.results_dir)))
+    print(f"report written to {path} (figures regenerated beside each sweep's CSV files)")
+    return 0
+
+
+COMMANDS = {"run": run, "bench": bench, "report": report, "calibrate": calibrate_command}
 
 
 def main(argv: Sequence[str] | None = None) -> int:

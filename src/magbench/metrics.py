@@ -44,6 +44,11 @@ def real_cost(samples: np.ndarray, T: np.ndarray, h: np.ndarray) -> float:
     return float(np.mean((np.einsum("ij,ij->j", m, m) - 1.0) ** 2))
 
 
+def _inverse(x: float) -> float:
+    # sigma = 0 makes the bound 0: its accuracy is unbounded, not an error.
+    return 1.0 / x if x > 0 else (np.inf if x == 0 else np.nan)
+
+
 def summarize(trials: pd.DataFrame, by: list[str]) -> pd.DataFrame:
     """Per-group RB % (77), rho (78) and tau (79) from trial rows.
 
@@ -61,20 +66,34 @@ def summarize(trials: pd.DataFrame, by: list[str]) -> pd.DataFrame:
         One row per group: n, n_meaningful, RB_pct, rho (mean J over meaningful runs),
         accuracy (1/rho), tau_s (mean time over meaningful runs), speed_hz (1/tau), plus
         tau_all_s, the mean time over all runs, since a method that never succeeds still costs.
+        When the rows carry the Cramer-Rao columns of :mod:`magbench.crb` (``sq_err``, ``crb``,
+        ``crb_J``), also: mse (mean ``J_h^2 + J_T^2`` over meaningful runs), crb_mse (mean bound
+        over the same runs), efficiency (crb_mse / mse; 1 = optimal) and crb_accuracy
+        (1 / mean ``crb_J`` over all runs: the 1/rho of an efficient unbiased estimator).
     """
+    with_crb = {"sq_err", "crb", "crb_J"} <= set(trials.columns)
+
     def one(group: pd.DataFrame) -> pd.Series:
         ok = group["meaningful"].astype(bool).to_numpy()
         n_ok = int(ok.sum())
         rho = float(group["J"].to_numpy()[ok].mean()) if n_ok else np.nan
         tau = float(group["time_s"].to_numpy()[ok].mean()) if n_ok else np.nan
-        return pd.Series({
+        row = {
             "n": len(group), "n_meaningful": n_ok, "RB_pct": 100.0 * n_ok / len(group),
             "rho": rho, "accuracy": 1.0 / rho if n_ok else np.nan,
             "tau_s": tau, "speed_hz": 1.0 / tau if n_ok else np.nan,
             "tau_all_s": float(group["time_s"].mean()),
-        })
+        }
+        if with_crb:
+            mse = float(group["sq_err"].to_numpy()[ok].mean()) if n_ok else np.nan
+            bound = float(group["crb"].to_numpy()[ok].mean()) if n_ok else np.nan
+            row.update({"mse": mse, "crb_mse": bound,
+                        "efficiency": bound / mse if n_ok and mse > 0 else np.nan,
+                        "crb_accuracy": _inverse(float(group["crb_J"].mean()))})
+        return pd.Series(row)
 
-    out = trials.groupby(by, sort=False)[["meaningful", "J", "time_s"]].apply(one)
+    columns = ["meaningful", "J", "time_s"] + (["sq_err", "crb", "crb_J"] if with_crb else [])
+    out = trials.groupby(by, sort=False)[columns].apply(one)
     out = out.reset_index()
     out["n"] = out["n"].astype(int)
     out["n_meaningful"] = out["n_meaningful"].astype(int)

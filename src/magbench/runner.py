@@ -26,6 +26,7 @@ import numpy as np
 import pandas as pd
 
 from magbench.api import calibrate, get_method
+from magbench.crb import crb_mse, efficient_expected_J
 from magbench.metrics import accuracy_cost, summarize, trivial_cost
 from magbench.synthetic import Point, make_dataset, trial_seed_sequence
 
@@ -37,7 +38,7 @@ _H_COLUMNS = [f"h_{i}" for i in range(3)]
 TRUTH_COLUMNS = [f"h_true_{i}" for i in range(3)] + [f"T_true_{i}{j}" for i in range(3)
                                                       for j in range(3)]
 ROW_COLUMNS = (POINT_COLUMNS + ["trial", "seed", "algorithm", "ok", "error", "time_s", "n_iter",
-                                "J", "J_h", "J_T", "J0", "meaningful"]
+                                "J", "J_h", "J_T", "J0", "meaningful", "sq_err", "crb", "crb_J"]
                + TRUTH_COLUMNS + _H_COLUMNS + _T_COLUMNS)
 
 
@@ -148,6 +149,9 @@ def run_trial(point: Point, trial: int, seed: int, algorithms: Sequence[str],
     options = options or {}
     data = make_dataset(np.random.default_rng(trial_seed_sequence(seed, point, trial)), point)
     J0 = trivial_cost(data.T, data.h)
+    # Cramer-Rao bound on E[J_h^2 + J_T^2] and E[J] of an efficient estimator (crb.py).
+    bound = {"crb": crb_mse(data.T, data.h, data.m, point.sigma).total,
+             "crb_J": efficient_expected_J(data.T, data.m, point.sigma)}
     base = {**{c: getattr(point, c) for c in POINT_COLUMNS},
             "trial": int(trial), "seed": int(seed)}
     truth = {**dict(zip(TRUTH_COLUMNS[:3], data.h.tolist(), strict=True)),
@@ -155,8 +159,14 @@ def run_trial(point: Point, trial: int, seed: int, algorithms: Sequence[str],
     rows = []
     for name in algorithms:
         opts = dict(options.get(name) or {})
-        if get_method(name).randomized:
+        spec = get_method(name)
+        if spec.randomized:
             opts["rng"] = _method_rng(seed, point, trial, name)
+        if "sigma" in spec.option_names() and "sigma" not in opts and point.sigma > 0:
+            # Methods that weight by an assumed noise level (TWOSTEP's and the EKF's eq. 5)
+            # are told the true one, as the review assumes ("sigma_k^2 ... similar to the
+            # measurement's output error variance").
+            opts["sigma"] = point.sigma
         T = h = None
         n_iter, error, J, J_h, J_T = 0, "", np.nan, np.nan, np.nan
         start = time.perf_counter()
@@ -174,6 +184,7 @@ def run_trial(point: Point, trial: int, seed: int, algorithms: Sequence[str],
         rows.append({**base, "algorithm": name, "ok": not error, "error": error,
                      "time_s": elapsed, "n_iter": n_iter, "J": J, "J_h": J_h, "J_T": J_T,
                      "J0": J0, "meaningful": bool(np.isfinite(J) and J < delta * J0),
+                     "sq_err": J_h ** 2 + J_T ** 2, **bound,
                      **truth, **_estimate_columns(T, h)})
     return rows
 
