@@ -244,26 +244,33 @@ def write_gyro_figure(summary: pd.DataFrame, out_dir: Path) -> Path:
     table = figure_table(summary)
     write_csv_atomic(table, out_dir / "gyro_J.csv")
     coverages = list(dict.fromkeys(table["coverage"]))
-    fig, axes = plt.subplots(1, len(coverages), figsize=(4.2 * len(coverages), 4.0),
-                             sharey=True, squeeze=False)
-    gyro = set(m for m in methods() if get_method(m).needs_gyro)
-    for ax, cov in zip(axes[0], coverages, strict=True):
-        sub = table[table["coverage"] == cov]
-        for name, grp in sub.groupby("algorithm", sort=False):
-            x = grp["gyro_noise"].to_numpy()
-            # Noise 0 cannot sit on a log axis: plot it at a tenth of the smallest level.
-            pos = x[x > 0]
-            x = np.where(x > 0, x, (pos.min() / 10) if pos.size else 1e-4)
-            ax.plot(x, grp["median_J"], marker="o" if name in gyro else ".",
-                    linestyle="-" if name in gyro else ":", label=get_method(name).label)
-        ax.set_xscale("log")
-        ax.set_yscale("log")
-        ax.set_title(f"coverage: {cov}")
-        ax.set_xlabel("gyro noise std (rad/s; leftmost = 0)")
-        ax.grid(True, which="both", alpha=0.3)
-    axes[0][0].set_ylabel("median J (74)")
-    axes[0][-1].legend(fontsize=7, loc="best")
-    fig.tight_layout()
+    gyro = {m for m in methods() if get_method(m).needs_gyro}
+    # Two rows, so 20-odd lines stay readable: gyro-aided methods on top, the magnetometer-only
+    # methods (same samples) below; each row has its own legend outside the axes.
+    fig, axes = plt.subplots(2, len(coverages), figsize=(4.2 * len(coverages) + 3.2, 7.6),
+                             sharey=True, squeeze=False, layout="constrained")
+    colours = plt.get_cmap("tab20").colors
+    for row, (title, members) in enumerate([("gyro-aided", gyro), ("magnetometer only", None)]):
+        for ax, cov in zip(axes[row], coverages, strict=True):
+            sub = table[table["coverage"] == cov]
+            names = [n for n in dict.fromkeys(sub["algorithm"])
+                     if (n in gyro) == (members is not None)]
+            for i, name in enumerate(names):
+                grp = sub[sub["algorithm"] == name]
+                x = grp["gyro_noise"].to_numpy()
+                # Noise 0 cannot sit on a log axis: plot it at a tenth of the smallest level.
+                pos = x[x > 0]
+                x = np.where(x > 0, x, (pos.min() / 10) if pos.size else 1e-4)
+                ax.plot(x, grp["median_J"], marker="osD^v<>phX*P"[i % 12],
+                        color=colours[i % len(colours)], linestyle="-" if row == 0 else "--",
+                        label=get_method(name).label)
+            ax.set_xscale("log")
+            ax.set_yscale("log")
+            ax.set_title(f"{title}, coverage: {cov}")
+            ax.set_xlabel("gyro noise std (rad/s; leftmost = 0)")
+            ax.grid(True, which="both", alpha=0.3)
+        axes[row][0].set_ylabel("median J (74)")
+        axes[row][-1].legend(fontsize=7, loc="center left", bbox_to_anchor=(1.02, 0.5))
     path = out_dir / "gyro_J.png"
     tmp = path.with_name(f".tmp-{path.name}")
     fig.savefig(tmp, dpi=110, format="png")

@@ -58,14 +58,17 @@ def figure6(per_method: pd.DataFrame, per_recording: pd.DataFrame | None = None)
     ax_a.set_ylabel("accuracy 1 / J_r (81)")
     ax_a.set_title("(a) Accuracy on real recordings (mean J_r over meaningful fits)")
     ax_a.set_xticks(x, [labels[a] for a in order], rotation=45, ha="right")
-    ax_a.legend(fontsize=8, ncols=2)
+    # Above the axes, so the legend never covers a bar.
+    ax_a.legend(fontsize=8, ncols=4, loc="lower center", bbox_to_anchor=(0.5, 1.1),
+                frameon=False)
     ax_b = fig.add_subplot(grid[1, :])
     _bars(ax_b, per_method, order, "RB_pct")
     ax_b.set_ylim(0, 105)
     ax_b.set_ylabel("RB (%)")
     ax_b.set_title("(b) Robustness: share of recordings with a meaningful fit")
     ax_b.set_xticks(x, [labels[a] for a in order], rotation=45, ha="right")
-    ax_b.legend(fontsize=8)
+    ax_b.legend(fontsize=8, ncols=2, loc="lower center", bbox_to_anchor=(0.5, 1.1),
+                frameon=False)
     if per_recording is not None:
         hows = list(dict.fromkeys(per_method["preprocess"]))
         for i, how in enumerate(hows):

@@ -416,6 +416,20 @@ def write_figures(results_dir: Path | str) -> list[Path]:
         if sweep == "coverage":
             summary = with_coverage_column(summary)
         written += list(write_figure(summary, sweep, results_dir / sweep))
+    real = results_dir / "real"
+    if (real / "fig6_real.csv").exists() and (real / "real_summary.csv").exists():
+        from magbench.plots_real import figure6
+
+        fig = figure6(pd.read_csv(real / "fig6_real.csv"), pd.read_csv(real / "real_summary.csv"))
+        tmp = real / ".tmp-fig6_real.png"
+        fig.savefig(tmp, dpi=120, format="png")
+        tmp.replace(real / "fig6_real.png")
+        written.append(real / "fig6_real.png")
+    if (results_dir / "gyro" / "summary.csv").exists():
+        from magbench.gyro_sweep import write_gyro_figure
+
+        written.append(write_gyro_figure(pd.read_csv(results_dir / "gyro" / "summary.csv"),
+                                         results_dir / "gyro"))
     return written
 
 
