@@ -270,7 +270,8 @@ def write_gyro_figure(summary: pd.DataFrame, out_dir: Path) -> Path:
             ax.set_xlabel("gyro noise std (rad/s; leftmost = 0)")
             ax.grid(True, which="both", alpha=0.3)
         axes[row][0].set_ylabel("median J (74)")
-        axes[row][-1].legend(fontsize=7, loc="center left", bbox_to_anchor=(1.02, 0.5))
+        if axes[row][-1].get_legend_handles_labels()[0]:
+            axes[row][-1].legend(fontsize=7, loc="center left", bbox_to_anchor=(1.02, 0.5))
     path = out_dir / "gyro_J.png"
     tmp = path.with_name(f".tmp-{path.name}")
     fig.savefig(tmp, dpi=110, format="png")
