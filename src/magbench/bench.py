@@ -148,7 +148,7 @@ def bench_peers(datasets: int = 20, repeats: int = 3, seed: int = 0) -> pd.DataF
     return pd.DataFrame(rows)
 
 
-def bench_parallel(trials: int = 100, algorithms: Sequence[str] | None = None,
+def bench_parallel(trials: int = 250, algorithms: Sequence[str] | None = None,
                    workdir: Path | None = None) -> pd.DataFrame:
     """Wall-clock time of one sweep with 1 and with 2 workers, and the speed-up."""
     import tempfile
@@ -242,7 +242,7 @@ def bench_report_section(results_dir: Path | str) -> str:
 
 
 def run_bench(results_dir: Path | str, names: Sequence[str] | None = None,
-              sizes: Sequence[int] = SIZES, parallel_trials: int = 100,
+              sizes: Sequence[int] = SIZES, parallel_trials: int = 250,
               progress: Callable[[str], None] | None = print) -> Path:
     """Run every benchmark and write ``calls.csv``, ``peers.csv``, ``parallel.csv``,
     ``scaling.png`` and ``bench.md`` under ``<results_dir>/bench``."""
