@@ -24,7 +24,7 @@ import pandas as pd
 from omegaconf import DictConfig, OmegaConf
 
 from magbench.api import get_method, methods
-from magbench.cli import UsageError
+from magbench.cli import UsageError, check_integer
 from magbench.real import (
     DEFAULT_MAX_SAMPLES,
     PREPROCESSING,
@@ -132,9 +132,7 @@ def run_calibrate(cfg: DictConfig) -> int:
     if preprocess not in PREPROCESSING:
         raise UsageError(f"preprocess must be one of {', '.join(PREPROCESSING)}, got "
                          f"{preprocess!r}")
-    max_samples = cfg.get("max_samples", DEFAULT_MAX_SAMPLES)
-    if isinstance(max_samples, bool) or not isinstance(max_samples, int) or max_samples < 8:
-        raise UsageError(f"max_samples must be an integer >= 8, got {max_samples!r}")
+    max_samples = check_integer(cfg.get("max_samples", DEFAULT_MAX_SAMPLES), "max_samples", 8)
     columns = _columns(cfg)
     name = cfg.get("method")
     need = get_method(str(name)).min_samples if name and str(name) in methods() else min(

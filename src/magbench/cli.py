@@ -48,11 +48,15 @@ def compose_config(overrides: Sequence[str]) -> DictConfig:
         raise UsageError(text) from None
 
 
-def _integer(cfg: DictConfig, key: str, low: int) -> int:
-    value = cfg[key]
+def check_integer(value: object, what: str, low: int) -> int:
+    """``value`` if it is an integer >= ``low``; otherwise a :class:`UsageError` naming it."""
     if isinstance(value, bool) or not isinstance(value, int) or value < low:
-        raise UsageError(f"{key} must be an integer >= {low}, got {value!r}")
+        raise UsageError(f"{what} must be an integer >= {low}, got {value!r}")
     return value
+
+
+def _integer(cfg: DictConfig, key: str, low: int) -> int:
+    return check_integer(cfg[key], key, low)
 
 
 def _number(value: object, what: str, ok: Callable[[float], bool], expected: str) -> float:

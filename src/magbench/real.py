@@ -828,7 +828,7 @@ def run_real(cfg) -> int:
     """``python -m magbench sweep=real``: the sweep, Figure 6 and the Markdown section."""
     from omegaconf import OmegaConf
 
-    from magbench.cli import UsageError, selected_algorithms
+    from magbench.cli import UsageError, check_integer, selected_algorithms
     from magbench.plots_real import figure6
     from magbench.runner import load_plugins
 
@@ -851,9 +851,8 @@ def run_real(cfg) -> int:
     if bad or not preprocess:
         raise UsageError(f"sweep.preprocess must be a list from {', '.join(PREPROCESSING)}, "
                          f"got {OmegaConf.to_container(sweep.preprocess)}")
-    max_samples = sweep.get("max_samples", DEFAULT_MAX_SAMPLES)
-    if isinstance(max_samples, bool) or not isinstance(max_samples, int) or max_samples < 8:
-        raise UsageError(f"sweep.max_samples must be an integer >= 8, got {max_samples!r}")
+    max_samples = check_integer(sweep.get("max_samples", DEFAULT_MAX_SAMPLES),
+                                "sweep.max_samples", 8)
     ratio = sweep.get("coverage_ratio", 0.5)
     if isinstance(ratio, bool) or not isinstance(ratio, int | float) or not 0 <= ratio <= 1:
         raise UsageError(f"sweep.coverage_ratio must be a number in [0, 1], got {ratio!r}")
