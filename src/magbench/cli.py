@@ -67,15 +67,19 @@ def _number(value: object, what: str, ok: Callable[[float], bool], expected: str
     return float(value)
 
 
-def selected_algorithms(cfg: DictConfig) -> list[str]:
-    """The method names of ``algorithms=`` ('all' or a list), checked against the registry."""
+def selected_algorithms(cfg: DictConfig, include_gyro: bool = False) -> list[str]:
+    """The method names of ``algorithms=`` ('all' or a list), checked against the registry.
+
+    'all' means every magnetometer-only method, plus the gyro-aided ones with
+    ``include_gyro`` (for data that have angular rate, such as some real recordings).
+    """
     from magbench.api import get_method, methods
 
     known = methods()
     chosen = cfg.algorithms
     if chosen == "all":
         # The static sweeps have no angular rate: 'all' is every magnetometer-only method.
-        return [m for m in known if not get_method(m).needs_gyro]
+        return [m for m in known if include_gyro or not get_method(m).needs_gyro]
     if isinstance(chosen, str):
         chosen = [chosen]
     chosen = list(chosen)

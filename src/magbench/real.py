@@ -862,7 +862,9 @@ def run_real(cfg) -> int:
     if isinstance(cfg.n_jobs, bool) or not isinstance(cfg.n_jobs, int) or cfg.n_jobs == 0:
         raise UsageError(f"n_jobs must be a non-zero integer (-1 = every core), got "
                          f"{cfg.n_jobs!r}")
-    algorithms = selected_algorithms(cfg)
+    # Gyro-aided methods too: they run on the recordings that have gyro (hmc5883l_sphere) and
+    # give skipped rows, with the reason, on the others.
+    algorithms = selected_algorithms(cfg, include_gyro=True)
     spec = RealSweepSpec(chosen, algorithms, tuple(preprocess), max_samples,
                          _options(cfg, algorithms), int(cfg.seed), cfg.get("call_timeout_s"),
                          float(ratio), float(factor))
