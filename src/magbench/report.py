@@ -502,8 +502,15 @@ def build_report(results_dir: Path | str) -> str:
             summary = with_coverage_column(summary)
         stem = {"gamma": "fig2_gamma", "beta": "fig3_beta", "K": "fig4_K",
                 "sigma": "fig5_sigma", "coverage": "fig_coverage"}[sweep]
-        out += [f"## {figure}: sweep `{sweep}`", "", f"![{figure}]({sweep}/{stem}.png)", "",
-                sweep_tables(summary, x), ""]
+        out += [f"## {figure}: sweep `{sweep}`", "", f"![{figure}]({sweep}/{stem}.png)", ""]
+        if sweep == "coverage":
+            out += ["Where the directions barely determine T (caps of 60 degrees and less) the "
+                    "Cramer-Rao line falls below the methods: the bound holds for unbiased "
+                    "estimators over all datasets, while 1/rho averages only the meaningful "
+                    "runs, the datasets where a method happened to succeed, and the estimators "
+                    "are strongly biased there. It is a floor only where the problem is well "
+                    "posed (full sphere, hemisphere, wide band).", ""]
+        out += [sweep_tables(summary, x), ""]
     if summaries["gamma"] is not None:
         checks += check_gamma(summaries["gamma"])
     if summaries["beta"] is not None:
