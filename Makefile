@@ -7,7 +7,9 @@ export MAGBENCH_DATA
 
 SWEEPS := baseline gamma beta K sigma coverage wushi gyro real
 
-.PHONY: help install test test-all lint bench reproduce $(addprefix sweep-,$(SWEEPS)) report clean-parts
+SWEEP_TARGETS := $(addprefix sweep-,$(SWEEPS))
+
+.PHONY: help install test test-all lint bench reproduce $(SWEEP_TARGETS) report clean-parts
 
 help: ## List the targets
 	@grep -E '^[a-zA-Z_%-]+:.*## ' $(MAKEFILE_LIST) | awk 'BEGIN {FS = ":.*## "}; {printf "  %-16s %s\n", $$1, $$2}'
@@ -30,8 +32,12 @@ sweep-real: ## Every method on the real recordings in MAGBENCH_DATA (skipped whe
 	  echo "sweep real skipped: set MAGBENCH_DATA to a folder of recordings (see README, Real data)"; \
 	else $(PYTHON) -m magbench sweep=real $(ARGS); fi
 
-sweep-%: ## Run one sweep, e.g. `make sweep-gamma` (extra overrides: ARGS="trials=20")
+# A static pattern rule: make never applies an implicit `sweep-%:` rule to .PHONY targets.
+$(filter-out sweep-real,$(SWEEP_TARGETS)): sweep-%:
 	$(PYTHON) -m magbench sweep=$* $(ARGS)
+
+sweep-NAME: ## Run one sweep, e.g. `make sweep-gamma` (extra overrides: ARGS="trials=20")
+	@echo "use one of: $(SWEEP_TARGETS)"
 
 reproduce: $(addprefix sweep-,$(SWEEPS)) report ## Every sweep, then the figures and the report
 

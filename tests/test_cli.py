@@ -1,3 +1,5 @@
+import shutil
+import subprocess
 from pathlib import Path
 
 import pandas as pd
@@ -76,3 +78,14 @@ def test_every_sweep_config_composes_and_runs(sweep, tmp_path):
 def test_a_sweep_point_with_an_unknown_parameter_is_rejected(tmp_path, capsys):
     assert run("sweep=coverage", "+sweep.points=[{tilt: 3}]", f"results_dir={tmp_path}") == 2
     assert "sweep point sets 'tilt'" in capsys.readouterr().err
+
+
+@pytest.mark.skipif(shutil.which("make") is None, reason="make is not installed")
+def test_make_reproduce_runs_every_sweep_then_the_report():
+    # make never applies an implicit rule to a .PHONY target: check the real command list.
+    repo = Path(__file__).resolve().parents[1]
+    dry = subprocess.run(["make", "-n", "reproduce", "MAGBENCH_DATA=/data"], cwd=repo,
+                         capture_output=True, text=True, check=True).stdout
+    for sweep in SWEEPS:
+        assert f"-m magbench sweep={sweep}" in dry, f"make reproduce skips sweep {sweep}"
+    assert dry.rstrip().endswith("-m magbench report")
