@@ -152,10 +152,10 @@ def test_wu_shi_recovers_noise_free_data_in_these_metrics():
 def test_refine_unit_on_normalised_data_equals_calibrate():
     """The study's direct refine calls normalise the data exactly as calibrate does."""
     from magbench.algorithms._wu_shi_init import initial_estimate, upper_inverse
-    from magbench.api import _unit_scale
+    from magbench.api import unit_scale
 
     data = simulate(np.random.default_rng(5), N=300, sigma=0.003)
-    scale = _unit_scale(data.y)
+    scale = unit_scale(data.y)
     assert scale == 4.0
     T0, h0 = initial_estimate(data.y / scale)
     R0, h0 = upper_inverse(T0) / scale, h0 * scale

@@ -17,7 +17,8 @@ import numpy as np
 
 from magbench.model import Calibration, CalibrationFailed, as_samples
 
-__all__ = ["Method", "calibrate", "get_method", "methods", "register", "unregister"]
+__all__ = ["Method", "calibrate", "get_method", "methods", "register", "unit_scale",
+           "unregister"]
 
 #: Display order of the registered methods: the review's seven in its order of presentation,
 #: then the extra methods. Names not listed sort after these, alphabetically.
@@ -120,8 +121,11 @@ def get_method(name: str) -> Method:
                          f"{', '.join(methods())}") from None
 
 
-def _unit_scale(y: np.ndarray) -> float:
-    """Power of two nearest the RMS sample norm.
+def unit_scale(y: np.ndarray) -> float:
+    """Power of two nearest the RMS sample norm: what :func:`calibrate` divides samples by.
+
+    Public so that code calling a method's internals directly (e.g. the Wu-Shi study's
+    ``refine``) normalises exactly as :func:`calibrate` does.
 
     Dividing by a power of two is exact in floating point, so data already near unit norm (the
     review's setting) pass through bit for bit, and data in any unit (counts, nT, gauss) reach
@@ -184,7 +188,7 @@ def calibrate(samples: object, method: str, *, angular_rate: object = None,
         raise ValueError(f"unknown option(s) {', '.join(unknown)} for method {method!r}; it "
                          f"accepts: {', '.join(spec.option_names()) or 'no options'}")
     y = as_samples(samples, min_samples=spec.min_samples)
-    scale = _unit_scale(y)
+    scale = unit_scale(y)
     if spec.model == "bias":
         # A bias-only method takes the field magnitude as an input in the samples' unit, so
         # its data must reach it unscaled.

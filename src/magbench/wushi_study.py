@@ -47,7 +47,7 @@ from matplotlib.figure import Figure
 
 from magbench.algorithms import wu_shi, wu_shi_nm
 from magbench.algorithms._wu_shi_init import initial_estimate, upper_inverse
-from magbench.api import _unit_scale, calibrate, get_method, methods
+from magbench.api import calibrate, get_method, methods, unit_scale
 from magbench.crb import crb_covariance
 from magbench.metrics import accuracy_cost
 from magbench.model import CalibrationFailed
@@ -265,7 +265,7 @@ def refine_unit(method: str, y: np.ndarray, R0: np.ndarray, h0: np.ndarray, max_
     Returns ``(T, h, history, converged)`` in gauss: the ML objective (4) is scaled back to
     gauss^2; the NM objective (11) is dimensionless (``R u`` does not change with the unit).
     """
-    scale = _unit_scale(y)
+    scale = unit_scale(y)
     module = wu_shi if method == ML else wu_shi_nm
     cal, history = module.refine(y / scale, upper_inverse(R0 * scale), h0 / scale,
                                  max_iter=max_iter)
@@ -317,7 +317,7 @@ def run_one(spec: WuShiSpec, run: int) -> dict[str, list[dict]]:
             rng = _seed(spec, 4, run, zlib.crc32(name.encode())) \
                 if get_method(name).randomized else None
             table.append({"run": run, **_method_row(name, data, rng, offset_removed=True)})
-    scale = _unit_scale(data.y)
+    scale = unit_scale(data.y)
     history_rows, perturbation_rows = [], []
     try:
         T0, h0 = initial_estimate(data.y / scale)
