@@ -116,10 +116,13 @@ def test_report_from_fixture_files(tmp_path):
 
 def test_metric_hypotheses_on_hand_made_rows():
     rows = pd.DataFrame({"algorithm": ["magical"] * 2, "meaningful": [True, True],
-                         "J": [0.1, 0.3], "sq_err": [0.01, 0.03], "crb_J": [0.2, 0.2]})
+                         "J": [0.1, 0.3], "sq_err": [0.01, 0.03], "crb_J": [0.2, 0.2],
+                         "crb": [0.01, 0.03]})
     hyp = report.metric_hypotheses(rows).iloc[0]
     assert hyp["inv_mean_J"] == pytest.approx(5.0)
     assert hyp["inv_mean_J2"] == pytest.approx(1 / 0.05)
     assert hyp["inv_mean_sq"] == pytest.approx(50.0)
+    assert hyp["inv_crb"] == pytest.approx(50.0)
+    assert hyp["crb_floor"] == pytest.approx(5.0)
     assert hyp["paper"] == pytest.approx(2.28e5)
     assert np.isclose(hyp["paper_over_sq"], 2.28e5 / 50)
