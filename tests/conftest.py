@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from magbench.synthetic import Dataset, Point, make_dataset
+from magbench.sources.synthetic import Dataset, Point, make_dataset
 
 
 def dataset(seed: int = 0, **point: float) -> Dataset:

@@ -7,8 +7,8 @@ import pandas as pd
 import pytest
 
 from magbench import bench
-from magbench.metrics import accuracy_cost
-from magbench.synthetic import fibonacci_sphere
+from magbench.core.geometry import fibonacci_sphere
+from magbench.core.metrics import accuracy_cost
 from tests.conftest import dataset
 
 

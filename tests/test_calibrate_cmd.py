@@ -9,8 +9,8 @@ import pandas as pd
 import pytest
 
 from magbench.cli import main
-from magbench.model import Calibration
-from magbench.synthetic import fibonacci_sphere
+from magbench.core.geometry import fibonacci_sphere
+from magbench.core.model import Calibration
 
 T_TRUE = np.array([[520.0, 20.0, -8.0], [0.0, 470.0, 15.0], [0.0, 0.0, 610.0]])
 H_TRUE = np.array([900.0, -350.0, 120.0])          # counts; offset larger than the radius

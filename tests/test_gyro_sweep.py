@@ -16,7 +16,7 @@ from magbench.gyro_sweep import (
     run_gyro_sweep,
     run_gyro_trial,
 )
-from magbench.trajectory import simulate
+from magbench.sources.trajectory import simulate
 
 ALGOS = ["sar_ls", "magyc_ls", "magyc_nls", "magfactor3", "magical"]
 

@@ -10,10 +10,10 @@ from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
 import magbench
-from magbench.model import CalibrationFailed
+from magbench.core.model import CalibrationFailed
 from magbench.runner import time_limit
-from magbench.synthetic import Point, make_dataset
-from tests.algorithms.test_contract import SCALE_RTOL
+from magbench.sources.synthetic import Point, make_dataset
+from tests.methods.algorithms.test_contract import SCALE_RTOL
 
 METHODS = [m for m in magbench.methods() if not magbench.get_method(m).needs_gyro]
 PROPERTY = settings(max_examples=15, deadline=None,

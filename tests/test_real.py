@@ -14,8 +14,9 @@ import pandas as pd
 import pytest
 
 from magbench.cli import main
-from magbench.metrics import real_cost
-from magbench.model import Calibration
+from magbench.core.geometry import fibonacci_sphere
+from magbench.core.metrics import real_cost
+from magbench.core.model import Calibration
 from magbench.real import (
     DATA_ENV,
     RealSweepSpec,
@@ -34,7 +35,6 @@ from magbench.real import (
     sphere_fit,
     thickness,
 )
-from magbench.synthetic import fibonacci_sphere
 
 T_TRUE = np.array([[1.1, 0.05, -0.02], [0.0, 0.9, 0.04], [0.0, 0.0, 1.2]])
 H_TRUE = np.array([0.3, -0.2, 0.1])

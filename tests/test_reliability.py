@@ -12,9 +12,9 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
-from magbench.api import _REGISTRY, unregister
+from magbench.methods.registry import _REGISTRY, unregister
 from magbench.runner import SweepSpec, run_sweep
-from magbench.synthetic import Point
+from magbench.sources.synthetic import Point
 
 REPO = Path(__file__).resolve().parents[1]
 FAULTY = "tests.plugins.faulty"

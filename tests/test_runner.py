@@ -2,10 +2,10 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from magbench.api import register, unregister
-from magbench.model import Calibration
+from magbench.core.model import Calibration
+from magbench.methods.registry import register, unregister
 from magbench.runner import ROW_COLUMNS, SweepSpec, points_for, run_sweep, run_trial
-from magbench.synthetic import Point
+from magbench.sources.synthetic import Point
 
 SMALL = Point(K=60)
 

@@ -6,8 +6,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from magbench.api import calibrate
 from magbench.cli import main
+from magbench.methods.api import calibrate
 from magbench.wushi_study import (
     ML,
     NM,
@@ -151,8 +151,8 @@ def test_wu_shi_recovers_noise_free_data_in_these_metrics():
 
 def test_refine_unit_on_normalised_data_equals_calibrate():
     """The study's direct refine calls normalise the data exactly as calibrate does."""
-    from magbench.algorithms._wu_shi_init import initial_estimate, upper_inverse
-    from magbench.api import unit_scale
+    from magbench.methods.algorithms._wu_shi_init import initial_estimate, upper_inverse
+    from magbench.methods.api import unit_scale
 
     data = simulate(np.random.default_rng(5), N=300, sigma=0.003)
     scale = unit_scale(data.y)

@@ -8,8 +8,9 @@ Overview and Comparison", Sensors 2021, 21, 5288, and goes beyond it.
 >>> field = cal.apply(samples)                      # doctest: +SKIP
 """
 
-from magbench.api import calibrate, get_method, methods, register
-from magbench.model import Calibration, CalibrationFailed
+from magbench.core.model import Calibration, CalibrationFailed
+from magbench.methods.api import calibrate
+from magbench.methods.registry import get_method, methods, register
 
 __all__ = ["Calibration", "CalibrationFailed", "calibrate", "get_method", "methods", "register"]
 __version__ = "0.1.0"

@@ -17,10 +17,11 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from magbench.api import calibrate, get_method, methods
-from magbench.metrics import accuracy_cost
+from magbench.core.metrics import accuracy_cost
+from magbench.methods.api import calibrate
+from magbench.methods.registry import get_method, methods
 from magbench.runner import SweepSpec, run_sweep, write_csv_atomic, write_text_atomic
-from magbench.synthetic import Point, make_dataset
+from magbench.sources.synthetic import Point, make_dataset
 
 __all__ = ["bench_calls", "bench_parallel", "bench_peers", "bench_report_section", "run_bench"]
 

@@ -23,8 +23,8 @@ import numpy as np
 import pandas as pd
 from omegaconf import DictConfig, OmegaConf
 
-from magbench.api import get_method, methods
 from magbench.cli import UsageError, check_integer
+from magbench.methods.registry import get_method, methods
 from magbench.real import (
     DEFAULT_MAX_SAMPLES,
     PREPROCESSING,

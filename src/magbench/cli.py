@@ -73,7 +73,7 @@ def selected_algorithms(cfg: DictConfig, include_gyro: bool = False) -> list[str
     'all' means every magnetometer-only method, plus the gyro-aided ones with
     ``include_gyro`` (for data that have angular rate, such as some real recordings).
     """
-    from magbench.api import get_method, methods
+    from magbench.methods.registry import get_method, methods
 
     known = methods()
     chosen = cfg.algorithms
@@ -92,9 +92,9 @@ def selected_algorithms(cfg: DictConfig, include_gyro: bool = False) -> list[str
 
 def validate(cfg: DictConfig) -> dict:
     """Check every value a sweep uses; returns the plain values, or raises :class:`UsageError`."""
-    from magbench.api import get_method
+    from magbench.methods.registry import get_method
     from magbench.runner import POINT_COLUMNS, load_plugins, point_with
-    from magbench.synthetic import Point
+    from magbench.sources.synthetic import Point
 
     try:
         load_plugins(list(cfg.plugins or []))

@@ -1,10 +1,10 @@
 """The gyro sweep: gyro-aided and magnetometer-only methods on simulated manoeuvres.
 
-Each trial simulates one manoeuvre (:mod:`magbench.trajectory`) with a drawn distortion and gyro
-bias, and runs every selected method on the same magnetometer samples; gyro-aided methods also
-get the gyro samples and times (and MagFactor3 the true attitude and field). Points are the grid
-of gyro noise levels and coverages (named simulator settings). One row per (point, trial,
-method), with the columns of :func:`magbench.runner.run_trial` plus the gyro bias.
+Each trial simulates one manoeuvre (:mod:`magbench.sources.trajectory`) with a drawn distortion
+and gyro bias, and runs every selected method on the same magnetometer samples;
+gyro-aided methods also get the gyro samples and times (and MagFactor3 the true attitude and field).
+Points are the grid of gyro noise levels and coverages (named simulator settings). One row per
+(point, trial, method), with the columns of :func:`magbench.runner.run_trial` plus the gyro bias.
 
 The distortion is ``T = alpha I + (E + E^T) / 2`` (symmetric: the magnetometer's axes are the
 gyro's, as SAR and MAGYC assume; the review's non-symmetric ``E`` would add a magnetometer-gyro
@@ -26,11 +26,12 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from magbench.api import calibrate, get_method, methods
-from magbench.metrics import accuracy_cost, summarize, trivial_cost
-from magbench.model import CalibrationFailed
+from magbench.core.metrics import accuracy_cost, summarize, trivial_cost
+from magbench.core.model import CalibrationFailed
+from magbench.methods.api import calibrate
+from magbench.methods.registry import get_method, methods
 from magbench.runner import TRUTH_COLUMNS, write_csv_atomic, write_text_atomic
-from magbench.trajectory import Trajectory, simulate
+from magbench.sources.trajectory import Trajectory, simulate
 
 __all__ = ["GYRO_POINT_COLUMNS", "GyroPoint", "GyroSweepSpec", "gyro_report_section",
            "run_gyro_methods_on_recording", "run_gyro_sweep", "run_gyro_trial"]
@@ -80,7 +81,7 @@ class GyroSweepSpec:
     options : dict
         Per-method keyword options.
     coverages : dict
-        Coverage name -> keyword arguments of :func:`magbench.trajectory.simulate`.
+        Coverage name -> keyword arguments of :func:`magbench.sources.trajectory.simulate`.
     rate_hz, duration_s : float
         Sampling of every manoeuvre.
     beta, gamma, alpha : float, float, (float, float)
@@ -339,7 +340,7 @@ def run_gyro_methods_on_recording(y: np.ndarray, w: np.ndarray, t: np.ndarray,
     -------
     list of dict
         ``algorithm, ok, error, time_s, n_iter, h_*, T_*, wb_*`` (no truth, so no J; compute
-        J_r of eq. 81 from ``T`` and ``h`` with :func:`magbench.metrics.real_cost`).
+        J_r of eq. 81 from ``T`` and ``h`` with :func:`magbench.core.metrics.real_cost`).
     """
     names = list(algorithms) if algorithms is not None else [
         m for m in methods() if get_method(m).needs_gyro and m != "magfactor3"]

@@ -5,7 +5,7 @@ Each figure has the review's three panels against the swept parameter: (a) accur
 review's seven solid, the extra methods dashed, the review's printed-formula variants
 dash-dotted. The accuracy panel also carries the
 Cramer-Rao limit: 1/E[J] of an efficient unbiased estimator (column ``crb_accuracy`` of
-``summary.csv``, see :mod:`magbench.crb`), the accuracy no unbiased method can beat on average
+``summary.csv``, see :mod:`magbench.core.crb`), the accuracy no unbiased method can beat on average
 in the small-noise regime. :func:`figure_data` returns exactly what is drawn; it is written
 beside the PNG as CSV.
 
@@ -22,7 +22,7 @@ import numpy as np
 import pandas as pd
 from matplotlib.figure import Figure
 
-from magbench.api import get_method, methods
+from magbench.methods.registry import get_method, methods
 
 __all__ = ["FIGURES", "FigureSpec", "figure_data", "plot_sweep", "write_figure"]
 
@@ -87,7 +87,7 @@ def figure_data(summary: pd.DataFrame, sweep: str) -> pd.DataFrame:
     Parameters
     ----------
     summary : DataFrame
-        ``summary.csv`` of the sweep (columns of :func:`magbench.metrics.summarize`).
+        ``summary.csv`` of the sweep (columns of :func:`magbench.core.metrics.summarize`).
     sweep : str
         A key of :data:`FIGURES`.
 

@@ -70,11 +70,12 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from magbench.api import calibrate, get_method
-from magbench.metrics import real_cost
-from magbench.model import Calibration
+from magbench.core.geometry import fibonacci_sphere
+from magbench.core.metrics import real_cost
+from magbench.core.model import Calibration
+from magbench.methods.api import calibrate
+from magbench.methods.registry import get_method
 from magbench.runner import time_limit, write_csv_atomic, write_text_atomic
-from magbench.synthetic import fibonacci_sphere
 
 __all__ = [
     "COVERAGE_ANGLE_DEG",

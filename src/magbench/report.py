@@ -14,7 +14,7 @@ import numpy as np
 import pandas as pd
 import yaml
 
-from magbench.api import get_method
+from magbench.methods.registry import get_method
 
 __all__ = ["ClaimCheck", "build_report", "format_number", "metric_hypotheses", "paper_values",
            "table2", "table2_markdown", "write_report", "write_sweep_tables"]

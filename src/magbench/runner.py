@@ -25,10 +25,11 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from magbench.api import calibrate, get_method
-from magbench.crb import crb_mse, efficient_expected_J
-from magbench.metrics import accuracy_cost, summarize, trivial_cost
-from magbench.synthetic import Point, make_dataset, trial_seed_sequence
+from magbench.core.crb import crb_mse, efficient_expected_J
+from magbench.core.metrics import accuracy_cost, summarize, trivial_cost
+from magbench.methods.api import calibrate
+from magbench.methods.registry import get_method
+from magbench.sources.synthetic import Point, make_dataset, trial_seed_sequence
 
 __all__ = ["POINT_COLUMNS", "SweepSpec", "run_sweep", "run_trial", "write_csv_atomic"]
 

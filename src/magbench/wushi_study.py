@@ -45,12 +45,13 @@ import numpy as np
 import pandas as pd
 from matplotlib.figure import Figure
 
-from magbench.algorithms import wu_shi, wu_shi_nm
-from magbench.algorithms._wu_shi_init import initial_estimate, upper_inverse
-from magbench.api import calibrate, get_method, methods, unit_scale
-from magbench.crb import crb_covariance
-from magbench.metrics import accuracy_cost
-from magbench.model import CalibrationFailed
+from magbench.core.crb import crb_covariance
+from magbench.core.metrics import accuracy_cost
+from magbench.core.model import CalibrationFailed
+from magbench.methods.algorithms import wu_shi, wu_shi_nm
+from magbench.methods.algorithms._wu_shi_init import initial_estimate, upper_inverse
+from magbench.methods.api import calibrate, unit_scale
+from magbench.methods.registry import get_method, methods
 from magbench.report import format_number, paper_values
 from magbench.runner import write_csv_atomic, write_text_atomic
 
@@ -184,7 +185,7 @@ def crb_reference(N: int, sigma: float, draws: int = 2000, seed: int = 0) -> dic
     """Mean and std of e_s, e_o, e_h and J of an efficient unbiased estimator on these data.
 
     The attitude pattern is deterministic, so every run has the same directions ``m_k`` and the
-    same Cramer-Rao bound (:func:`magbench.crb.crb_covariance`, gauge-projected). Errors
+    same Cramer-Rao bound (:func:`magbench.core.crb.crb_covariance`, gauge-projected). Errors
     ``(dT, dh)`` are drawn from it (the asymptotic error of maximum likelihood) and the metrics
     computed on ``(S + dT, h + dh)``: what no unbiased method can beat on average.
     """

@@ -8,8 +8,8 @@ import time
 
 import numpy as np
 
-from magbench.api import register
-from magbench.model import Calibration
+from magbench.core.model import Calibration
+from magbench.methods.registry import register
 
 
 @register("faulty_raises", label="raises", min_samples=4, family="extra")

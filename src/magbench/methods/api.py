@@ -1,0 +1,111 @@
+"""The one way the harness calls a method: :func:`calibrate`.
+
+A method is a plain function ``fit(samples, **options) -> Calibration`` registered under a
+name with :func:`register`. :func:`calibrate` is the only way the harness calls it: it validates
+the input once, brings the data to unit scale by an exact power of two, calls the method, maps
+numerical failures to :class:`~magbench.core.model.CalibrationFailed` and checks the answer.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from magbench.core.model import Calibration, CalibrationFailed, as_samples
+from magbench.methods.registry import get_method
+
+__all__ = ["calibrate", "unit_scale"]
+
+def unit_scale(y: np.ndarray) -> float:
+    """Power of two nearest the RMS sample norm: what :func:`calibrate` divides samples by.
+
+    Public so that code calling a method's internals directly (e.g. the Wu-Shi study's
+    ``refine``) normalises exactly as :func:`calibrate` does.
+
+    Dividing by a power of two is exact in floating point, so data already near unit norm (the
+    review's setting) pass through bit for bit, and data in any unit (counts, nT, gauss) reach
+    the methods at the scale their tolerances and initial guesses assume.
+    """
+    rms = float(np.sqrt(np.mean(np.einsum("ij,ij->i", y, y))))
+    if not rms > 0.0 or not math.isfinite(rms):
+        raise ValueError("samples are all zero (or overflow); a magnetic field of non-zero "
+                         "magnitude is expected")
+    return 2.0 ** round(math.log2(rms))
+
+
+def _check_geometry(y: np.ndarray, min_samples: int) -> None:
+    """Reject data from which no 3-D ellipsoid can be determined (one clear line each)."""
+    distinct = np.unique(y, axis=0).shape[0]
+    if distinct < min_samples:
+        raise ValueError(f"samples hold only {distinct} distinct measurements; at least "
+                         f"{min_samples} are needed")
+    spread = np.linalg.svd(y - y.mean(axis=0), compute_uv=False)
+    if spread[2] <= 1e-9 * spread[0]:
+        shape = "collinear" if spread[1] <= 1e-9 * spread[0] else "coplanar"
+        raise ValueError(f"samples are {shape} (singular values of the centred data "
+                         f"{spread[0]:.3g}, {spread[1]:.3g}, {spread[2]:.3g}); rotate the sensor "
+                         "through more directions")
+
+
+def calibrate(samples: object, method: str, *, angular_rate: object = None,
+              time: object = None, **options: object) -> Calibration:
+    """Estimate ``T`` and ``h`` of ``y = T m + h + eps`` from magnetometer samples.
+
+    Parameters
+    ----------
+    samples : array_like, shape (K, 3)
+        Magnetometer measurements, one per row, in any unit. The result is in the same unit;
+        the field magnitude is normalised to one, so ``T`` absorbs the field strength.
+    method : str
+        A name from :func:`methods`.
+    angular_rate, time : array_like, optional
+        Gyroscope samples ``(K, 3)`` in rad/s and their timestamps ``(K,)`` in seconds, for the
+        gyro-aided methods; other methods ignore them.
+    **options
+        The method's tuning values (iteration caps, tolerances, ``rng`` for randomised methods).
+
+    Returns
+    -------
+    Calibration
+        Finite ``T`` (invertible) and ``h``, with the method's iteration count and message.
+
+    Raises
+    ------
+    ValueError
+        Bad input: unknown method or option, wrong shape, too few samples, NaN or infinite
+        values, degenerate (collinear or coplanar) data.
+    CalibrationFailed
+        The method could not produce a finite, invertible estimate from these data.
+    """
+    spec = get_method(method)
+    unknown = sorted(set(options) - set(spec.option_names()))
+    if unknown:
+        raise ValueError(f"unknown option(s) {', '.join(unknown)} for method {method!r}; it "
+                         f"accepts: {', '.join(spec.option_names()) or 'no options'}")
+    y = as_samples(samples, min_samples=spec.min_samples)
+    scale = unit_scale(y)
+    if spec.model == "bias":
+        # A bias-only method takes the field magnitude as an input in the samples' unit, so
+        # its data must reach it unscaled.
+        scale = 1.0
+    y = y / scale
+    _check_geometry(y, spec.min_samples)
+    if spec.randomized and not isinstance(options.get("rng"), np.random.Generator):
+        options["rng"] = np.random.default_rng(options.get("rng", 0))
+    extra: dict[str, object] = {}
+    if spec.needs_gyro:
+        if angular_rate is None or time is None:
+            raise ValueError(f"method {method!r} needs angular_rate (K, 3) in rad/s and "
+                             "time (K,) in seconds")
+        extra = {"angular_rate": angular_rate, "time": time}
+    try:
+        with np.errstate(all="ignore"):
+            cal = spec.fit(y, **extra, **options)
+    except np.linalg.LinAlgError as exc:
+        raise CalibrationFailed(f"{method}: linear algebra failed ({exc})") from exc
+    if not cal.is_finite:
+        raise CalibrationFailed(f"{method}: estimate is not finite or T is singular "
+                                f"({cal.message or 'no message'})")
+    return Calibration(cal.T * scale, cal.h * scale, cal.n_iter, cal.converged, cal.message,
+                       cal.gyro_bias)

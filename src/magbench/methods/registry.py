@@ -1,0 +1,116 @@
+"""The method registry: a name for every calibration method, and what the harness needs to know.
+
+A method is a plain function ``fit(samples, **options) -> Calibration`` registered under a
+name with :func:`register`. Importing :mod:`magbench.methods.algorithms` registers every module
+in it (the one import loop the layers allow, kept inside ``methods/``).
+"""
+
+from __future__ import annotations
+
+import inspect
+from collections.abc import Callable
+from dataclasses import dataclass
+
+from magbench.core.model import Calibration
+
+__all__ = ["DISPLAY_ORDER", "Method", "get_method", "methods", "register", "unregister"]
+
+#: Display order of the registered methods: the review's seven in its order of presentation,
+#: then the extra methods. Names not listed sort after these, alphabetically.
+DISPLAY_ORDER = (
+    "twostep", "crassidis", "dorveaux", "vasconcelos", "ali", "wu_shi", "magical",
+    "wu_shi_nm", "ellipsoid", "fang", "sphere", "twostep_hi",
+    "vasconcelos_printed", "wu_shi_printed",
+)
+
+
+@dataclass(frozen=True)
+class Method:
+    """A registered calibration method and what the harness needs to know about it."""
+
+    name: str
+    fit: Callable[..., Calibration]
+    label: str
+    min_samples: int
+    family: str = "review"
+    randomized: bool = False
+    needs_gyro: bool = False
+    paper_key: str | None = None
+    model: str = "full"
+
+    def option_names(self) -> list[str]:
+        """Keyword options the method's ``fit`` accepts (its tuning values)."""
+        params = inspect.signature(self.fit).parameters.values()
+        return [p.name for p in params if p.kind is inspect.Parameter.KEYWORD_ONLY]
+
+
+_REGISTRY: dict[str, Method] = {}
+
+
+def register(name: str, *, label: str, min_samples: int, family: str = "review",
+             randomized: bool = False, needs_gyro: bool = False,
+             paper_key: str | None = None, model: str = "full",
+             ) -> Callable[[Callable[..., Calibration]], Callable[..., Calibration]]:
+    """Register ``fit`` under ``name`` (decorator).
+
+    Parameters
+    ----------
+    name : str
+        The name users pass to :func:`calibrate` and to ``algorithms=[...]``.
+    label : str
+        Name shown in figures and tables.
+    min_samples : int
+        The smallest K the method can work with (its number of unknowns, at least).
+    family : str
+        ``"review"`` for the review's seven methods, ``"extra"`` for the others, ``"variant"``
+        for a review method run exactly as the review prints it where that print differs from
+        the original paper (kept so that both can be reported side by side).
+    randomized : bool
+        True if ``fit`` takes an ``rng`` option (a ``numpy.random.Generator``).
+    needs_gyro : bool
+        True if ``fit`` needs ``angular_rate`` and ``time``.
+    paper_key : str, optional
+        The method's key in the review's Table 2 (reference data), if it is there.
+    model : str
+        What the method estimates: ``"full"`` (any T and h), ``"sphere"`` (``T = r I``, hard
+        iron and one scale) or ``"bias"`` (``T = I``, hard iron only). The contract tests check
+        recovery on data the method's model can represent.
+    """
+    if model not in ("full", "sphere", "bias"):
+        raise ValueError(f"model must be 'full', 'sphere' or 'bias', got {model!r}")
+
+    def decorator(fit: Callable[..., Calibration]) -> Callable[..., Calibration]:
+        if name in _REGISTRY:
+            raise ValueError(f"method {name!r} is registered twice")
+        _REGISTRY[name] = Method(name, fit, label, min_samples, family, randomized,
+                                 needs_gyro, paper_key, model)
+        return fit
+
+    return decorator
+
+
+def unregister(name: str) -> None:
+    """Remove a method (used by tests that register fault-injecting methods)."""
+    _REGISTRY.pop(name, None)
+
+
+def _ensure_loaded() -> None:
+    # Importing the package registers every method module it contains.
+    import magbench.methods.algorithms  # noqa: F401
+
+
+def methods() -> list[str]:
+    """Names of the registered methods, in display order."""
+    _ensure_loaded()
+    order = {name: i for i, name in enumerate(DISPLAY_ORDER)}
+    return sorted(_REGISTRY, key=lambda n: (order.get(n, len(order)), n))
+
+
+def get_method(name: str) -> Method:
+    """The registered :class:`Method` called ``name``; ``ValueError`` if there is none."""
+    _ensure_loaded()
+    try:
+        return _REGISTRY[name]
+    except KeyError:
+        raise ValueError(f"unknown method {name!r}; expected one of: "
+                         f"{', '.join(methods())}") from None

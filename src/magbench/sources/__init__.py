@@ -1,0 +1,2 @@
+"""Sources of data: synthetic datasets (Algorithm 8), gyro trajectories, the Wu-Shi
+simulation and real recordings."""

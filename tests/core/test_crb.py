@@ -1,0 +1,62 @@
+"""The Cramer-Rao bound: a closed form, the gauge, and an ML method's Monte Carlo error."""
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+import magbench
+from magbench.core.crb import crb_mse, efficient_expected_J, fisher_information, gauge_basis
+from magbench.core.geometry import fibonacci_sphere
+from magbench.core.metrics import accuracy_cost
+from magbench.sources.synthetic import Point, make_dataset
+
+
+def test_sphere_closed_form():
+    # T = I, uniform directions: 9 sigma^2/K for h and 40.5 sigma^2/K for T (crb.py docstring).
+    K, sigma = 3000, 0.01
+    bound = crb_mse(np.eye(3), np.zeros(3), fibonacci_sphere(K), sigma)
+    assert bound.h_part == pytest.approx(9 * sigma**2 / K, rel=0.01)
+    assert bound.T_part == pytest.approx(40.5 * sigma**2 / K, rel=0.01)
+    assert bound.total == pytest.approx(49.5 * sigma**2 / K, rel=0.01)
+
+
+def test_rotations_are_the_null_space():
+    T = np.eye(3) + 0.1 * np.random.default_rng(0).uniform(-1, 1, (3, 3))
+    F = fisher_information(T, fibonacci_sphere(200))
+    G = gauge_basis(T)
+    assert np.abs(F @ G).max() < 1e-9 * np.abs(F).max()
+    assert np.linalg.matrix_rank(F, tol=1e-9 * np.abs(F).max()) == 9
+
+
+def test_bound_is_invariant_to_the_gauge_and_scales_with_sigma():
+    m = fibonacci_sphere(300)
+    T = np.diag([1.1, 0.9, 1.0])
+    Q = Rotation.from_rotvec([0.3, -0.2, 0.5]).as_matrix()
+    a = crb_mse(T, np.zeros(3), m, 0.01).total
+    b = crb_mse(T @ Q, np.zeros(3), m @ Q, 0.01).total   # same data, rotated gauge
+    assert b == pytest.approx(a, rel=1e-9)
+    assert crb_mse(T, np.zeros(3), m, 0.02).total == pytest.approx(4 * a, rel=1e-12)
+    assert crb_mse(T, np.zeros(3), m, 0.0).total == 0.0
+
+
+def test_unidentifiable_directions_give_an_infinite_bound():
+    theta = np.linspace(0, 2 * np.pi, 50, endpoint=False)
+    circle = np.column_stack([np.cos(theta), np.sin(theta), np.zeros_like(theta)])
+    assert np.isinf(crb_mse(np.eye(3), np.zeros(3), circle, 0.01).total)
+
+
+def test_magical_is_efficient_at_low_noise():
+    # MAG.I.C.AL solves the ML problem (58) of this model: at low noise its mean squared
+    # error over many datasets must sit on the bound.
+    point = Point(K=100, sigma=1e-3)
+    sq, bounds, Js, EJ = [], [], [], []
+    for seed in range(200):
+        d = make_dataset(np.random.default_rng(seed), point)
+        cal = magbench.calibrate(d.y, "magical")
+        J, J_h, J_T = accuracy_cost(cal.T, cal.h, d.T, d.h)
+        sq.append(J_h**2 + J_T**2)
+        Js.append(J)
+        bounds.append(crb_mse(d.T, d.h, d.m, point.sigma).total)
+        EJ.append(efficient_expected_J(d.T, d.m, point.sigma))
+    assert np.mean(sq) == pytest.approx(np.mean(bounds), rel=0.15)
+    assert np.mean(Js) == pytest.approx(np.mean(EJ), rel=0.1)

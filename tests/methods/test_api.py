@@ -1,0 +1,75 @@
+import numpy as np
+import pytest
+
+import magbench
+from magbench.core.model import Calibration, CalibrationFailed
+from magbench.methods.registry import register, unregister
+
+
+@pytest.fixture
+def temporary_method():
+    names = []
+
+    def make(name, fit, **kw):
+        register(name, label=name, min_samples=4, **kw)(fit)
+        names.append(name)
+
+    yield make
+    for n in names:
+        unregister(n)
+
+
+def test_methods_are_in_display_order():
+    names = magbench.methods()
+    assert names.index("dorveaux") < names.index("magical")
+
+
+def test_non_finite_answer_is_calibration_failed(temporary_method, nominal):
+    temporary_method("nan_method", lambda y: Calibration(np.full((3, 3), np.nan), np.zeros(3)))
+    with pytest.raises(CalibrationFailed, match="not finite"):
+        magbench.calibrate(nominal.y, "nan_method")
+
+
+def test_linalg_error_is_calibration_failed(temporary_method, nominal):
+    def fit(y):
+        return Calibration(np.linalg.cholesky(-np.eye(3)), np.zeros(3))
+
+    temporary_method("chol_method", fit)
+    with pytest.raises(CalibrationFailed, match="linear algebra failed"):
+        magbench.calibrate(nominal.y, "chol_method")
+
+
+def test_randomized_methods_get_a_seeded_generator(temporary_method, nominal):
+    seen = []
+
+    def fit(y, *, rng=None):
+        seen.append(rng.random())
+        return Calibration(np.eye(3), np.zeros(3))
+
+    temporary_method("random_method", fit, randomized=True)
+    magbench.calibrate(nominal.y, "random_method")
+    magbench.calibrate(nominal.y, "random_method")
+    magbench.calibrate(nominal.y, "random_method", rng=5)
+    assert seen[0] == seen[1] != seen[2]
+
+
+def test_gyro_methods_need_rates(temporary_method, nominal):
+    temporary_method("gyro_method", lambda y, *, angular_rate, time: Calibration(np.eye(3),
+                                                                                np.zeros(3)),
+                     needs_gyro=True)
+    with pytest.raises(ValueError, match="needs angular_rate"):
+        magbench.calibrate(nominal.y, "gyro_method")
+
+
+def test_duplicates_and_zeros_are_rejected(nominal):
+    with pytest.raises(ValueError, match="distinct measurements"):
+        magbench.calibrate(np.repeat(nominal.y[:2], 10, axis=0), "magical")
+    with pytest.raises(ValueError, match="all zero"):
+        magbench.calibrate(np.zeros((10, 3)), "magical")
+    with pytest.raises(ValueError, match="collinear"):
+        magbench.calibrate(np.outer(np.linspace(1, 2, 10), [1.0, 2.0, 3.0]), "magical")
+
+
+def test_registering_twice_is_an_error():
+    with pytest.raises(ValueError, match="registered twice"):
+        register("magical", label="x", min_samples=4)(lambda y: None)
