@@ -11,7 +11,7 @@ from hypothesis.extra.numpy import arrays
 
 import magbench
 from magbench.core.model import CalibrationFailed
-from magbench.runner import time_limit
+from magbench.engine.trial import time_limit
 from magbench.sources.synthetic import Point, make_dataset
 from tests.methods.algorithms.test_contract import SCALE_RTOL
 

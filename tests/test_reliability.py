@@ -12,9 +12,10 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
+from magbench.engine.sweep import run_study
 from magbench.methods.registry import _REGISTRY, unregister
-from magbench.runner import SweepSpec, run_sweep
 from magbench.sources.synthetic import Point
+from magbench.studies.review import ReviewStudy, read_trials
 
 REPO = Path(__file__).resolve().parents[1]
 FAULTY = "tests.plugins.faulty"
@@ -31,11 +32,16 @@ def faulty():
     sys.modules.pop(FAULTY, None)
 
 
-def spec(algorithms, **kw) -> SweepSpec:
+def run_sweep(study: ReviewStudy, out_dir, **kw) -> tuple[pd.DataFrame, pd.DataFrame]:
+    run_study(study, out_dir, progress=False, **kw)
+    return read_trials(out_dir / "trials.csv"), study.summarize(out_dir)
+
+
+def spec(algorithms, **kw) -> ReviewStudy:
     base = dict(name="rel", points=[Point(K=40)], trials=4, seed=3, algorithms=algorithms,
                 call_timeout_s=0.5, plugins=(FAULTY,))
     base.update(kw)
-    return SweepSpec(**base)
+    return ReviewStudy(**base)
 
 
 @pytest.mark.parametrize("n_jobs", [1, 2])
@@ -61,7 +67,7 @@ def sweep_command(results: Path, *extra: str) -> list[str]:
 
 def wait_for_parts(folder: Path, count: int, proc: subprocess.Popen, limit: float = 60) -> None:
     start = time.monotonic()
-    while len(list(folder.glob("p*.csv"))) < count:
+    while len(list(folder.glob("c*.json"))) < count:
         assert proc.poll() is None, "the sweep ended before it could be interrupted"
         assert time.monotonic() - start < limit, "no progress"
         time.sleep(0.05)
@@ -81,7 +87,7 @@ def test_a_killed_sweep_resumes_to_the_same_rows(tmp_path):
     proc.send_signal(signal.SIGKILL)
     proc.wait(timeout=30)
     assert not (tmp_path / "cut" / "baseline" / "trials.csv").exists()
-    kept = len(list((tmp_path / "cut" / "baseline" / "parts").glob("p*.csv")))
+    kept = len(list((tmp_path / "cut" / "baseline" / "parts").glob("c*.json")))
     assert 3 <= kept < 15
     again = subprocess.run(sweep_command(tmp_path / "cut"), cwd=REPO, capture_output=True,
                            text=True, timeout=120)
@@ -129,7 +135,7 @@ def test_cli_rejects_a_bad_backend_and_timeout(tmp_path, capsys):
 
 @pytest.mark.skipif(os.name != "posix", reason="SIGALRM timers are POSIX only")
 def test_time_limit_interrupts_python_code():
-    from magbench.runner import CallTimeout, time_limit
+    from magbench.engine.trial import CallTimeout, time_limit
 
     with pytest.raises(CallTimeout), time_limit(0.2):
         while True:

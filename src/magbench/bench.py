@@ -17,11 +17,13 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from magbench.core.files import write_csv_atomic, write_text_atomic
 from magbench.core.metrics import accuracy_cost
+from magbench.engine.sweep import run_study
 from magbench.methods.api import calibrate
 from magbench.methods.registry import get_method, methods
-from magbench.runner import SweepSpec, run_sweep, write_csv_atomic, write_text_atomic
 from magbench.sources.synthetic import Point, make_dataset
+from magbench.studies.review import ReviewStudy
 
 __all__ = ["bench_calls", "bench_parallel", "bench_peers", "bench_report_section", "run_bench"]
 
@@ -154,12 +156,13 @@ def bench_parallel(trials: int = 250, algorithms: Sequence[str] | None = None,
     """Wall-clock time of one sweep with 1 and with 2 workers, and the speed-up."""
     import tempfile
 
-    spec = SweepSpec("bench_parallel", [Point()], trials, 0, list(algorithms or methods()))
+    spec = ReviewStudy("bench_parallel", [Point()], trials, 0, list(algorithms or methods()))
     rows = []
     with tempfile.TemporaryDirectory(dir=workdir) as tmp:
         for n_jobs in (1, 2):
             start = time.perf_counter()
-            run_sweep(spec, Path(tmp) / f"n{n_jobs}", n_jobs=n_jobs, chunk_size=10)
+            run_study(spec, Path(tmp) / f"n{n_jobs}", n_jobs=n_jobs, chunk_size=10,
+                      progress=False)
             rows.append({"n_jobs": n_jobs, "wall_s": time.perf_counter() - start,
                          "trials": trials, "methods": len(spec.algorithms)})
     out = pd.DataFrame(rows)

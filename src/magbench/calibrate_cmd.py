@@ -24,6 +24,7 @@ import pandas as pd
 from omegaconf import DictConfig, OmegaConf
 
 from magbench.cli import UsageError, check_integer
+from magbench.core.files import write_csv_atomic, write_text_atomic
 from magbench.methods.registry import get_method, methods
 from magbench.real import (
     DEFAULT_MAX_SAMPLES,
@@ -34,7 +35,6 @@ from magbench.real import (
     read_samples,
     recording_summary,
 )
-from magbench.runner import write_csv_atomic, write_text_atomic
 
 __all__ = ["calibration_json", "rank", "run_calibrate"]
 

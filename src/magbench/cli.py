@@ -92,9 +92,10 @@ def selected_algorithms(cfg: DictConfig, include_gyro: bool = False) -> list[str
 
 def validate(cfg: DictConfig) -> dict:
     """Check every value a sweep uses; returns the plain values, or raises :class:`UsageError`."""
+    from magbench.engine.plugins import load_plugins
     from magbench.methods.registry import get_method
-    from magbench.runner import POINT_COLUMNS, load_plugins, point_with
     from magbench.sources.synthetic import Point
+    from magbench.studies.review import POINT_COLUMNS, point_with
 
     try:
         load_plugins(list(cfg.plugins or []))
@@ -175,10 +176,9 @@ def validate(cfg: DictConfig) -> dict:
 
 def run(cfg: DictConfig) -> int:
     """Run the configured sweep, then write its tables."""
-    from tqdm import tqdm
-
+    from magbench.engine.sweep import run_study
     from magbench.report import write_sweep_tables
-    from magbench.runner import SweepSpec, run_sweep
+    from magbench.studies.review import ReviewStudy, read_trials
 
     if cfg.sweep.get("kind") == "gyro":
         from magbench.gyro_sweep import run_gyro_command
@@ -193,17 +193,15 @@ def run(cfg: DictConfig) -> int:
 
         return run_wushi(cfg)
     values = validate(cfg)
-    spec = SweepSpec(values["name"], values["points"], values["trials"], values["seed"],
-                     values["algorithms"], values["options"], values["delta"],
-                     values["call_timeout_s"], tuple(cfg.plugins or ()))
+    spec = ReviewStudy(values["name"], values["points"], values["trials"], values["seed"],
+                       values["algorithms"], values["options"], values["delta"],
+                       values["call_timeout_s"], tuple(cfg.plugins or ()))
     out_dir = values["results_dir"] / spec.name
-    total = spec.trials * len(spec.points)
-    with tqdm(total=total, desc=f"sweep {spec.name}", unit="trial",
-              disable=not cfg.progress, file=sys.stderr) as bar:
-        trials, summary = run_sweep(spec, out_dir, n_jobs=values["n_jobs"],
-                                    chunk_size=values["chunk_size"], progress=bar.update,
-                                    backend=cfg.backend,
-                                    scheduler_address=cfg.scheduler_address)
+    run_study(spec, out_dir, n_jobs=values["n_jobs"], chunk_size=values["chunk_size"],
+              backend=cfg.backend, scheduler_address=cfg.scheduler_address,
+              progress=bool(cfg.progress), config=OmegaConf.to_container(cfg, resolve=True))
+    summary = spec.summarize(out_dir)
+    trials = read_trials(out_dir / "trials.csv")
     write_sweep_tables(spec.name, summary, out_dir, delta=spec.delta)
     n_bad = int((~trials["ok"].astype(bool)).sum())
     print(f"sweep {spec.name}: {len(trials)} rows ({n_bad} not ok) -> {out_dir}/trials.csv, "
@@ -245,6 +243,8 @@ COMMANDS = {"run": run, "bench": bench, "report": report, "calibrate": calibrate
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of ``python -m magbench`` and the ``magbench`` script."""
+    from magbench.engine.sweep import FolderBusy
+
     args = list(sys.argv[1:] if argv is None else argv)
     command = args.pop(0) if args and args[0] in COMMANDS else "run"
     if args and args[0] in ("-h", "--help", "help"):
@@ -253,6 +253,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         return COMMANDS[command](compose_config(args))
     except UsageError as exc:
+        print(f"magbench: error: {exc}", file=sys.stderr)
+        return 2
+    except FolderBusy as exc:
         print(f"magbench: error: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:

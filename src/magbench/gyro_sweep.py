@@ -26,12 +26,13 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from magbench.core.files import write_csv_atomic, write_text_atomic
 from magbench.core.metrics import accuracy_cost, summarize, trivial_cost
 from magbench.core.model import CalibrationFailed
 from magbench.methods.api import calibrate
 from magbench.methods.registry import get_method, methods
-from magbench.runner import TRUTH_COLUMNS, write_csv_atomic, write_text_atomic
 from magbench.sources.trajectory import Trajectory, simulate
+from magbench.studies.review import TRUTH_COLUMNS
 
 __all__ = ["GYRO_POINT_COLUMNS", "GyroPoint", "GyroSweepSpec", "gyro_report_section",
            "run_gyro_methods_on_recording", "run_gyro_sweep", "run_gyro_trial"]

@@ -174,7 +174,7 @@ def plot_sweep(data: pd.DataFrame, sweep: str) -> Figure:
 
 def write_figure(summary: pd.DataFrame, sweep: str, out_dir: Path | str) -> tuple[Path, Path]:
     """Write ``fig<N>_<x>.png`` and the CSV of what it plots into ``out_dir``."""
-    from magbench.runner import write_csv_atomic
+    from magbench.core.files import write_csv_atomic
 
     out_dir = Path(out_dir)
     spec = FIGURES[sweep]

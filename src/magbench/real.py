@@ -70,12 +70,13 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from magbench.core.files import write_csv_atomic, write_text_atomic
 from magbench.core.geometry import fibonacci_sphere
 from magbench.core.metrics import real_cost
 from magbench.core.model import Calibration
+from magbench.engine.trial import time_limit
 from magbench.methods.api import calibrate
 from magbench.methods.registry import get_method
-from magbench.runner import time_limit, write_csv_atomic, write_text_atomic
 
 __all__ = [
     "COVERAGE_ANGLE_DEG",
@@ -830,8 +831,8 @@ def run_real(cfg) -> int:
     from omegaconf import OmegaConf
 
     from magbench.cli import UsageError, check_integer, selected_algorithms
+    from magbench.engine.plugins import load_plugins
     from magbench.plots_real import figure6
-    from magbench.runner import load_plugins
 
     try:
         load_plugins(cfg.get("plugins") or ())

@@ -106,7 +106,7 @@ def table2_markdown(summary: pd.DataFrame, delta: float) -> str:
 
 def write_sweep_tables(name: str, summary: pd.DataFrame, out_dir: Path, delta: float) -> None:
     """Tables a finished sweep writes beside its CSV files (``table2.md`` for the baseline)."""
-    from magbench.runner import write_text_atomic
+    from magbench.core.files import write_text_atomic
 
     if name == "baseline":
         write_text_atomic("# Baseline (Table 2)\n\n" + table2_markdown(summary, delta),
@@ -551,7 +551,7 @@ def build_report(results_dir: Path | str) -> str:
 
 def write_report(results_dir: Path | str) -> Path:
     """Regenerate the figures, then write ``<results_dir>/report.md``."""
-    from magbench.runner import write_text_atomic
+    from magbench.core.files import write_text_atomic
 
     results_dir = Path(results_dir)
     write_figures(results_dir)

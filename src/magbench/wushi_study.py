@@ -46,6 +46,7 @@ import pandas as pd
 from matplotlib.figure import Figure
 
 from magbench.core.crb import crb_covariance
+from magbench.core.files import write_csv_atomic, write_text_atomic
 from magbench.core.metrics import accuracy_cost
 from magbench.core.model import CalibrationFailed
 from magbench.methods.algorithms import wu_shi, wu_shi_nm
@@ -53,7 +54,6 @@ from magbench.methods.algorithms._wu_shi_init import initial_estimate, upper_inv
 from magbench.methods.api import calibrate, unit_scale
 from magbench.methods.registry import get_method, methods
 from magbench.report import format_number, paper_values
-from magbench.runner import write_csv_atomic, write_text_atomic
 
 __all__ = [
     "WuShiData", "WuShiSpec", "attitude_matrices", "count_divergences", "decompose",

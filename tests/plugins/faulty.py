@@ -33,3 +33,9 @@ def slow(samples: np.ndarray, *, delay: float = 0.05) -> Calibration:
     """The trivial answer (I, 0), after a delay: long enough to interrupt a sweep."""
     time.sleep(delay)
     return Calibration(np.eye(3), np.zeros(3))
+
+
+@register("faulty_keyerror", label="raises KeyError", min_samples=4, family="extra")
+def raises_key_error(samples: np.ndarray) -> Calibration:
+    """An unusual exception type: containment must not depend on the type."""
+    raise KeyError("deliberate missing key")

@@ -3,26 +3,32 @@ import pandas as pd
 import pytest
 
 from magbench.core.model import Calibration
+from magbench.engine.sweep import run_study
 from magbench.methods.registry import register, unregister
-from magbench.runner import ROW_COLUMNS, SweepSpec, points_for, run_sweep, run_trial
 from magbench.sources.synthetic import Point
+from magbench.studies.review import ROW_COLUMNS, ReviewStudy, points_for, read_trials, trial_rows
 
 SMALL = Point(K=60)
 
 
-def spec(**kw) -> SweepSpec:
+def spec(**kw) -> ReviewStudy:
     base = dict(name="t", points=[SMALL, Point(K=60, gamma=0.5)], trials=6, seed=11,
                 algorithms=["magical", "dorveaux"])
     base.update(kw)
-    return SweepSpec(**base)
+    return ReviewStudy(**base)
 
 
 def without_time(df: pd.DataFrame) -> pd.DataFrame:
     return df.drop(columns=["time_s"])
 
 
+def run_sweep(study: ReviewStudy, out_dir, **kw) -> tuple[pd.DataFrame, pd.DataFrame]:
+    run_study(study, out_dir, progress=False, **kw)
+    return read_trials(out_dir / "trials.csv"), study.summarize(out_dir)
+
+
 def test_rows_have_every_column_and_recomputable_truth():
-    rows = run_trial(SMALL, 0, 1, ["magical", "dorveaux"])
+    rows = trial_rows(SMALL, 0, 1, ["magical", "dorveaux"])
     assert [r["algorithm"] for r in rows] == ["magical", "dorveaux"]
     for r in rows:
         assert list(r) == ROW_COLUMNS
@@ -41,34 +47,6 @@ def test_same_rows_whatever_the_number_of_workers(tmp_path):
     pd.testing.assert_frame_equal(a, b)
     assert len(one) == 2 * 6 * 2
     assert not (tmp_path / "a" / "parts").exists()
-
-
-def test_an_interrupted_sweep_finishes_only_the_missing_work(tmp_path):
-    full, _ = run_sweep(spec(), tmp_path / "full", chunk_size=2)
-    calls = []
-
-    def stop_after_two_chunks(n):
-        calls.append(n)
-        if len(calls) == 3:  # the first call reports work already done (none)
-            raise KeyboardInterrupt
-
-    with pytest.raises(KeyboardInterrupt):
-        run_sweep(spec(), tmp_path / "cut", chunk_size=2, progress=stop_after_two_chunks)
-    parts = sorted((tmp_path / "cut" / "parts").glob("p*.csv"))
-    assert len(parts) == 2
-    done = []
-    resumed, _ = run_sweep(spec(), tmp_path / "cut", chunk_size=2, progress=done.append)
-    assert done[0] == 4  # two chunks of two trials were already there
-    pd.testing.assert_frame_equal(without_time(resumed), without_time(full))
-
-
-def test_parts_of_another_spec_are_not_reused(tmp_path):
-    with pytest.raises(KeyboardInterrupt):
-        run_sweep(spec(), tmp_path, chunk_size=2,
-                  progress=lambda n: (_ for _ in ()).throw(KeyboardInterrupt) if n else None)
-    other, _ = run_sweep(spec(seed=12), tmp_path, chunk_size=2)
-    fresh, _ = run_sweep(spec(seed=12), tmp_path / "fresh", chunk_size=2)
-    pd.testing.assert_frame_equal(without_time(other), without_time(fresh))
 
 
 @pytest.fixture
@@ -119,9 +97,9 @@ def test_methods_with_an_assumed_noise_level_get_the_true_one():
 
     register("test_sigma", label="sigma", min_samples=4)(fit)
     try:
-        run_trial(Point(K=30, sigma=0.03), 0, 1, ["test_sigma"])
-        run_trial(Point(K=30, sigma=0.03), 0, 1, ["test_sigma"], {"test_sigma": {"sigma": 0.1}})
-        run_trial(Point(K=30, sigma=0.0), 0, 1, ["test_sigma"])
+        trial_rows(Point(K=30, sigma=0.03), 0, 1, ["test_sigma"])
+        trial_rows(Point(K=30, sigma=0.03), 0, 1, ["test_sigma"], {"test_sigma": {"sigma": 0.1}})
+        trial_rows(Point(K=30, sigma=0.0), 0, 1, ["test_sigma"])
     finally:
         unregister("test_sigma")
     assert seen == [0.03, 0.1, 0.005]

@@ -1,0 +1,293 @@
+"""The one sweep runner: a study's work units, in chunks, over workers, resumable.
+
+A *study* (:class:`Study`) lists its work units (a point and a trial, a recording, a Monte
+Carlo run) and computes the rows of one unit; this module does everything else the same way for
+every study:
+
+* chunks of ``chunk_size`` consecutive units run as tasks on joblib workers (``n_jobs``) or a
+  Dask cluster (``backend="dask"``); plugin modules are imported in every worker first;
+* each finished chunk is written at once as part files (one per table) plus a small JSON
+  record of their row counts and SHA-256 checksums, each renamed into place; a killed run
+  loses at most the chunks in flight;
+* a rerun reuses a part only if its record is intact, its checksums match and it belongs to
+  the same study fingerprint; anything else is recomputed, with a warning naming it;
+* the parts are merged on disk into the final CSV files (rows in unit order, whatever finished
+  first), ``run.json`` is written beside them and the parts are removed;
+* one run per folder at a time: a second run on the same folder is refused (:class:`FolderBusy`);
+  the lock is the operating system's, so a killed run leaves no stale lock behind.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import fcntl
+import hashlib
+import json
+import os
+import shutil
+import sys
+import time
+import warnings
+from collections.abc import Iterator, Mapping, Sequence
+from datetime import UTC, datetime
+from pathlib import Path
+
+import pandas as pd
+
+from magbench.core.files import atomic_path, file_sha256, write_csv_atomic, write_text_atomic
+from magbench.engine.plugins import load_plugins
+from magbench.engine.record import write_run_record
+
+__all__ = ["FolderBusy", "Study", "folder_lock", "parallel_backend", "run_study"]
+
+
+class FolderBusy(RuntimeError):
+    """Another run holds the results folder."""
+
+
+class Study:
+    """Base of every study: a frozen dataclass whose fields determine its rows.
+
+    Subclasses set ``name`` and ``tables`` (table name -> (file name, columns); the first is
+    the main table) and implement :meth:`units` and :meth:`run_unit`. Every field of the
+    dataclass enters the fingerprint, so parts of a run with other settings are never reused.
+    """
+
+    # Set by every subclass: ``name`` and ``plugins`` as dataclass fields, ``tables`` as a
+    # class attribute (no defaults here: a dataclass would take them for field defaults).
+    name: str
+    plugins: Sequence[str]
+    tables: Mapping[str, tuple[str, Sequence[str]]]
+
+    def units(self) -> list:
+        """The work units, in the order their rows appear in the results."""
+        raise NotImplementedError
+
+    def unit_weight(self, unit: object) -> int:
+        """Progress counted for one unit (trials, for instance); 1 by default."""
+        return 1
+
+    def run_unit(self, unit: object) -> dict[str, list[dict]]:
+        """Rows of one unit, per table. Must not raise for a method's failure."""
+        raise NotImplementedError
+
+    def describe(self) -> dict:
+        """The settings as plain data (for ``run.json`` and the fingerprint)."""
+        return json.loads(json.dumps(dataclasses.asdict(self), default=str))
+
+    def fingerprint(self) -> str:
+        """Hash of the settings and tables: parts of another configuration are never reused."""
+        text = json.dumps({"study": type(self).__name__, "settings": self.describe(),
+                           "tables": {k: list(v[1]) for k, v in self.tables.items()}},
+                          sort_keys=True, default=str)
+        return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
+@contextlib.contextmanager
+def folder_lock(folder: Path) -> Iterator[None]:
+    """Hold an exclusive lock on ``folder`` (``.lock``) for the block; :class:`FolderBusy` if
+    another process holds it. The lock dies with its process, so a killed run leaves none."""
+    folder.mkdir(parents=True, exist_ok=True)
+    path = folder / ".lock"
+    handle = open(path, "a+")
+    try:
+        try:
+            fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            handle.seek(0)
+            holder = handle.read().strip() or "another process"
+            raise FolderBusy(f"{folder} is in use by a running magbench ({holder}); wait for "
+                             "it to finish or choose another results_dir") from None
+        handle.seek(0)
+        handle.truncate()
+        handle.write(f"pid {os.getpid()} since {datetime.now(UTC):%Y-%m-%d %H:%M:%S} UTC")
+        handle.flush()
+        yield
+    finally:
+        handle.close()
+
+
+@contextlib.contextmanager
+def parallel_backend(backend: str, n_jobs: int,
+                     scheduler_address: str | None = None) -> Iterator[dict]:
+    """joblib arguments for ``backend``, with a Dask client open for ``"dask"``.
+
+    ``"loky"`` runs worker processes on this machine. ``"dask"`` sends the tasks to the Dask
+    cluster at ``scheduler_address`` or, when that is None, to a ``LocalCluster`` of ``n_jobs``
+    single-threaded worker processes bound to 127.0.0.1.
+    """
+    if backend == "loky":
+        yield {"backend": "loky", "n_jobs": n_jobs}
+        return
+    if backend != "dask":
+        raise ValueError(f"backend must be 'loky' or 'dask', got {backend!r}")
+    from distributed import Client, LocalCluster
+    from joblib import parallel_config
+
+    with contextlib.ExitStack() as stack:
+        if scheduler_address:
+            client = stack.enter_context(Client(scheduler_address))
+        else:
+            cluster = stack.enter_context(LocalCluster(
+                n_workers=max(n_jobs, 1), threads_per_worker=1, processes=True,
+                host="127.0.0.1", dashboard_address=None))
+            client = stack.enter_context(Client(cluster))
+        stack.enter_context(parallel_config(backend="dask"))
+        yield {"n_jobs": -1, "client": client}
+
+
+def _run_chunk(study: Study, units: list, start: int) -> tuple[int, dict[str, list[dict]]]:
+    load_plugins(study.plugins)
+    out: dict[str, list[dict]] = {name: [] for name in study.tables}
+    for unit in units:
+        for name, rows in study.run_unit(unit).items():
+            out[name].extend(rows)
+    return start, out
+
+
+class _Parts:
+    """The part files of one study run under ``<out_dir>/parts``."""
+
+    def __init__(self, out_dir: Path, study: Study) -> None:
+        self.dir = out_dir / "parts"
+        self.study = study
+        manifest = self.dir / "manifest.json"
+        fingerprint = study.fingerprint()
+        if self.dir.exists():
+            try:
+                found = json.loads(manifest.read_text()).get("fingerprint")
+            except (OSError, ValueError, AttributeError):
+                found = "damaged or missing manifest"
+            if found != fingerprint:
+                n = len(list(self.dir.glob("*.json"))) - manifest.exists()
+                if n > 0:
+                    _warn(f"{self.dir}: discarding {n} finished chunk(s) of another "
+                          f"configuration ({found}); they are recomputed")
+                shutil.rmtree(self.dir)
+        if not self.dir.exists():
+            self.dir.mkdir(parents=True)
+            write_text_atomic(json.dumps({"fingerprint": fingerprint, "study": study.name}),
+                              manifest)
+
+    def _stem(self, start: int, stop: int) -> str:
+        return f"c{start:07d}-{stop:07d}"
+
+    def path(self, start: int, stop: int, table: str) -> Path:
+        return self.dir / f"{self._stem(start, stop)}.{table}.csv"
+
+    def done(self, start: int, stop: int) -> bool:
+        """True if the chunk's parts are complete and unchanged; damaged ones are removed."""
+        record = self.dir / f"{self._stem(start, stop)}.json"
+        if not record.exists():
+            return False
+        try:
+            sums = json.loads(record.read_text())
+            intact = all(file_sha256(self.path(start, stop, t)) == sums[t]["sha256"]
+                         for t in self.study.tables)
+        except (OSError, ValueError, KeyError, TypeError):
+            intact = False
+        if not intact:
+            _warn(f"{record.name}: part files damaged or incomplete; units {start}-{stop - 1} "
+                  "are recomputed")
+            record.unlink(missing_ok=True)
+        return intact
+
+    def write(self, start: int, stop: int, rows: dict[str, list[dict]]) -> None:
+        sums = {}
+        for table, (_, columns) in self.study.tables.items():
+            path = self.path(start, stop, table)
+            write_csv_atomic(pd.DataFrame(rows.get(table, []), columns=list(columns)), path)
+            sums[table] = {"rows": len(rows.get(table, [])), "sha256": file_sha256(path)}
+        # The record goes last: a chunk counts as done only once all its tables are in place.
+        write_text_atomic(json.dumps(sums), self.dir / f"{self._stem(start, stop)}.json")
+
+    def merge(self, chunks: Sequence[tuple[int, int]], table: str, dest: Path) -> int:
+        """Concatenate the chunks' parts of ``table`` into ``dest`` on disk; rows written."""
+        n = 0
+        with atomic_path(dest) as tmp, open(tmp, "w") as out:
+            for i, (start, stop) in enumerate(chunks):
+                with open(self.path(start, stop, table)) as part:
+                    header = part.readline()
+                    if i == 0:
+                        out.write(header)
+                    for line in part:
+                        out.write(line)
+                        n += 1
+        return n
+
+
+def _warn(message: str) -> None:
+    warnings.warn(message, RuntimeWarning, stacklevel=3)
+
+
+def run_study(study: Study, out_dir: Path | str, *, n_jobs: int = 1, chunk_size: int = 25,
+              backend: str = "loky", scheduler_address: str | None = None,
+              progress: bool = True, config: Mapping | None = None) -> dict[str, Path]:
+    """Run (or finish) ``study`` and write its tables, and ``run.json``, under ``out_dir``.
+
+    Parameters
+    ----------
+    study : Study
+        What to run.
+    out_dir : path
+        The study's result folder; holds ``parts/`` while the run is unfinished.
+    n_jobs : int
+        joblib workers (1 runs in this process; -1 uses every core).
+    chunk_size : int
+        Units per task: large enough that worker start-up and data transfer are small next to
+        the work, small enough that a kill loses little.
+    backend, scheduler_address : str, str or None
+        ``"loky"`` (processes here) or ``"dask"`` (see :func:`parallel_backend`).
+    progress : bool
+        Show a progress bar (stderr) with the time left.
+    config : mapping, optional
+        The user's configuration, recorded in ``run.json``.
+
+    Returns
+    -------
+    dict
+        Table name -> path of its CSV file.
+
+    Raises
+    ------
+    FolderBusy
+        Another run holds ``out_dir``.
+    """
+    from joblib import Parallel, delayed
+    from tqdm import tqdm
+
+    out_dir = Path(out_dir)
+    started, clock = datetime.now(UTC), time.perf_counter()
+    load_plugins(study.plugins)
+    units = study.units()
+    chunks = [(s, min(s + chunk_size, len(units))) for s in range(0, len(units), chunk_size)]
+    with folder_lock(out_dir):
+        parts = _Parts(out_dir, study)
+        todo = [c for c in chunks if not parts.done(*c)]
+        resumed = len(units) - sum(stop - start for start, stop in todo)
+        weights = [study.unit_weight(u) for u in units]
+        with tqdm(total=sum(weights), desc=f"{study.name}", unit="trial", file=sys.stderr,
+                  disable=not progress, smoothing=0.1) as bar:
+            bar.update(sum(weights) - sum(sum(weights[a:b]) for a, b in todo))
+            if todo:
+                with parallel_backend(backend, n_jobs, scheduler_address) as engine, \
+                        Parallel(n_jobs=engine["n_jobs"], backend=engine.get("backend"),
+                                 return_as="generator_unordered") as parallel:
+                    stops = dict(todo)
+                    for start, rows in parallel(delayed(_run_chunk)(study, units[a:b], a)
+                                                for a, b in todo):
+                        parts.write(start, stops[start], rows)
+                        bar.update(sum(weights[start:stops[start]]))
+        written = {table: out_dir / file for table, (file, _) in study.tables.items()}
+        counts = {table: parts.merge(chunks, table, written[table]) for table in study.tables}
+        finished = datetime.now(UTC)
+        write_run_record(out_dir, study=study.name, fingerprint=study.fingerprint(),
+                         settings=study.describe(), config=dict(config or {}),
+                         n_jobs=n_jobs, backend=backend, chunk_size=chunk_size,
+                         started=started.isoformat(timespec="seconds"),
+                         finished=finished.isoformat(timespec="seconds"),
+                         wall_s=round(time.perf_counter() - clock, 3),
+                         units=len(units), units_resumed=resumed, rows=counts)
+        shutil.rmtree(parts.dir)
+    return written

@@ -1,0 +1,139 @@
+"""The one trial loop: run a method on one unit's data, contained, timed and seeded.
+
+Every study (review sweeps, coverage, gyro, Wu-Shi, real recordings) calls a method through
+:func:`run_method`, so a method behaves the same everywhere: any exception, a non-finite or
+singular answer, a call past ``call_timeout_s`` or a stop at the iteration cap becomes an
+:class:`Outcome` with a reason in ``error`` (a row with ``ok=False``), and the study goes on.
+Only the calibration call is timed. A randomised method gets a Generator keyed by the study's
+stream, the method's name and an optional tail (:mod:`magbench.core.seeding`), so its draws do
+not depend on which other methods run or on the workers.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import signal
+import threading
+import time
+from collections.abc import Callable, Iterator, Mapping
+from dataclasses import dataclass
+
+import numpy as np
+
+from magbench.core.model import Calibration
+from magbench.core.seeding import rng
+from magbench.methods.registry import get_method
+
+__all__ = ["CallTimeout", "Outcome", "estimate_columns", "run_method", "time_limit"]
+
+T_COLUMNS = [f"T_{i}{j}" for i in range(3) for j in range(3)]
+H_COLUMNS = [f"h_{i}" for i in range(3)]
+
+
+class CallTimeout(Exception):
+    """A calibration call ran past ``call_timeout_s``."""
+
+
+@contextlib.contextmanager
+def time_limit(seconds: float | None) -> Iterator[None]:
+    """Raise :class:`CallTimeout` in the block once ``seconds`` have passed.
+
+    Uses a real-time interval timer, so it works where the work runs in the main thread of its
+    process (in-process runs and joblib's process workers). Elsewhere (threads, such as a Dask
+    worker's) no limit can be imposed safely and the block runs unlimited.
+    """
+    if not seconds or threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def expire(signum, frame):
+        raise CallTimeout(f"call exceeded call_timeout_s = {seconds:g} s")
+
+    previous = signal.signal(signal.SIGALRM, expire)
+    signal.setitimer(signal.ITIMER_REAL, seconds)
+    try:
+        yield
+    finally:
+        signal.setitimer(signal.ITIMER_REAL, 0)
+        signal.signal(signal.SIGALRM, previous)
+
+
+@dataclass(frozen=True)
+class Outcome:
+    """What one method call gave: the estimate (if any), the reason it is not ok, the time.
+
+    ``error`` is empty when the method ended by its own rule with a finite, invertible
+    estimate; otherwise it says why (exception type and message, timeout, iteration cap). A
+    capped estimate is kept in ``calibration`` (what a user would get) with ``ok=False``.
+    """
+
+    name: str
+    calibration: Calibration | None
+    error: str
+    time_s: float
+
+    @property
+    def ok(self) -> bool:
+        return not self.error
+
+    @property
+    def n_iter(self) -> int:
+        return 0 if self.calibration is None else self.calibration.n_iter
+
+    @property
+    def T(self) -> np.ndarray | None:
+        return None if self.calibration is None else self.calibration.T
+
+    @property
+    def h(self) -> np.ndarray | None:
+        return None if self.calibration is None else self.calibration.h
+
+
+def run_method(name: str, fit: Callable[[dict], Calibration], *,
+               options: Mapping | None = None, seed: int = 0, stream: tuple = (),
+               stream_tail: tuple = (), call_timeout_s: float | None = None) -> Outcome:
+    """Call ``fit(options)`` for method ``name``, contained and timed.
+
+    Parameters
+    ----------
+    name : str
+        A registered method (its ``randomized`` flag decides whether it gets an ``rng``).
+    fit : callable
+        ``fit(options) -> Calibration``: the study's way of calling the method on the unit's
+        data (usually ``lambda o: calibrate(y, name, **o)``).
+    options : mapping, optional
+        The method's keyword options; an ``rng`` here is used as given.
+    seed, stream, stream_tail : int, tuple, tuple
+        A randomised method draws from ``rng(seed, *stream, name, *stream_tail)``.
+    call_timeout_s : float, optional
+        Time limit of the call (see :func:`time_limit`).
+
+    Returns
+    -------
+    Outcome
+        Never raises for a failure of the method: any ``Exception`` becomes the reason.
+    """
+    opts = dict(options or {})
+    if get_method(name).randomized and "rng" not in opts:
+        opts["rng"] = rng(seed, *stream, name, *stream_tail)
+    start = time.perf_counter()
+    try:
+        with time_limit(call_timeout_s):
+            cal = fit(opts)
+        elapsed = time.perf_counter() - start
+    except Exception as exc:  # failures are data: any error of the method becomes a row
+        return Outcome(name, None, f"{type(exc).__name__}: {exc}",
+                       time.perf_counter() - start)
+    if not (np.isfinite(cal.T).all() and np.isfinite(cal.h).all()):
+        return Outcome(name, None, f"CalibrationFailed: {name}: estimate is not finite",
+                       elapsed)
+    error = "" if cal.converged else (cal.message or f"{name}: stopped at its iteration cap")
+    return Outcome(name, cal, error, elapsed)
+
+
+def estimate_columns(T: np.ndarray | None, h: np.ndarray | None) -> dict:
+    """``h_0..h_2`` and ``T_00..T_22`` of an estimate (NaN where there is none)."""
+    T = np.full((3, 3), np.nan) if T is None else np.asarray(T)
+    h = np.full(3, np.nan) if h is None else np.asarray(h)
+    return {**dict(zip(H_COLUMNS, h.tolist(), strict=True)),
+            **dict(zip(T_COLUMNS, T.ravel().tolist(), strict=True))}

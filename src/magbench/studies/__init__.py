@@ -1,0 +1,5 @@
+"""Studies: what each experiment runs (work units and their rows) and its statistics.
+
+Every study runs on :mod:`magbench.engine`; none parses the command line, draws a figure or
+writes report text.
+"""
