@@ -1,12 +1,28 @@
-"""Geometry of field directions: the Fibonacci lattice (review Algorithm 8, steps 2-3)."""
+"""Geometry of field directions: the Fibonacci lattice, sphere fit, coverage and thickness.
+
+``thickness`` is the smallest over the largest singular value of the mean-centred samples (1 for
+a full sphere, 0 for samples in a plane); below :data:`MIN_THICKNESS` the samples are "nearly
+coplanar". ``coverage`` is the fraction of :data:`COVERAGE_GRID` Fibonacci directions lying
+within :data:`COVERAGE_ANGLE_DEG` of some sample direction seen from the sphere-fit centre (1 for
+a full sphere, about 0.5 for a hemisphere or for a single great circle, which is why both
+figures are checked); below :data:`MIN_COVERAGE` the samples cover "too little of the sphere".
+"""
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
-__all__ = ["GOLDEN_RATIO", "fibonacci_sphere"]
+__all__ = ["COVERAGE_ANGLE_DEG", "COVERAGE_GRID", "GOLDEN_RATIO", "MIN_COVERAGE",
+           "MIN_THICKNESS", "check_geometry", "coverage", "fibonacci_sphere", "sphere_fit",
+           "thickness", "unit_rows"]
 
 GOLDEN_RATIO = (1.0 + np.sqrt(5.0)) / 2.0
+COVERAGE_GRID = 200
+COVERAGE_ANGLE_DEG = 30.0
+MIN_COVERAGE = 0.3
+MIN_THICKNESS = 0.1
 
 
 def fibonacci_sphere(K: int, radius: float = 1.0,
@@ -40,3 +56,79 @@ def fibonacci_sphere(K: int, radius: float = 1.0,
     phi = np.arccos(cos_phi)
     return radius * np.column_stack([np.cos(theta) * np.sin(phi), np.sin(theta) * np.sin(phi),
                                      np.cos(phi)])
+
+
+def sphere_fit(y: np.ndarray) -> tuple[np.ndarray, float]:
+    """Centre ``c`` and radius ``r`` of the linear least-squares sphere fit.
+
+    ``||y||^2 = 2 c.y + (r^2 - ||c||^2)`` is linear in ``c`` and ``d = r^2 - ||c||^2``.
+    ``T = r I, h = c`` is the simplest calibration (hard iron and one scale), the real-data
+    baseline of :func:`is_meaningful`. Computed here, not taken from the registry, so the
+    baseline stays fixed whatever methods are registered.
+    """
+    y = np.asarray(y, dtype=float)
+    scale = float(np.sqrt(np.mean(np.einsum("ij,ij->i", y, y)))) or 1.0
+    z = y / scale
+    A = np.hstack([2.0 * z, np.ones((z.shape[0], 1))])
+    sol = np.linalg.lstsq(A, np.einsum("ij,ij->i", z, z), rcond=None)[0]
+    c = sol[:3]
+    r2 = float(sol[3] + c @ c)
+    if not r2 > 0:
+        raise ValueError("the sphere fit has no real radius; the samples do not lie near a "
+                         "sphere or ellipsoid")
+    return c * scale, math.sqrt(r2) * scale
+
+
+def unit_rows(x: np.ndarray) -> np.ndarray:
+    """The non-zero rows of ``x`` scaled to unit norm."""
+    n = np.sqrt(np.einsum("ij,ij->i", x, x))
+    return x[n > 0] / n[n > 0, None]
+
+
+def coverage(directions: np.ndarray, *, grid: int = COVERAGE_GRID,
+             angle_deg: float = COVERAGE_ANGLE_DEG) -> float:
+    """Fraction of ``grid`` Fibonacci directions within ``angle_deg`` of a given direction.
+
+    ``directions`` need not be normalised. A full sphere gives 1, a hemisphere about 0.5 + the
+    margin, a cap of angular radius theta about ``(1 - cos(theta + angle)) / 2``.
+    """
+    u = unit_rows(np.asarray(directions, dtype=float))
+    if u.shape[0] == 0:
+        return 0.0
+    g = fibonacci_sphere(grid)
+    cos_limit = math.cos(math.radians(angle_deg))
+    best = np.full(grid, -1.0)
+    for start in range(0, u.shape[0], 4096):      # bounded memory for long recordings
+        best = np.maximum(best, (g @ u[start:start + 4096].T).max(axis=1))
+    return float(np.mean(best >= cos_limit))
+
+
+def thickness(y: np.ndarray) -> float:
+    """Smallest over largest singular value of the mean-centred samples (0 = coplanar)."""
+    s = np.linalg.svd(np.asarray(y, float) - np.mean(y, axis=0), compute_uv=False)
+    return float(s[2] / s[0]) if s[0] > 0 else 0.0
+
+
+def check_geometry(y: np.ndarray, *, min_coverage: float = MIN_COVERAGE,
+                   min_thickness: float = MIN_THICKNESS, what: str = "samples") -> None:
+    """Reject samples that are nearly coplanar or cover too little of the sphere.
+
+    Raises
+    ------
+    ValueError
+        With the figure that failed and the threshold (see the module notes for definitions).
+    """
+    th = thickness(y)
+    if th < min_thickness:
+        raise ValueError(f"{what}: samples are nearly coplanar (thickness {th:.3g}: smallest/"
+                         f"largest singular value of the centred samples; at least "
+                         f"{min_thickness:g} is needed); rotate the sensor about more than "
+                         "one axis")
+    c, _ = sphere_fit(y)
+    cov = coverage(y - c)
+    if cov < min_coverage:
+        raise ValueError(f"{what}: samples cover too little of the sphere (coverage {cov:.2f}: "
+                         f"fraction of {COVERAGE_GRID} evenly spread directions within "
+                         f"{COVERAGE_ANGLE_DEG:g} deg of a sample direction seen from the "
+                         f"sphere-fit centre; at least {min_coverage:g} is needed); point the "
+                         "sensor in more directions")

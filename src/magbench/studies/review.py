@@ -26,8 +26,9 @@ from magbench.methods.api import calibrate
 from magbench.methods.registry import get_method
 from magbench.sources.synthetic import Point, make_dataset
 
-__all__ = ["POINT_COLUMNS", "ROW_COLUMNS", "TRUTH_COLUMNS", "ReviewStudy", "point_with",
-           "points_for", "summarize_review"]
+__all__ = ["POINT_COLUMNS", "ROW_COLUMNS", "TRUTH_COLUMNS", "ReviewStudy", "coverage_label",
+           "point_with", "points_for", "read_trials", "summarize_review", "trial_rows",
+           "with_coverage_column"]
 
 POINT_COLUMNS = ["K", "sigma", "beta", "gamma", "cap_deg", "band_deg"]
 _T_COLUMNS = [f"T_{i}{j}" for i in range(3) for j in range(3)]
@@ -146,6 +147,21 @@ def read_trials(path: Path | str) -> pd.DataFrame:
 def summarize_review(trials: pd.DataFrame) -> pd.DataFrame:
     """RB %, rho, tau (eqs. 77-79) and the Cramer-Rao columns per point and method."""
     return summarize(trials, POINT_COLUMNS + ["algorithm"])
+
+
+def coverage_label(cap_deg: float, band_deg: float) -> str:
+    """Readable name of a coverage point: a polar cap or an equatorial band."""
+    if band_deg < 90:
+        return f"band +-{band_deg:g} deg"
+    return "full sphere" if cap_deg >= 180 else f"cap {cap_deg:g} deg"
+
+
+def with_coverage_column(summary: pd.DataFrame) -> pd.DataFrame:
+    """Add ``coverage`` (label, in the sweep's order) for the coverage sweep's summary."""
+    out = summary.copy()
+    out["coverage"] = [coverage_label(c, b) for c, b in zip(out["cap_deg"], out["band_deg"],
+                                                              strict=True)]
+    return out
 
 
 def points_for(nominal: Point, vary: str | None, values: Iterable[float]) -> list[Point]:

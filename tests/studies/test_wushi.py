@@ -8,12 +8,17 @@ import pytest
 
 from magbench.cli import main
 from magbench.methods.api import calibrate
-from magbench.wushi_study import (
+from magbench.report.wushi import (
+    verdict_convergence,
+    verdict_divergence,
+    verdict_ml_better,
+    verdict_time_ratio,
+    wushi_report_section,
+)
+from magbench.sources.wushi_sim import attitude_angles, attitude_matrices, simulate, truth
+from magbench.studies.wushi import (
     ML,
     NM,
-    WuShiSpec,
-    attitude_angles,
-    attitude_matrices,
     count_divergences,
     decompose,
     divergence_table,
@@ -21,14 +26,6 @@ from magbench.wushi_study import (
     gauge_R,
     iterations_to_converge,
     refine_unit,
-    run_study,
-    simulate,
-    truth,
-    verdict_convergence,
-    verdict_divergence,
-    verdict_ml_better,
-    verdict_time_ratio,
-    wushi_report_section,
 )
 
 
@@ -261,9 +258,11 @@ def test_verdict_ml_better():
 # ---------------------------------------------------------------------------- end to end
 
 def test_study_runs_end_to_end_at_a_tiny_size(tmp_path):
-    spec = WuShiSpec(runs=2, N=60, algorithms=(ML, NM, "sphere", "fang"), alphas_pct=(0, 3),
-                     time_N=(30, 60), time_repeats=1, time_calls=1, control_runs=1)
-    folder = run_study(spec, tmp_path)
+    assert main(["sweep=wushi", f"results_dir={tmp_path}", "trials=2", "sweep.N=60",
+                 f"algorithms=[{ML},{NM},sphere,fang]", "sweep.alphas_pct=[0,3]",
+                 "sweep.time_N=[30,60]", "sweep.time_repeats=1", "sweep.time_calls=1",
+                 "sweep.control_runs=1", "n_jobs=1", "progress=false"]) == 0
+    folder = tmp_path / "wushi"
     for name in ("runs.csv", "table1.csv", "settings.csv", "fig3_objective.csv",
                  "fig3_objective.png", "fig5_time.csv", "fig5_time.png", "fig6_divergence.csv",
                  "fig6_divergence.png", "perturbation_runs.csv", "claims.csv", "wushi.md"):
@@ -293,12 +292,12 @@ def test_report_section_without_results(tmp_path):
 
 
 def test_cli_dispatches_kind_wushi(tmp_path, capsys):
-    args = ["sweep=wushi", f"results_dir={tmp_path}", "sweep.runs=1", "sweep.N=40",
+    args = ["sweep=wushi", f"results_dir={tmp_path}", "trials=1", "sweep.N=40",
             "sweep.time_N=[40]", "sweep.alphas_pct=[0]", "sweep.time_repeats=1",
             "sweep.time_calls=1", "sweep.control_runs=0", "algorithms=[wu_shi,wu_shi_nm]",
             "n_jobs=1", "progress=false"]
     assert main(args) == 0
     assert (tmp_path / "wushi" / "wushi.md").exists()
-    assert "wushi: 1 runs" in capsys.readouterr().out
-    assert main(["sweep=wushi", f"results_dir={tmp_path}", "sweep.runs=0"]) == 2
-    assert "sweep.runs must be an integer >= 1" in capsys.readouterr().err
+    assert "sweep wushi: 2 rows" in capsys.readouterr().out    # ML and NM on one run
+    assert main(["sweep=wushi", f"results_dir={tmp_path}", "trials=0"]) == 2
+    assert "trials must be an integer >= 1" in capsys.readouterr().err

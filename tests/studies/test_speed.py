@@ -6,9 +6,10 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from magbench import bench
 from magbench.core.geometry import fibonacci_sphere
 from magbench.core.metrics import accuracy_cost
+from magbench.report.speed import bench_report_section
+from magbench.studies import speed as bench
 from tests.conftest import dataset
 
 
@@ -47,7 +48,7 @@ def test_report_section_reads_the_csv_files(tmp_path):
                   "min_s": [0.001, 0.005], "note": ["", ""]}).to_csv(folder / "calls.csv")
     pd.DataFrame({"n_jobs": [1, 2], "wall_s": [10.0, 5.5], "trials": [100, 100],
                   "methods": [2, 2], "speedup": [1.0, 10 / 5.5]}).to_csv(folder / "parallel.csv")
-    text = bench.bench_report_section(tmp_path)
+    text = bench_report_section(tmp_path)
     assert "| MAG.I.C.AL | 2 | 1-3 | 500 | 29.4 |" in text
     assert "speed-up 1.82x" in text
-    assert bench.bench_report_section(tmp_path / "nothing") == ""
+    assert bench_report_section(tmp_path / "nothing") == ""

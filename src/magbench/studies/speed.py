@@ -1,15 +1,15 @@
-"""Speed benchmarks (issue 5): ``python -m magbench bench`` or ``make bench``.
+"""The speed study: ``python -m magbench bench`` or ``make bench``.
 
 Measures, never assumes: the median and spread of one calibration call per method at the
 nominal setting, the scaling with K, peers on the same datasets where they are installed, and
 the parallel speed-up of a sweep. Unit tests never time anything; this module is where timing
-lives. Results go to ``<results_dir>/bench/``.
+lives. Results go to ``<results_dir>/bench/`` (figure: :mod:`magbench.figures.speed`; report
+text: :mod:`magbench.report.speed`).
 """
 
 from __future__ import annotations
 
 import importlib.util
-import os
 import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from magbench.core.files import write_csv_atomic, write_text_atomic
+from magbench.core.files import write_csv_atomic
 from magbench.core.metrics import accuracy_cost
 from magbench.engine.sweep import run_study
 from magbench.methods.api import calibrate
@@ -25,7 +25,7 @@ from magbench.methods.registry import get_method, methods
 from magbench.sources.synthetic import Point, make_dataset
 from magbench.studies.review import ReviewStudy
 
-__all__ = ["bench_calls", "bench_parallel", "bench_peers", "bench_report_section", "run_bench"]
+__all__ = ["SIZES", "bench_calls", "bench_parallel", "bench_peers", "run_bench"]
 
 SIZES = (50, 150, 300, 1000, 3000, 10000)
 
@@ -170,94 +170,17 @@ def bench_parallel(trials: int = 250, algorithms: Sequence[str] | None = None,
     return out
 
 
-def plot_scaling(calls: pd.DataFrame, path: Path) -> None:
-    """Log-log time per call against K, one line per method, with a slope-1 guide."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(8, 5.5), layout="constrained")
-    markers = "osD^v<>phX*P"
-    for i, (name, g) in enumerate(calls.dropna(subset=["median_s"]).groupby("algorithm",
-                                                                              sort=False)):
-        style = "-" if get_method(name).family == "review" else "--"
-        ax.errorbar(g["K"], g["median_s"] * 1e3,
-                    yerr=[(g["median_s"] - g["q25_s"]) * 1e3, (g["q75_s"] - g["median_s"]) * 1e3],
-                    label=get_method(name).label, marker=markers[i % len(markers)],
-                    linestyle=style, capsize=2)
-    K = np.array([calls["K"].min(), calls["K"].max()], dtype=float)
-    ax.plot(K, 0.05 * K / K[0], color="0.6", linestyle=":", label="slope 1 (linear in K)")
-    ax.set(xscale="log", yscale="log", xlabel="samples per dataset K",
-           ylabel="time per calibration call (ms)",
-           title="Cost of one calibration call (median, bars: quartiles)")
-    ax.grid(True, which="both", alpha=0.3)
-    ax.legend(loc="center left", bbox_to_anchor=(1.01, 0.5), fontsize=8)
-    fig.savefig(path, dpi=150)
-    plt.close(fig)
-
-
-def bench_report_section(results_dir: Path | str) -> str:
-    """Markdown for results/report.md from ``<results_dir>/bench/*.csv`` (empty if absent)."""
-    from magbench.report import format_number, paper_values
-
-    folder = Path(results_dir) / "bench"
-    if not (folder / "calls.csv").exists():
-        return ""
-    calls = pd.read_csv(folder / "calls.csv")
-    paper = paper_values()["review"]["table2"]
-    at300 = calls[calls["K"] == 300]
-    lines = ["## Speed (benchmark)", "",
-             "Median time of one `calibrate` call at the nominal setting, K = 300, on this "
-             "machine (Python, one thread), beside the review's MATLAB speeds (Table 2). "
-             "Produced by `make bench`; scaling plot: `bench/scaling.png`.", "",
-             "| method | median (ms) | quartiles (ms) | speed (1/s) | paper speed (1/s) | "
-             "K=10000 / K=1000 |", "|---|---:|---:|---:|---:|---:|"]
-    for r in at300.itertuples(index=False):
-        key = get_method(r.algorithm).paper_key if r.algorithm in methods() else None
-        ref = paper.get(key, {}).get("speed_hz", np.nan) if key else np.nan
-        big = calls[(calls["algorithm"] == r.algorithm) & (calls["K"] == 10000)]["median_s"]
-        small = calls[(calls["algorithm"] == r.algorithm) & (calls["K"] == 1000)]["median_s"]
-        ratio = float(big.iloc[0] / small.iloc[0]) if len(big) and len(small) else np.nan
-        lines.append(f"| {get_method(r.algorithm).label} | {format_number(r.median_s * 1e3)} | "
-                     f"{format_number(r.q25_s * 1e3)}-{format_number(r.q75_s * 1e3)} | "
-                     f"{format_number(1 / r.median_s)} | {format_number(float(ref))} | "
-                     f"{format_number(ratio, 2)} |")
-    if (folder / "peers.csv").exists():
-        peers = pd.read_csv(folder / "peers.csv")
-        lines += ["", "Peers on the same 20 nominal datasets (speed-up = peer time / magbench "
-                  "time; J = eq. 74 after converting conventions):", "",
-                  "| peer | magbench | speed-up | peer mean J | magbench mean J | note |",
-                  "|---|---|---:|---:|---:|---|"]
-        for r in peers.itertuples(index=False):
-            lines.append(f"| {r.peer} | {r.magbench} | "
-                         f"{format_number(getattr(r, 'speedup', np.nan), 3)} | "
-                         f"{format_number(getattr(r, 'peer_mean_J', np.nan))} | "
-                         f"{format_number(getattr(r, 'magbench_mean_J', np.nan))} | "
-                         f"{'' if pd.isna(r.note) else r.note} |")
-    if (folder / "parallel.csv").exists():
-        par = pd.read_csv(folder / "parallel.csv")
-        two = par[par["n_jobs"] == 2].iloc[0]
-        lines += ["", f"Parallel: one baseline sweep of {int(two.trials)} trials x "
-                  f"{int(two.methods)} methods took {format_number(par['wall_s'].iloc[0])} s "
-                  f"with 1 worker and {format_number(two.wall_s)} s with 2 "
-                  f"(speed-up {format_number(two.speedup, 3)}x on {os.cpu_count()} cores)."]
-    return "\n".join(lines) + "\n"
-
-
 def run_bench(results_dir: Path | str, names: Sequence[str] | None = None,
               sizes: Sequence[int] = SIZES, parallel_trials: int = 250,
               progress: Callable[[str], None] | None = print) -> Path:
-    """Run every benchmark and write ``calls.csv``, ``peers.csv``, ``parallel.csv``,
-    ``scaling.png`` and ``bench.md`` under ``<results_dir>/bench``."""
+    """Run every benchmark and write ``calls.csv``, ``peers.csv`` and ``parallel.csv`` under
+    ``<results_dir>/bench``."""
     folder = Path(results_dir) / "bench"
     folder.mkdir(parents=True, exist_ok=True)
     names = list(names or [m for m in methods() if not get_method(m).needs_gyro])
     calls = bench_calls(names, sizes, progress=progress)
     write_csv_atomic(calls, folder / "calls.csv")
-    plot_scaling(calls, folder / "scaling.png")
     write_csv_atomic(bench_peers(), folder / "peers.csv")
     if parallel_trials:
         write_csv_atomic(bench_parallel(parallel_trials, names), folder / "parallel.csv")
-    write_text_atomic(bench_report_section(results_dir), folder / "bench.md")
     return folder

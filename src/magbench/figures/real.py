@@ -5,14 +5,11 @@ Both take data frames or arrays that were computed elsewhere; nothing here calib
 
 from __future__ import annotations
 
-import matplotlib
-
-matplotlib.use("Agg")
-
-import matplotlib.pyplot as plt
 import numpy as np
 import pandas as pd
 from matplotlib.figure import Figure
+
+from magbench.figures.style import new_figure
 
 __all__ = ["calibration_picture", "figure6"]
 
@@ -49,8 +46,7 @@ def figure6(per_method: pd.DataFrame, per_recording: pd.DataFrame | None = None)
     labels = dict(zip(per_method["algorithm"], per_method["label"], strict=False))
     order = list(dict.fromkeys(per_method["algorithm"]))
     rows = 3 if per_recording is not None else 2
-    fig = plt.figure(figsize=(max(9.0, 0.55 * len(order) + 3), 4.2 * rows),
-                     layout="constrained")
+    fig = new_figure(max(9.0, 0.55 * len(order) + 3), 4.2 * rows)
     grid = fig.add_gridspec(rows, len(set(per_method["preprocess"])) if rows == 3 else 1)
     ax_a = fig.add_subplot(grid[0, :])
     x = _bars(ax_a, per_method, order, ["accuracy_in", "accuracy_out"], hatch_out="//")
@@ -98,7 +94,8 @@ def calibration_picture(before: np.ndarray, after: np.ndarray, title: str = "") 
     as reference: a good calibration puts the points of every projection inside the circle and
     the outermost ones on it (a sphere's projection is a filled disc).
     """
-    fig, axes = plt.subplots(2, 3, figsize=(11, 7.5), layout="constrained")
+    fig = new_figure(11, 7.5)
+    axes = fig.subplots(2, 3)
     circle = np.linspace(0, 2 * np.pi, 361)
     pairs = [(0, 1, "x", "y"), (0, 2, "x", "z"), (1, 2, "y", "z")]
     for row, (data, what) in enumerate([(before, "before (scaled to unit mean norm)"),

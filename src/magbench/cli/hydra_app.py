@@ -4,8 +4,8 @@
 exit status 2. Hydra's launchers need ``@hydra.main``; this module provides it with the same
 configuration and the same run function::
 
-    python -m magbench.hydra_app -m sweep=gamma,beta,K,sigma            # one job per sweep
-    python -m magbench.hydra_app -m hydra/launcher=submitit_slurm \\
+    python -m magbench.cli.hydra_app -m sweep=gamma,beta,K,sigma            # one job per sweep
+    python -m magbench.cli.hydra_app -m hydra/launcher=submitit_slurm \\
         sweep=gamma,beta,K,sigma n_jobs=32 +hydra.launcher.cpus_per_task=32
 
 Each job writes ``<results_dir>/<sweep>/`` as a plain run would (Hydra's own log folders go to
@@ -19,7 +19,8 @@ import sys
 import hydra
 from omegaconf import DictConfig
 
-from magbench.cli import UsageError, config_dir, run
+from magbench.cli.commands import run
+from magbench.cli.config import UsageError, config_dir
 
 
 @hydra.main(version_base="1.3", config_path=str(config_dir()), config_name="config")

@@ -2,14 +2,14 @@
 
 Calibrates a user's own recording: every applicable method (or the one named) is fitted on all
 samples (J_r in sample, eq. 81) and on each half in time with J_r on the other half (out of
-sample), as in the real-data sweep (:mod:`magbench.real`). The methods are ranked, meaningful
-fits first (:func:`magbench.real.is_meaningful`), then by J_r out of sample (in sample where a
-recording is too short to split). The best (or the named) calibration is written as JSON with
-the model ``y = T m + h`` and the correction a firmware applies, ``m = A y + b`` with
-``A = T^-1`` and ``b = -T^-1 h``, in the recording's units; a picture shows the data before and
-after. The preprocessing is ``centre`` (remove the sphere-fit centre and radius first), which
-the real-data sweep found necessary for MAG.I.C.AL and Dorveaux when the offset exceeds the
-field radius; ``+preprocess=scale`` selects the review's.
+sample), as in the real-data sweep (:mod:`magbench.studies.real`). The methods are ranked,
+meaningful fits first (:func:`magbench.studies.real.is_meaningful`), then by J_r out of sample
+(in sample where a recording is too short to split). The best (or the named) calibration is
+written as JSON with the model ``y = T m + h`` and the correction a firmware applies, ``m = A y
++ b`` with ``A = T^-1`` and ``b = -T^-1 h``, in the recording's units; a picture shows the data
+before and after. The preprocessing is ``centre`` (remove the sphere-fit centre and radius
+first), which the real-data sweep found necessary for MAG.I.C.AL and Dorveaux when the offset
+exceeds the field radius; ``preprocess=scale`` selects the review's.
 """
 
 from __future__ import annotations
@@ -23,16 +23,17 @@ import numpy as np
 import pandas as pd
 from omegaconf import DictConfig, OmegaConf
 
-from magbench.cli import UsageError, check_integer
+from magbench.cli.config import UsageError, check_common, check_integer, check_options
 from magbench.core.files import write_csv_atomic, write_text_atomic
+from magbench.figures.real import calibration_picture
+from magbench.figures.style import save_figure
 from magbench.methods.registry import get_method, methods
-from magbench.real import (
+from magbench.sources.recordings import Recording, read_samples
+from magbench.studies.real import (
     DEFAULT_MAX_SAMPLES,
     PREPROCESSING,
-    Recording,
     applicability,
     evaluate_recording,
-    read_samples,
     recording_summary,
 )
 
@@ -60,7 +61,8 @@ def _candidates(cfg: DictConfig, rec_has_gyro: bool) -> list[str]:
 
 
 def rank(summary: pd.DataFrame) -> pd.DataFrame:
-    """Rows of :func:`magbench.real.recording_summary` in ranked order, with a ``rank`` column.
+    """Rows of :func:`magbench.studies.real.recording_summary` in ranked order, with a
+    ``rank`` column.
 
     Meaningful fits first, by J_r out of sample (in sample if there is none), then fits that
     ran but are not meaningful, then failures and skipped methods.
@@ -122,8 +124,7 @@ def _table(ranked: pd.DataFrame) -> str:
 
 def run_calibrate(cfg: DictConfig) -> int:
     """The ``calibrate`` command; a bad file or value raises :class:`UsageError`."""
-    from magbench.plots_real import calibration_picture
-
+    common = check_common(cfg)
     if not cfg.get("file"):
         raise UsageError("calibrate needs file=PATH, a CSV of magnetometer samples (columns "
                          "mx,my,mz, or choose them with columns=[...])")
@@ -146,6 +147,7 @@ def run_calibrate(cfg: DictConfig) -> int:
     for w in caught:
         print(f"magbench: warning: {w.message}", file=sys.stderr)
     candidates = _candidates(cfg, rec.has_gyro)
+    options = check_options(cfg, candidates)
     thinned = rec.thinned(max_samples)
     if name is not None:
         reason = applicability(str(name), thinned)
@@ -154,9 +156,8 @@ def run_calibrate(cfg: DictConfig) -> int:
     if thinned.stride > 1:
         print(f"using 1 sample in {thinned.stride}: {thinned.K} of {rec.K} "
               f"(max_samples={max_samples})")
-    options = OmegaConf.to_container(cfg.options, resolve=True) or {}
     rows = evaluate_recording(thinned, candidates, [preprocess], options=options,
-                              seed=int(cfg.seed), call_timeout_s=cfg.get("call_timeout_s"))
+                              seed=common["seed"], call_timeout_s=common["call_timeout_s"])
     ranked = rank(recording_summary(pd.DataFrame(rows)))
     print(f"{path.name}: {rec.K} samples, preprocessing '{preprocess}'; J_r (eq. 81) in sample "
           "and out of sample (fit on one half in time, tested on the other)")
@@ -167,13 +168,12 @@ def run_calibrate(cfg: DictConfig) -> int:
                          "the table); check that the sensor was turned through many "
                          "orientations in a steady field")
     best = usable.iloc[0]
-    out = Path(str(cfg.out)) if cfg.get("out") else Path(f"{path.stem}-calibration")
+    out = Path(str(cfg.out)) if cfg.get("out") else Path(f"{rec.name}-calibration")
     payload = calibration_json(best, file=str(path), columns=list(rec.columns),
                                n_file=rec.K, preprocess=preprocess)
     write_text_atomic(json.dumps(payload, indent=2) + "\n", out / "calibration.json")
     write_csv_atomic(ranked, out / "ranking.csv")
-    fig = _picture(rec, payload, calibration_picture)
-    fig.savefig(out / "calibration.png", dpi=110)
+    save_figure(_picture(rec, payload, calibration_picture), out / "calibration.png")
     print(f"chosen: {payload['label']} (J_r in {payload['J_r_in']:.3g}); wrote "
           f"{out}/calibration.json (T, h and m = A y + b), ranking.csv, calibration.png")
     return 0

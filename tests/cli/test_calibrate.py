@@ -95,7 +95,7 @@ def test_nan_rows_give_a_warning_line_and_are_dropped(tmp_path, capsys):
     (["file={bad}"], "non-numeric value 'x' in column 'my' at data row 3"),
     (["file={few}", "method=twostep"], "has 5 usable samples; at least 9 are needed"),
     (["file={flat}"], "nearly coplanar"),
-    (["file={rec}", "+preprocess=bogus"], "preprocess must be one of none, scale, centre"),
+    (["file={rec}", "preprocess=bogus"], "preprocess must be one of none, scale, centre"),
 ])
 def test_errors_are_one_line_with_status_2(args, message, tmp_path, capsys):
     rec = save(tmp_path / "rec.csv", recording())
@@ -116,7 +116,7 @@ def test_errors_are_one_line_with_status_2(args, message, tmp_path, capsys):
 
 def test_long_recordings_are_thinned_and_say_so(tmp_path, capsys):
     path = save(tmp_path / "long.csv", recording(3000))
-    assert calibrate(f"file={path}", "method=ellipsoid", "+max_samples=1000",
+    assert calibrate(f"file={path}", "method=ellipsoid", "max_samples=1000",
                      f"out={tmp_path / 'o'}") == 0
     assert "using 1 sample in 3: 1000 of 3000" in capsys.readouterr().out
     data = json.loads((tmp_path / "o" / "calibration.json").read_text())

@@ -14,27 +14,20 @@ import pandas as pd
 import pytest
 
 from magbench.cli import main
-from magbench.core.geometry import fibonacci_sphere
+from magbench.core.geometry import check_geometry, coverage, fibonacci_sphere, sphere_fit, thickness
 from magbench.core.metrics import real_cost
 from magbench.core.model import Calibration
-from magbench.real import (
+from magbench.engine.sweep import run_study
+from magbench.report.real import real_report_section
+from magbench.sources.recordings import (
     DATA_ENV,
-    RealSweepSpec,
     Recording,
-    applicability,
-    check_geometry,
-    coverage,
     data_dir,
-    fit_recording,
-    is_meaningful,
     list_recordings,
     load_recording,
     read_samples,
-    real_report_section,
-    run_real_sweep,
-    sphere_fit,
-    thickness,
 )
+from magbench.studies.real import RealStudy, applicability, fit_recording, is_meaningful
 
 T_TRUE = np.array([[1.1, 0.05, -0.02], [0.0, 0.9, 0.04], [0.0, 0.0, 1.2]])
 H_TRUE = np.array([0.3, -0.2, 0.1])
@@ -280,11 +273,18 @@ def test_data_dir_and_listing(tmp_path, monkeypatch):
         load_recording(root, "zz")
 
 
+def run_real_sweep(spec: RealStudy, out_dir: Path):
+    run_study(spec, out_dir, progress=False)
+    per_rec, per_method = spec.summarize(out_dir)
+    trials = pd.read_csv(out_dir / "real_trials.csv", dtype={"error": str})
+    return trials.assign(error=trials["error"].fillna("")), per_rec, per_method
+
+
 def test_real_sweep_rows_and_summaries(tmp_path):
     root = make_data_dir(tmp_path / "data")
-    spec = RealSweepSpec(["long_a", "long_b", "short"], ["magical", "twostep"],
-                         preprocess=("centre",), max_samples=150)
-    trials, per_rec, per_method = run_real_sweep(spec, root, tmp_path / "out" / "real")
+    spec = RealStudy(str(root), ["long_a", "long_b", "short"], ["magical", "twostep"],
+                     preprocess=("centre",), max_samples=150)
+    trials, per_rec, per_method = run_real_sweep(spec, tmp_path / "out" / "real")
     # 3 recordings x 2 methods x 3 fits, one row per fit (no partners here).
     assert len(trials) == 18
     long_a = trials[(trials["dataset"] == "long_a") & (trials["fit_on"] == "all")]
@@ -339,16 +339,16 @@ def test_cli_real_sweep_without_data_dir(tmp_path, capsys, monkeypatch):
     assert "no data directory" in capsys.readouterr().err
 
 
-SHARED = os.environ.get(DATA_ENV) or str(Path(__file__).resolve().parents[2]
+SHARED = os.environ.get(DATA_ENV) or str(Path(__file__).resolve().parents[3]
                                          / "shared" / "data" / "real")
 
 
 @pytest.mark.skipif(not (Path(SHARED) / "INDEX.csv").exists(),
                     reason=f"shared recordings not found ({DATA_ENV} unset and {SHARED} absent)")
 def test_real_sweep_on_shared_recordings(tmp_path):
-    spec = RealSweepSpec(["bno055_hand", "cavesurvey_sap6_bb"], ["ellipsoid", "sphere"],
-                         preprocess=("centre",))
-    _, per_rec, per_method = run_real_sweep(spec, SHARED, tmp_path / "real")
+    spec = RealStudy(SHARED, ["bno055_hand", "cavesurvey_sap6_bb"], ["ellipsoid", "sphere"],
+                     preprocess=("centre",))
+    _, per_rec, per_method = run_real_sweep(spec, tmp_path / "real")
     rec = per_rec.set_index(["dataset", "algorithm"])
     assert rec["meaningful"].all()
     # The ellipsoid fit removes the soft iron of the 24 clean shots: far below the sphere fit.

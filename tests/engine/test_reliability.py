@@ -17,7 +17,7 @@ from magbench.methods.registry import _REGISTRY, unregister
 from magbench.sources.synthetic import Point
 from magbench.studies.review import ReviewStudy, read_trials
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 FAULTY = "tests.plugins.faulty"
 
 
@@ -144,7 +144,7 @@ def test_time_limit_interrupts_python_code():
 
 def test_hydra_multirun_runs_one_job_per_sweep(tmp_path):
     result = subprocess.run(
-        [sys.executable, "-m", "magbench.hydra_app", "-m", "sweep=baseline,K", "trials=2",
+        [sys.executable, "-m", "magbench.cli.hydra_app", "-m", "sweep=baseline,K", "trials=2",
          "algorithms=[magical]", f"results_dir={tmp_path}", "progress=false", "n_jobs=1",
          f"hydra.sweep.dir={tmp_path / 'hydra'}"],
         cwd=REPO, capture_output=True, text=True, timeout=120)

@@ -6,9 +6,11 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from magbench import report
-from magbench.plots import FIGURES, figure_data, write_figure
-from magbench.report import FAILS, HOLDS, PARTLY, REVIEW
+from magbench.figures.sweeps import FIGURES, figure_data, write_figure
+from magbench.cli import main
+from magbench.report import build as report
+from magbench.report.build import FAILS, HOLDS, PARTLY, REVIEW
+from magbench.studies.review import with_coverage_column
 
 NOMINAL = {"K": 300, "sigma": 0.005, "beta": 0.05, "gamma": 0.05, "cap_deg": 180.0,
            "band_deg": 90.0}
@@ -97,17 +99,17 @@ def test_coverage_figure_keeps_the_sweep_order(tmp_path):
     s = pd.DataFrame([{**NOMINAL, "cap_deg": c, "band_deg": b, "algorithm": "magical", "n": 1,
                        "RB_pct": 100, "accuracy": 1.0, "speed_hz": 1.0, "tau_s": 1.0}
                       for c, b in [(180, 90), (60, 90), (180, 10)]])
-    data = figure_data(report.with_coverage_column(s), "coverage")
+    data = figure_data(with_coverage_column(s), "coverage")
     assert list(data["x"]) == ["full sphere", "cap 60 deg", "band +-10 deg"]
-    assert write_figure(report.with_coverage_column(s), "coverage", tmp_path)[0].exists()
+    assert write_figure(with_coverage_column(s), "coverage", tmp_path)[0].exists()
     assert FIGURES["coverage"].stem == "fig_coverage"
 
 
 def test_report_from_fixture_files(tmp_path):
     (tmp_path / "gamma").mkdir()
     gamma_case().to_csv(tmp_path / "gamma" / "summary.csv", index=False)
-    path = report.write_report(tmp_path)
-    text = path.read_text()
+    assert main(["report", f"results_dir={tmp_path}"]) == 0     # figures, then report.md
+    text = (tmp_path / "report.md").read_text()
     assert "## Figure 2: sweep `gamma`" in text and "(gamma/fig2_gamma.png)" in text
     assert (tmp_path / "gamma" / "fig2_gamma.png").exists()
     assert text.count("**holds**") == 5

@@ -22,6 +22,8 @@ import numpy as np
 import pandas as pd
 from matplotlib.figure import Figure
 
+from magbench.core.files import write_csv_atomic
+from magbench.figures.style import method_style, new_figure, save_figure
 from magbench.methods.registry import get_method, methods
 
 __all__ = ["FIGURES", "FigureSpec", "figure_data", "plot_sweep", "write_figure"]
@@ -61,12 +63,6 @@ FIGURES = {
                         logx=True),
     "coverage": FigureSpec(None, "coverage", "field directions covered", categorical=True),
 }
-
-_COLOURS = ["#1f77b4", "#d62728", "#2ca02c", "#9467bd", "#ff7f0e", "#8c564b", "#e377c2",
-            "#17becf", "#7f7f7f", "#bcbd22", "#393b79", "#ad494a", "#637939", "#843c39",
-            "#5254a3", "#6b6ecf", "#9c9ede", "#8ca252", "#bd9e39", "#e7ba52"]
-_MARKERS = ["o", "s", "^", "D", "v", "P", "X", "<", ">", "h", "*", "p", "d", "8", "H", "1"]
-
 
 def _method_info(name: str) -> tuple[str, str]:
     try:
@@ -122,7 +118,7 @@ def figure_data(summary: pd.DataFrame, sweep: str) -> pd.DataFrame:
 def plot_sweep(data: pd.DataFrame, sweep: str) -> Figure:
     """Draw :func:`figure_data` output as the review's three panels, legend on the right."""
     spec = FIGURES[sweep]
-    fig = Figure(figsize=(16.5, 4.8), layout="constrained")
+    fig = new_figure(16.5, 4.8)
     axes = fig.subplots(1, 3)
     panels = [("accuracy", r"accuracy $1/\rho$ (1 / field units)", True),
               ("speed_hz", r"execution speed $1/\tau$ (1/s)", True),
@@ -134,13 +130,9 @@ def plot_sweep(data: pd.DataFrame, sweep: str) -> Figure:
     def xs(values: pd.Series) -> list:
         return [categories.index(v) for v in values] if categories else list(values)
 
-    line = {"review": ("-", 1.8), "extra": ("--", 1.2), "variant": ("-.", 1.2)}
-    for i, name in enumerate(methods_here):
+    for name in methods_here:
         part = data[data["series"] == name]
-        linestyle, width = line.get(part["family"].iloc[0], ("--", 1.2))
-        style = {"color": _COLOURS[i % len(_COLOURS)], "marker": _MARKERS[i % len(_MARKERS)],
-                 "linestyle": linestyle, "linewidth": width,
-                 "markersize": 5, "label": part["label"].iloc[0]}
+        style = method_style(name)
         for ax, (column, _, _) in zip(axes, panels, strict=True):
             ax.plot(xs(part["x"]), part[column], **style)
     floor = data[data["series"] == CRB_SERIES]
@@ -174,15 +166,11 @@ def plot_sweep(data: pd.DataFrame, sweep: str) -> Figure:
 
 def write_figure(summary: pd.DataFrame, sweep: str, out_dir: Path | str) -> tuple[Path, Path]:
     """Write ``fig<N>_<x>.png`` and the CSV of what it plots into ``out_dir``."""
-    from magbench.core.files import write_csv_atomic
-
     out_dir = Path(out_dir)
     spec = FIGURES[sweep]
     data = figure_data(summary, sweep)
     fig = plot_sweep(data, sweep)
     png, csv = out_dir / f"{spec.stem}.png", out_dir / f"{spec.stem}.csv"
-    tmp = png.with_name(f".tmp-{png.name}")
-    fig.savefig(tmp, dpi=110, format="png")
-    tmp.replace(png)
+    save_figure(fig, png)
     write_csv_atomic(data, csv)
     return png, csv

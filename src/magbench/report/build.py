@@ -6,53 +6,25 @@ Nothing here simulates: every table is computed from ``summary.csv`` (or ``trial
 from __future__ import annotations
 
 from dataclasses import dataclass
-from functools import cache
-from importlib import resources
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
-import yaml
 
+from magbench.core.files import write_text_atomic
+from magbench.core.reference import paper_values
 from magbench.methods.registry import get_method
+from magbench.report.format import format_number
+from magbench.report.format import label as _label
+from magbench.report.format import md_table as _md_table
+from magbench.report.gyro import gyro_report_section
+from magbench.report.real import real_report_section
+from magbench.report.speed import bench_report_section
+from magbench.report.wushi import wushi_report_section
+from magbench.studies.review import with_coverage_column
 
 __all__ = ["ClaimCheck", "build_report", "format_number", "metric_hypotheses", "paper_values",
            "table2", "table2_markdown", "write_report", "write_sweep_tables"]
-
-
-@cache
-def paper_values() -> dict:
-    """The published numbers (copied from the source documents into the package)."""
-    text = resources.files("magbench").joinpath("reference/paper_values.yaml").read_text()
-    return _numbers(yaml.safe_load(text))
-
-
-def _numbers(node: object) -> object:
-    # PyYAML follows YAML 1.1, which reads exponent floats without a sign ("3.31e3") as strings.
-    if isinstance(node, dict):
-        return {k: _numbers(v) for k, v in node.items()}
-    if isinstance(node, list):
-        return [_numbers(v) for v in node]
-    if isinstance(node, str):
-        try:
-            return float(node)
-        except ValueError:
-            return node
-    return node
-
-
-def format_number(x: float, digits: int = 3) -> str:
-    """Compact significant-figure formatting for tables; blank-safe for NaN."""
-    if x is None or not np.isfinite(x):
-        return "-"
-    return f"{x:.{digits}g}"
-
-
-def _label(name: str) -> str:
-    try:
-        return get_method(name).label
-    except ValueError:
-        return name
 
 
 def table2(summary: pd.DataFrame) -> pd.DataFrame:
@@ -106,8 +78,6 @@ def table2_markdown(summary: pd.DataFrame, delta: float) -> str:
 
 def write_sweep_tables(name: str, summary: pd.DataFrame, out_dir: Path, delta: float) -> None:
     """Tables a finished sweep writes beside its CSV files (``table2.md`` for the baseline)."""
-    from magbench.core.files import write_text_atomic
-
     if name == "baseline":
         write_text_atomic("# Baseline (Table 2)\n\n" + table2_markdown(summary, delta),
                           Path(out_dir) / "table2.md")
@@ -132,21 +102,6 @@ class ClaimCheck:
     claim: str
     evidence: str
     verdict: str
-
-
-def coverage_label(cap_deg: float, band_deg: float) -> str:
-    """Readable name of a coverage point: a polar cap or an equatorial band."""
-    if band_deg < 90:
-        return f"band +-{band_deg:g} deg"
-    return "full sphere" if cap_deg >= 180 else f"cap {cap_deg:g} deg"
-
-
-def with_coverage_column(summary: pd.DataFrame) -> pd.DataFrame:
-    """Add ``coverage`` (label, in the sweep's order) for the coverage sweep's summary."""
-    out = summary.copy()
-    out["coverage"] = [coverage_label(c, b) for c, b in zip(out["cap_deg"], out["band_deg"],
-                                                              strict=True)]
-    return out
 
 
 def pivot(summary: pd.DataFrame, x: str, column: str, names: list[str] | None = None
@@ -364,16 +319,6 @@ def metric_hypotheses(trials: pd.DataFrame) -> pd.DataFrame:
     return out
 
 
-def _md_table(frame: pd.DataFrame, digits: int = 3) -> str:
-    cols = list(frame.columns)
-    lines = ["| " + " | ".join(map(str, cols)) + " |", "|" + "---|" * len(cols)]
-    for row in frame.itertuples(index=False):
-        cells = [format_number(v, digits) if isinstance(v, float | np.floating) else str(v)
-                 for v in row]
-        lines.append("| " + " | ".join(cells) + " |")
-    return "\n".join(lines)
-
-
 def sweep_tables(summary: pd.DataFrame, x: str) -> str:
     """Compact Markdown tables of one sweep: accuracy, RB % and speed, methods x values."""
     parts = []
@@ -403,36 +348,6 @@ def sweep_tables(summary: pd.DataFrame, x: str) -> str:
 def _load(results_dir: Path, name: str, file: str = "summary.csv") -> pd.DataFrame | None:
     path = results_dir / name / file
     return pd.read_csv(path) if path.exists() else None
-
-
-def write_figures(results_dir: Path | str) -> list[Path]:
-    """Regenerate every sweep figure (PNG + CSV) from the summary files that exist."""
-    from magbench.plots import write_figure
-
-    results_dir = Path(results_dir)
-    written = []
-    for sweep in FIGURE_SWEEPS:
-        summary = _load(results_dir, sweep)
-        if summary is None:
-            continue
-        if sweep == "coverage":
-            summary = with_coverage_column(summary)
-        written += list(write_figure(summary, sweep, results_dir / sweep))
-    real = results_dir / "real"
-    if (real / "fig6_real.csv").exists() and (real / "real_summary.csv").exists():
-        from magbench.plots_real import figure6
-
-        fig = figure6(pd.read_csv(real / "fig6_real.csv"), pd.read_csv(real / "real_summary.csv"))
-        tmp = real / ".tmp-fig6_real.png"
-        fig.savefig(tmp, dpi=120, format="png")
-        tmp.replace(real / "fig6_real.png")
-        written.append(real / "fig6_real.png")
-    if (results_dir / "gyro" / "summary.csv").exists():
-        from magbench.gyro_sweep import write_gyro_figure
-
-        written.append(write_gyro_figure(pd.read_csv(results_dir / "gyro" / "summary.csv"),
-                                         results_dir / "gyro"))
-    return written
 
 
 def build_report(results_dir: Path | str) -> str:
@@ -537,24 +452,17 @@ def build_report(results_dir: Path | str) -> str:
             "| figure | claim | evidence | verdict |", "|---|---|---|---|"]
     out += [f"| {c.figure} | {c.claim} | {c.evidence} | **{c.verdict}** |" for c in checks]
     out.append("")
-    for module, func in [("magbench.real", "real_report_section"),
-                         ("magbench.wushi_study", "wushi_report_section"),
-                         ("magbench.gyro_sweep", "gyro_report_section"),
-                         ("magbench.bench", "bench_report_section")]:
-        import importlib
-
-        section = getattr(importlib.import_module(module), func)(results_dir)
+    for section_of in (real_report_section, wushi_report_section, gyro_report_section,
+                       bench_report_section):
+        section = section_of(results_dir)
         if section:
             out += [section.strip(), ""]
     return "\n".join(out)
 
 
 def write_report(results_dir: Path | str) -> Path:
-    """Regenerate the figures, then write ``<results_dir>/report.md``."""
-    from magbench.core.files import write_text_atomic
-
+    """Write ``<results_dir>/report.md`` from the CSV files (figures are drawn separately)."""
     results_dir = Path(results_dir)
-    write_figures(results_dir)
     path = results_dir / "report.md"
     write_text_atomic(build_report(results_dir), path)
     return path

@@ -1,0 +1,144 @@
+"""The commands: run a sweep (any kind), bench, report, calibrate, methods.
+
+A sweep command checks its config (:mod:`magbench.cli.config`), runs its study on the engine,
+writes its statistics, draws its figures and writes its report text, in that order; ``report``
+redraws every figure and rewrites the report from the CSV files alone.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import pandas as pd
+from omegaconf import DictConfig, OmegaConf
+
+from magbench.cli.config import study_for
+from magbench.core.files import write_csv_atomic, write_text_atomic
+from magbench.engine.sweep import run_study
+from magbench.figures.gyro import write_gyro_figure
+from magbench.figures.real import figure6
+from magbench.figures.speed import plot_scaling
+from magbench.figures.style import save_figure
+from magbench.figures.sweeps import FIGURES, write_figure
+from magbench.figures.wushi import write_wushi_figures
+from magbench.report import write_report
+from magbench.report.build import write_sweep_tables
+from magbench.report.gyro import gyro_report_section
+from magbench.report.real import real_report_section
+from magbench.report.speed import bench_report_section
+from magbench.report.wushi import evaluate_claims, wushi_report_section
+from magbench.studies import wushi
+from magbench.studies.review import with_coverage_column
+from magbench.studies.speed import run_bench
+
+__all__ = ["bench", "draw_figures", "report", "run"]
+
+
+def _say(cfg: DictConfig, text: str) -> None:
+    print(text)
+
+
+def run(cfg: DictConfig) -> int:
+    """``python -m magbench sweep=NAME``: the study, its statistics, figures and text."""
+    study, common = study_for(cfg)
+    out_dir = common["results_dir"] / study.name
+    run_study(study, out_dir, n_jobs=common["n_jobs"], chunk_size=common["chunk_size"],
+              backend=common["backend"], scheduler_address=common["scheduler_address"],
+              progress=common["progress"], config=OmegaConf.to_container(cfg, resolve=True))
+    kind = cfg.sweep.get("kind", "review")
+    if kind == "wushi":
+        wushi.finish(study, out_dir)
+    else:
+        study.summarize(out_dir)
+    if kind == "review":
+        write_sweep_tables(study.name, pd.read_csv(out_dir / "summary.csv"), out_dir,
+                           delta=study.delta)
+    figures = draw_sweep_figures(kind, study.name, out_dir)
+    _write_section(kind, out_dir)
+    table = next(iter(study.tables.values()))[0]
+    trials = pd.read_csv(out_dir / table, usecols=["ok"])
+    n_bad = int((~trials["ok"].astype(bool)).sum())
+    shown = ", ".join(p.name for p in figures) or "no figure for this sweep"
+    _say(cfg, f"sweep {study.name}: {len(trials)} rows ({n_bad} not ok) -> {out_dir}/ "
+              f"({table}, figures: {shown})")
+    return 0
+
+
+def draw_sweep_figures(kind: str, name: str, out_dir: Path) -> list[Path]:
+    """Draw the figures of one sweep from its CSV files; the paths written."""
+    out_dir = Path(out_dir)
+    if kind == "review":
+        if name not in FIGURES or not (out_dir / "summary.csv").exists():
+            return []
+        summary = pd.read_csv(out_dir / "summary.csv")
+        if name == "coverage":
+            summary = with_coverage_column(summary)
+        return list(write_figure(summary, name, out_dir))[:1]
+    if kind == "gyro" and (out_dir / "summary.csv").exists():
+        return [write_gyro_figure(pd.read_csv(out_dir / "summary.csv"), out_dir)]
+    if kind == "real" and (out_dir / "fig6_real.csv").exists():
+        fig = figure6(pd.read_csv(out_dir / "fig6_real.csv"),
+                      pd.read_csv(out_dir / "real_summary.csv"))
+        return [save_figure(fig, out_dir / "fig6_real.png")]
+    if kind == "wushi" and (out_dir / "fig5_time.csv").exists():
+        return write_wushi_figures(out_dir)
+    return []
+
+
+def _write_section(kind: str, out_dir: Path) -> None:
+    """The sweep's own Markdown beside its files (the gyro, real and Wu-Shi studies)."""
+    if kind == "gyro":
+        write_text_atomic(gyro_report_section(out_dir.parent), out_dir / "section.md")
+    elif kind == "real":
+        write_text_atomic(real_report_section(out_dir.parent, "fig6_real.png") + "\n",
+                          out_dir / "real.md")
+    elif kind == "wushi":
+        settings = wushi.read_settings(out_dir)
+        claims = evaluate_claims(out_dir.parent, int(float(settings["converge_within"])),
+                                 float(settings["claimed_ratio"]))
+        write_csv_atomic(claims, out_dir / "claims.csv")
+        write_text_atomic(wushi_report_section(out_dir.parent, link_prefix=""),
+                          out_dir / "wushi.md")
+
+
+#: Result folders and their sweep kinds, as ``make reproduce`` writes them.
+SWEEP_FOLDERS = {"gamma": "review", "beta": "review", "K": "review", "sigma": "review",
+                 "coverage": "review", "gyro": "gyro", "real": "real", "wushi": "wushi"}
+
+
+def draw_figures(results_dir: Path | str) -> list[Path]:
+    """Redraw every figure under ``results_dir`` from its CSV files."""
+    results_dir = Path(results_dir)
+    written = []
+    for name, kind in SWEEP_FOLDERS.items():
+        written += draw_sweep_figures(kind, name, results_dir / name)
+    if (results_dir / "bench" / "calls.csv").exists():
+        written.append(plot_scaling(pd.read_csv(results_dir / "bench" / "calls.csv"),
+                                    results_dir / "bench" / "scaling.png"))
+    return written
+
+
+def bench(cfg: DictConfig) -> int:
+    """``python -m magbench bench``: time every method; writes ``<results_dir>/bench/``."""
+    from magbench.cli.config import check_common, selected_algorithms
+
+    common = check_common(cfg)
+    names = selected_algorithms(cfg)
+    folder = run_bench(common["results_dir"], names,
+                       progress=(lambda line: print(line, file=sys.stderr))
+                       if common["progress"] else None)
+    plot_scaling(pd.read_csv(folder / "calls.csv"), folder / "scaling.png")
+    write_text_atomic(bench_report_section(common["results_dir"]), folder / "bench.md")
+    print(f"benchmark written to {folder}/ (calls.csv, scaling.png, peers.csv, parallel.csv, "
+          "bench.md)")
+    return 0
+
+
+def report(cfg: DictConfig) -> int:
+    """``python -m magbench report``: redraw the figures and rewrite ``report.md``."""
+    results_dir = Path(str(cfg.results_dir))
+    figures = draw_figures(results_dir)
+    path = write_report(results_dir)
+    print(f"report written to {path} ({len(figures)} figures redrawn from the CSV files)")
+    return 0

@@ -1,0 +1,203 @@
+"""Entry point: a small argument layer over Hydra's compose API, with help that explains it.
+
+``python -m magbench [COMMAND] [key=value ...]``; COMMAND defaults to ``run``. Every command
+takes ``--help``; keys are plain ``key=value`` Hydra overrides (``options.<method>.<name>=...``
+needs no ``+``).
+"""
+
+from __future__ import annotations
+
+import re
+import sys
+from collections.abc import Callable, Sequence
+
+from omegaconf import DictConfig
+
+from magbench.cli.config import UsageError, compose_config, config_dir
+
+__all__ = ["COMMANDS", "main"]
+
+
+def _run(cfg: DictConfig) -> int:
+    from magbench.cli.commands import run
+
+    return run(cfg)
+
+
+def _bench(cfg: DictConfig) -> int:
+    from magbench.cli.commands import bench
+
+    return bench(cfg)
+
+
+def _report(cfg: DictConfig) -> int:
+    from magbench.cli.commands import report
+
+    return report(cfg)
+
+
+def _calibrate(cfg: DictConfig) -> int:
+    from magbench.cli.calibrate import run_calibrate
+
+    return run_calibrate(cfg)
+
+
+def _methods(cfg: DictConfig) -> int:
+    from magbench.cli.config import check_common
+
+    check_common(cfg)               # loads plugins=[...], so their methods are listed too
+    print(methods_table())
+    return 0
+
+
+#: command -> (function, one line, example, the config keys it reads)
+COMMANDS: dict[str, tuple[Callable[[DictConfig], int], str, str, tuple[str, ...]]] = {
+    "run": (_run, "run one sweep (the default command)",
+            "python -m magbench sweep=gamma trials=20 results_dir=/tmp/try",
+            ("sweep", "trials", "seed", "n_jobs", "chunk_size", "algorithms", "options", "delta",
+             "results_dir", "progress", "call_timeout_s", "plugins", "backend",
+             "scheduler_address", "nominal", "data_dir")),
+    "calibrate": (_calibrate, "calibrate your own recording and write the correction",
+                  "python -m magbench calibrate file=data.csv",
+                  ("file", "method", "columns", "out", "preprocess", "max_samples", "seed",
+                   "options", "call_timeout_s", "plugins")),
+    "report": (_report, "redraw every figure and rewrite results/report.md from the CSV files",
+               "python -m magbench report", ("results_dir",)),
+    "bench": (_bench, "time every method, its scaling with K, peers and parallel speed-up",
+              "python -m magbench bench", ("results_dir", "algorithms", "progress")),
+    "methods": (_methods, "list the registered calibration methods and their options",
+                "python -m magbench methods", ("plugins",)),
+}
+
+
+def _key_help() -> dict[str, tuple[str, str]]:
+    """``key -> (default, meaning)`` from the comments of ``conf/config.yaml``."""
+    out = {}
+    for line in (config_dir() / "config.yaml").read_text().splitlines():
+        match = re.match(r"^([A-Za-z_]+):\s*([^#]*?)\s*(?:#\s*(.*))?$", line)
+        if match and match.group(1) not in ("defaults",):
+            out[match.group(1)] = (match.group(2), match.group(3) or "")
+    return out
+
+
+def sweep_kinds() -> list[tuple[str, str]]:
+    """``(name, first comment line)`` of every ``conf/sweep/*.yaml``."""
+    out = []
+    for path in sorted((config_dir() / "sweep").glob("*.yaml")):
+        first = next((ln.lstrip("# ").strip() for ln in path.read_text().splitlines()
+                      if ln.startswith("#") and "@package" not in ln), "")
+        out.append((path.stem, first))
+    return out
+
+
+def methods_table() -> str:
+    """The registry as text: name, label, family, gyro, minimum K, options and defaults."""
+    import inspect
+
+    from magbench.methods.registry import get_method, methods
+
+    lines = [f"{'name':<20}{'label':<40}{'family':<9}{'gyro':<6}{'min K':<7}options (defaults)"]
+    for name in methods():
+        spec = get_method(name)
+        params = inspect.signature(spec.fit).parameters
+        opts = ", ".join(f"{o}={params[o].default!r}" if params[o].default is not
+                         inspect.Parameter.empty else o for o in spec.option_names()
+                         if o not in ("angular_rate", "time"))
+        ref = f" [Table 2: {spec.paper_key}]" if spec.paper_key else ""
+        lines.append(f"{name:<20}{spec.label[:38]:<40}{spec.family:<9}"
+                     f"{'yes' if spec.needs_gyro else 'no':<6}{spec.min_samples:<7}"
+                     f"{opts or '-'}{ref}")
+    return "\n".join(lines)
+
+
+def general_help() -> str:
+    from magbench import __version__
+
+    lines = [f"magbench {__version__}: Monte Carlo benchmark of three-axis magnetometer "
+             "calibration", "", "usage: python -m magbench [COMMAND] [key=value ...]", "",
+             "commands:"]
+    for name, (_, what, example, _) in COMMANDS.items():
+        lines.append(f"  {name:<10} {what}")
+        lines.append(f"  {'':<10}   e.g. {example}")
+    lines += ["", "sweeps (run sweep=NAME):"]
+    lines += [f"  {name:<10} {what}" for name, what in sweep_kinds()]
+    lines += ["", "python -m magbench COMMAND --help lists the keys a command reads; "
+              "python -m magbench methods lists the methods; --version prints the version."]
+    return "\n".join(lines)
+
+
+def command_help(command: str) -> str:
+    _, what, example, keys = COMMANDS[command]
+    known = _key_help()
+    lines = [f"python -m magbench {command} [key=value ...]: {what}", f"example: {example}", "",
+             "keys (default, meaning):"]
+    for key in keys:
+        default, meaning = known.get(key, ("", ""))
+        if key == "sweep":
+            default, meaning = "baseline", "which sweep to run (see below)"
+        if key == "nominal":
+            default, meaning = "K=300 sigma=0.005 beta=0.05 gamma=0.05", \
+                "the nominal point of eq. (80), e.g. nominal.K=150"
+        if key == "options":
+            default, meaning = "{}", "a method's option, e.g. options.magical.max_iter=100"
+        lines.append(f"  {key:<18} {default:<22} {meaning}")
+    if command == "run":
+        lines += ["", "sweeps:"] + [f"  {n:<10} {w}" for n, w in sweep_kinds()]
+    if command in ("run", "calibrate", "bench"):
+        from magbench.methods.registry import methods
+
+        lines += ["", "methods (algorithms=[...] or method=NAME; details: python -m "
+                  "magbench methods):", "  " + ", ".join(methods())]
+    return "\n".join(lines)
+
+
+def _plain_keys(args: list[str]) -> list[str]:
+    """Hydra overrides from plain keys: ``options.<method>.<name>=v`` adds a key Hydra does not
+    know yet, so it is force-added (``++``); a ``+`` before a key the config already has (an
+    older habit, ``+preprocess=scale``) is dropped."""
+    known = set(_key_help())
+    out = []
+    for arg in args:
+        bare = arg.lstrip("+")
+        if bare.startswith("options."):
+            out.append(f"++{bare}")
+        elif arg.startswith("+") and not arg.startswith("++") and \
+                bare.split("=", 1)[0].split(".", 1)[0] in known:
+            out.append(bare)
+        else:
+            out.append(arg)
+    return out
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of ``python -m magbench`` and the ``magbench`` script."""
+    from magbench.engine.sweep import FolderBusy
+
+    args = list(sys.argv[1:] if argv is None else argv)
+    if args and args[0] in ("--version", "-V", "version"):
+        from magbench import __version__
+
+        print(f"magbench {__version__}")
+        return 0
+    if args and args[0] in ("-h", "--help", "help"):
+        print(general_help())
+        return 0
+    command = args.pop(0) if args and args[0] in COMMANDS else "run"
+    if any(a in ("-h", "--help") for a in args):
+        print(command_help(command))
+        return 0
+    bad = [a for a in args if "=" not in a]
+    if bad:
+        print(f"magbench: error: unknown command or argument {bad[0]!r}; expected one of "
+              f"{', '.join(COMMANDS)} followed by key=value pairs (python -m magbench --help)",
+              file=sys.stderr)
+        return 2
+    try:
+        return COMMANDS[command][0](compose_config(_plain_keys(args)))
+    except (UsageError, FolderBusy) as exc:
+        print(f"magbench: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("magbench: interrupted; finished chunks are kept and a rerun completes the rest",
+              file=sys.stderr)
+        return 130

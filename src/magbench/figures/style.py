@@ -1,0 +1,81 @@
+"""The one figure style: a fixed colour, marker and line per method, and one atomic save.
+
+A method keeps its colour and marker in every figure. The palette is built from colour-blind
+safe sets (Okabe and Ito's eight, then Paul Tol's "muted" and "light" schemes), the review's
+seven methods first in the strongest colours; the marker differs for every method too, so two
+methods never look alike even where two light colours are close. Figures are bare
+``matplotlib.figure.Figure`` objects rendered by the Agg canvas: no pyplot state, no window.
+"""
+
+from __future__ import annotations
+
+import zlib
+from pathlib import Path
+
+from matplotlib.figure import Figure
+
+from magbench.core.files import atomic_path
+from magbench.methods.registry import get_method
+
+__all__ = ["METHOD_STYLE", "MethodStyle", "method_style", "new_figure", "save_figure"]
+
+DPI = 110
+
+#: (colour, marker) of every method magbench ships, in display order: the review's seven
+#: (Okabe-Ito), the extra magnetometer methods and the printed variants (Tol muted), the
+#: gyro-aided methods (Tol light and muted).
+METHOD_STYLE: dict[str, tuple[str, str]] = {
+    "twostep": ("#E69F00", "o"), "crassidis": ("#56B4E9", "s"),
+    "dorveaux": ("#009E73", "^"), "vasconcelos": ("#0072B2", "D"),
+    "ali": ("#D55E00", "v"), "wu_shi": ("#CC79A7", "P"), "magical": ("#000000", "X"),
+    "wu_shi_nm": ("#882255", "<"), "ellipsoid": ("#332288", ">"), "fang": ("#117733", "h"),
+    "sphere": ("#999933", "*"), "twostep_hi": ("#DDCC77", "p"),
+    "vasconcelos_printed": ("#88CCEE", "d"), "wu_shi_printed": ("#AA4499", "8"),
+    "sar_ls": ("#CC6677", "H"), "sar_kf": ("#44AA99", "o"), "sar_aid": ("#EE8866", "s"),
+    "magyc_ls": ("#77AADD", "^"), "magyc_nls": ("#BBCC33", "D"), "magyc_bfg": ("#FFAABB", "v"),
+    "magyc_ifg": ("#99DDFF", "P"), "magfactor3": ("#AAAA00", "X"),
+}
+#: Line style and width by family: the review's methods solid and heavier.
+FAMILY_LINE = {"review": ("-", 1.8), "extra": ("--", 1.2), "variant": ("-.", 1.2),
+               "gyro": (":", 1.4)}
+_SPARE_MARKERS = "os^Dv<>hpd"
+
+
+class MethodStyle(dict):
+    """Keyword arguments of ``Axes.plot`` for one method (colour, marker, line, label)."""
+
+
+def method_style(name: str) -> MethodStyle:
+    """The fixed style of ``name``: colour, marker, line style and width, and its label.
+
+    A method that is not in :data:`METHOD_STYLE` (a plugin, or one of an older run) gets a grey
+    shade and a marker derived from its name, the same in every figure.
+    """
+    try:
+        spec = get_method(name)
+        label = spec.label
+        family = "gyro" if spec.needs_gyro else spec.family
+    except ValueError:
+        label, family = name, "extra"
+    if name in METHOD_STYLE:
+        colour, marker = METHOD_STYLE[name]
+    else:
+        code = zlib.crc32(name.encode())
+        colour = f"#{0x55 + code % 0x66:02x}" * 3
+        marker = _SPARE_MARKERS[code % len(_SPARE_MARKERS)]
+    linestyle, width = FAMILY_LINE.get(family, FAMILY_LINE["extra"])
+    return MethodStyle(color=colour, marker=marker, linestyle=linestyle, linewidth=width,
+                       markersize=5, label=label)
+
+
+def new_figure(width: float, height: float, **kwargs: object) -> Figure:
+    """A bare Figure with the constrained layout every magbench figure uses."""
+    return Figure(figsize=(width, height), layout="constrained", **kwargs)
+
+
+def save_figure(fig: Figure, path: Path | str, dpi: int = DPI) -> Path:
+    """Render ``fig`` to PNG at ``path`` atomically (temporary file, then rename)."""
+    path = Path(path)
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=dpi, format="png")
+    return path

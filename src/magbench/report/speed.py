@@ -1,0 +1,61 @@
+"""Report section of the speed study, from ``<results_dir>/bench`` CSV files alone."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from magbench.core.reference import paper_values
+from magbench.methods.registry import get_method, methods
+from magbench.report.format import format_number
+
+__all__ = ["bench_report_section"]
+
+
+def bench_report_section(results_dir: Path | str) -> str:
+    """Markdown for results/report.md from ``<results_dir>/bench/*.csv`` (empty if absent)."""
+    folder = Path(results_dir) / "bench"
+    if not (folder / "calls.csv").exists():
+        return ""
+    calls = pd.read_csv(folder / "calls.csv")
+    paper = paper_values()["review"]["table2"]
+    at300 = calls[calls["K"] == 300]
+    lines = ["## Speed (benchmark)", "",
+             "Median time of one `calibrate` call at the nominal setting, K = 300, on this "
+             "machine (Python, one thread), beside the review's MATLAB speeds (Table 2). "
+             "Produced by `make bench`; scaling plot: `bench/scaling.png`.", "",
+             "| method | median (ms) | quartiles (ms) | speed (1/s) | paper speed (1/s) | "
+             "K=10000 / K=1000 |", "|---|---:|---:|---:|---:|---:|"]
+    for r in at300.itertuples(index=False):
+        key = get_method(r.algorithm).paper_key if r.algorithm in methods() else None
+        ref = paper.get(key, {}).get("speed_hz", np.nan) if key else np.nan
+        big = calls[(calls["algorithm"] == r.algorithm) & (calls["K"] == 10000)]["median_s"]
+        small = calls[(calls["algorithm"] == r.algorithm) & (calls["K"] == 1000)]["median_s"]
+        ratio = float(big.iloc[0] / small.iloc[0]) if len(big) and len(small) else np.nan
+        lines.append(f"| {get_method(r.algorithm).label} | {format_number(r.median_s * 1e3)} | "
+                     f"{format_number(r.q25_s * 1e3)}-{format_number(r.q75_s * 1e3)} | "
+                     f"{format_number(1 / r.median_s)} | {format_number(float(ref))} | "
+                     f"{format_number(ratio, 2)} |")
+    if (folder / "peers.csv").exists():
+        peers = pd.read_csv(folder / "peers.csv")
+        lines += ["", "Peers on the same 20 nominal datasets (speed-up = peer time / magbench "
+                  "time; J = eq. 74 after converting conventions):", "",
+                  "| peer | magbench | speed-up | peer mean J | magbench mean J | note |",
+                  "|---|---|---:|---:|---:|---|"]
+        for r in peers.itertuples(index=False):
+            lines.append(f"| {r.peer} | {r.magbench} | "
+                         f"{format_number(getattr(r, 'speedup', np.nan), 3)} | "
+                         f"{format_number(getattr(r, 'peer_mean_J', np.nan))} | "
+                         f"{format_number(getattr(r, 'magbench_mean_J', np.nan))} | "
+                         f"{'' if pd.isna(r.note) else r.note} |")
+    if (folder / "parallel.csv").exists():
+        par = pd.read_csv(folder / "parallel.csv")
+        two = par[par["n_jobs"] == 2].iloc[0]
+        lines += ["", f"Parallel: one baseline sweep of {int(two.trials)} trials x "
+                  f"{int(two.methods)} methods took {format_number(par['wall_s'].iloc[0])} s "
+                  f"with 1 worker and {format_number(two.wall_s)} s with 2 "
+                  f"(speed-up {format_number(two.speedup, 3)}x on {os.cpu_count()} cores)."]
+    return "\n".join(lines) + "\n"

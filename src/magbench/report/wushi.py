@@ -1,0 +1,250 @@
+"""Wu and Shi's claims and the report section of their study, from ``<results_dir>/wushi``."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from magbench.core.reference import paper_values
+from magbench.methods.registry import get_method
+from magbench.report.format import format_number
+from magbench.sources.wushi_sim import truth
+from magbench.studies.wushi import CRB_ROW, ML, NM, SHORT, iterations_to_converge
+
+__all__ = ["evaluate_claims", "verdict_convergence", "verdict_divergence", "verdict_ml_better",
+           "verdict_time_ratio", "wushi_report_section"]
+
+
+def _label(name: str) -> str:
+    try:
+        return get_method(name).label
+    except ValueError:
+        return name
+
+
+# ----------------------------------------------------------------------------------------
+# Claims and verdicts
+# ----------------------------------------------------------------------------------------
+
+def verdict_convergence(histories: pd.DataFrame, within: int = 5) -> tuple[str, str]:
+    """Claim: both estimations converge within ``within`` Gauss-Newton iterations (Fig. 3).
+
+    Holds when every run of both settles (objective within 1e-6 of its final value) by
+    iteration ``within``; partly when at least 90 % of each method's runs do; else not.
+    """
+    if histories.empty:
+        return "does not hold", "no run produced an objective history"
+    parts, shares = [], []
+    for short in ("ML", "NM"):
+        sub = histories[histories["method"] == short]
+        its = [iterations_to_converge(g.sort_values("iteration")["objective"].to_numpy())
+               for _, g in sub.groupby("run")]
+        n_ok = sum(i <= within for i in its)
+        shares.append(n_ok / len(its) if its else 0.0)
+        parts.append(f"{short}: {n_ok}/{len(its)} runs settled by iteration {within} "
+                     f"(max {max(its) if its else '-'})")
+    verdict = ("holds" if min(shares) == 1.0 else
+               "partly" if min(shares) >= 0.9 else "does not hold")
+    return verdict, "; ".join(parts)
+
+
+def verdict_time_ratio(times: pd.DataFrame, claimed: float = 10.0, at_N: int = 1000,
+                       ) -> tuple[str, str]:
+    """Claim: at N = 1000 ML costs about ``claimed`` times NM (Fig. 5).
+
+    Holds when the measured ratio is within a factor 2 of the claim; partly when ML is slower
+    than NM but not within that factor; does not hold when ML is not slower.
+    """
+    valid = times.dropna(subset=["ml_over_nm"])
+    if valid.empty:
+        return "does not hold", "no timing available"
+    row = valid.iloc[int(np.argmin(np.abs(valid["N"].to_numpy() - at_N)))]
+    ratio = float(row["ml_over_nm"])
+    evidence = (f"ML/NM time ratio {ratio:.2f} at N = {int(row['N'])} (ML "
+                f"{1e3 * row['ml_time_s']:.2f} ms, NM {1e3 * row['nm_time_s']:.2f} ms); over "
+                f"N = {int(valid['N'].min())}..{int(valid['N'].max())} the ratio is "
+                f"{valid['ml_over_nm'].min():.2f}..{valid['ml_over_nm'].max():.2f}")
+    if len(valid) >= 2:
+        slopes = [np.polyfit(np.log(valid["N"]), np.log(valid[c]), 1)[0]
+                  for c in ("ml_time_s", "nm_time_s")]
+        evidence += (f"; time grows as N^{slopes[0]:.2f} (ML) and N^{slopes[1]:.2f} (NM). Our "
+                     "ML eliminates the per-sample blocks of the (4N+9)-square Newton system by "
+                     "a Schur complement (O(N) per iteration); the paper does not say how its "
+                     "Matlab code solved that system")
+    if claimed / 2.0 <= ratio <= claimed * 2.0:
+        return "holds", evidence
+    return ("partly" if ratio > 1.0 else "does not hold"), evidence
+
+
+def verdict_divergence(div: pd.DataFrame) -> tuple[str, str]:
+    """Claim (Fig. 6): NM starts to diverge at 1 %, diverges in over half the runs at 3 %,
+    completely by 6 %; ML does not diverge within 5 %.
+
+    Holds when all four parts hold; partly when the main conclusion holds (ML never diverges
+    more often than NM, and NM diverges more often than ML at some alpha) but not every number;
+    does not hold otherwise.
+    """
+    d = div.set_index("alpha_pct")
+    runs = int(d["runs"].max())
+
+    def at(short: str, alpha: float) -> int | None:
+        return int(d.loc[alpha, f"{short}_divergences"]) if alpha in d.index else None
+
+    nm1, nm3, nm6 = at("NM", 1.0), at("NM", 3.0), at("NM", 6.0)
+    ml_upto5 = d.loc[d.index <= 5.0, "ML_divergences"]
+    parts = {
+        f"NM diverges at 1 % ({nm1})": nm1 is not None and nm1 > 0,
+        f"NM diverges in over half the runs at 3 % ({nm3}/{runs})":
+            nm3 is not None and nm3 > runs / 2,
+        f"NM diverges in every run by 6 % ({nm6}/{runs})": nm6 is not None and nm6 == runs,
+        f"ML has no divergence up to 5 % ({int(ml_upto5.sum())} in all)":
+            bool((ml_upto5 == 0).all()) and len(ml_upto5) > 0,
+    }
+    ordered = bool((d["ML_divergences"] <= d["NM_divergences"]).all())
+    separated = bool((d["ML_divergences"] < d["NM_divergences"]).any())
+    counts = ", ".join(f"{a:g} %: ML {int(r['ML_divergences'])}, NM {int(r['NM_divergences'])}"
+                       for a, r in d.iterrows())
+    evidence = (f"divergences out of {runs} ({counts}); "
+                + "; ".join(f"{k}: {'yes' if v else 'no'}" for k, v in parts.items()))
+    if all(parts.values()):
+        return "holds", evidence
+    return ("partly" if ordered and separated else "does not hold"), evidence
+
+
+def verdict_ml_better(table: pd.DataFrame) -> tuple[str, str]:
+    """Section IV text: ML performs slightly better than NM in both mean and standard deviation
+    (Table I). Compared on e_s and e_o (e_h is 0.0002 (0.0001) for both in the paper).
+
+    Holds when ML's mean and std are both at most NM's for e_s and e_o; partly when some are;
+    does not hold when none are.
+    """
+    t = table.set_index("algorithm")
+    if ML not in t.index or NM not in t.index:
+        return "does not hold", "ML or NM missing from Table I"
+    columns = [f"{metric}_{stat}" for metric in ("e_s", "e_o") for stat in ("mean", "std")]
+    ml = {c: float(t.loc[ML, c]) for c in columns}
+    nm = {c: float(t.loc[NM, c]) for c in columns}
+    n = sum(ml[c] <= nm[c] for c in columns)
+    evidence = (f"ML <= NM in {n} of 4 (" + "; ".join(f"{c}: ML {ml[c]:.4f}, NM {nm[c]:.4f}"
+                                                        for c in columns) + ")")
+    return ("holds" if n == len(columns) else "partly" if n else "does not hold"), evidence
+
+
+def evaluate_claims(results_dir: Path | str, within: int = 5,
+                    claimed_ratio: float = 10.0) -> pd.DataFrame:
+    """Every claim with evidence and verdict, from the CSV files in ``<results_dir>/wushi``."""
+    folder = Path(results_dir) / "wushi"
+    claims = paper_values()["wu_shi"]["claims"]
+    out = []
+    history = pd.read_csv(folder / "fig3_objective.csv")
+    out.append((claims[0], *verdict_convergence(history, within)))
+    out.append((claims[1], *verdict_time_ratio(pd.read_csv(folder / "fig5_time.csv"),
+                                               claimed_ratio)))
+    out.append((claims[2], *verdict_divergence(pd.read_csv(folder / "fig6_divergence.csv"))))
+    out.append(("(section IV text) the ML estimation performs slightly better than the NM "
+                "estimation in both mean and standard deviation (Table I)",
+                *verdict_ml_better(pd.read_csv(folder / "table1.csv"))))
+    return pd.DataFrame(out, columns=["claim", "verdict", "evidence"])
+
+
+def _cell(mean: float, std: float, digits: int = 4) -> str:
+    if not np.isfinite(mean):
+        return "-"
+    return f"{mean:.{digits}f} ({std:.{digits}f})" if np.isfinite(std) else f"{mean:.{digits}f}"
+
+
+def wushi_report_section(results_dir: Path | str, link_prefix: str = "wushi/") -> str:
+    """Markdown: Table I beside the paper, extra rows, the figures and the claims with verdicts.
+
+    Reads only the CSV files of ``<results_dir>/wushi``; ``link_prefix`` is prepended to the
+    figure file names (``""`` when the Markdown lives in that folder).
+    """
+    folder = Path(results_dir) / "wushi"
+    if not (folder / "table1.csv").exists():
+        return ("## Wu and Shi's simulation study\n\nNo results yet: run "
+                "`python -m magbench sweep=wushi`.\n")
+    t = pd.read_csv(folder / "table1.csv", keep_default_na=False, na_values=[""])
+    settings = (pd.read_csv(folder / "settings.csv").set_index("key")["value"]
+                if (folder / "settings.csv").exists() else pd.Series(dtype=object))
+    N, sigma = (f"{float(settings[k]):g}" if k in settings else "?" for k in ("N", "sigma"))
+    runs = int(t["runs"].max())
+    lines = ["## Wu and Shi (2015), section IV: their simulation reproduced", "",
+             f"{runs} Monte Carlo runs of y_k = S C_k m_n + h + e_k with S, h of their eq. (24),"
+             f" sigma = {sigma} gauss, N = {N} and their Euler-angle attitude pattern (roll and "
+             "pitch within +-20 deg, one yaw turn: a band of the sphere). Error metrics of "
+             "section IV after bringing every estimate to the gauge T^-1 = Q R (R upper "
+             "triangular, positive diagonal) and R = M Lambda; J is the review's eq. (74) in "
+             "gauss. Mean (std, ddof 1) over the runs that returned an estimate.", "",
+             "### Table I", "",
+             "| estimator | e_s % (ours) | e_s % (paper) | e_o deg (ours) | e_o deg (paper) "
+             "| e_h gauss (ours) | e_h gauss (paper) | J (ours) |",
+             "|---|---|---|---|---|---|---|---|"]
+    names = {ML: "ML (`wu_shi`)", NM: "NM (`wu_shi_nm`)",
+             CRB_ROW: "efficient estimator (Cramer-Rao bound)"}
+    for _, r in t[t["algorithm"].isin(list(names))].iterrows():
+        lines.append(
+            f"| {names[r['algorithm']]} "
+            f"| {_cell(r['e_s_mean'], r['e_s_std'])} "
+            f"| {_cell(r['paper_e_s_mean'], r['paper_e_s_std'])} "
+            f"| {_cell(r['e_o_mean'], r['e_o_std'])} "
+            f"| {_cell(r['paper_e_o_mean'], r['paper_e_o_std'])} "
+            f"| {_cell(r['e_h_mean'], r['e_h_std'], 5)} "
+            f"| {_cell(r['paper_e_h_mean'], r['paper_e_h_std'])} "
+            f"| {_cell(r['J_mean'], r['J_std'], 5)} |")
+    ratios = []
+    for name in (ML, NM):
+        r = t[t["algorithm"] == name]
+        if len(r):
+            r = r.iloc[0]
+            ratios.append(f"{SHORT[name]} " + ", ".join(
+                f"{m} {r[f'{m}_mean'] / r[f'paper_{m}_mean']:.2f}" for m in ("e_s", "e_o", "e_h")))
+    lines += ["", "Ours / paper, means: " + "; ".join(ratios) + " (the paper prints e_h to one "
+              "significant figure). The Cramer-Rao row is computed, not simulated: errors drawn "
+              "from the bound for this attitude pattern (the same in every run), i.e. what an "
+              "efficient unbiased estimator achieves on average.", "",
+              "Every magnetometer-only method on the same data. Estimates = runs that returned "
+              "one; at cap = of those, runs that stopped at their iteration cap (still in the "
+              "statistics); note = the most common failure or cap message. Control: median J "
+              "over the first runs with the true offset subtracted from the samples (truth "
+              "(S, 0)).", "",
+              "| method | estimates | at cap | e_s % | e_o deg | e_h gauss | J mean (std) "
+              "| J median | J median, offset removed (control) | median time ms | note |",
+              "|---|---|---|---|---|---|---|---|---|---|---|"]
+    for _, r in t[t["algorithm"] != CRB_ROW].iterrows():
+        note = str(r["note"]).replace("|", "/")[:90] if pd.notna(r["note"]) else ""
+        lines.append(
+            f"| {r['label']} (`{r['algorithm']}`) | {int(r['estimates'])}/{int(r['runs'])} "
+            f"| {int(r['at_cap'])} | {_cell(r['e_s_mean'], r['e_s_std'], 3)} "
+            f"| {_cell(r['e_o_mean'], r['e_o_std'], 3)} "
+            f"| {_cell(r['e_h_mean'], r['e_h_std'], 5)} | {_cell(r['J_mean'], r['J_std'], 4)} "
+            f"| {format_number(r['J_median'], 4)} "
+            f"| {format_number(r['J_median_offset_removed'], 4)} "
+            f"| {format_number(r['time_ms_median'], 3)} | {note} |")
+    ml_J = t.loc[t["algorithm"] == ML, "J_median"]
+    good_J = 10.0 * float(ml_J.iloc[0]) if len(ml_J) else np.nan
+    offset_bound = t[(t["algorithm"] != CRB_ROW) & (t["J_median"] > 0.1)
+                     & (t["J_median_offset_removed"] < good_J)]
+    if len(offset_bound):
+        _, S_true, h_true = truth()
+        axes = np.linalg.svd(S_true, compute_uv=False)
+        lines += ["", "Methods whose median J exceeds 0.1 gauss here but falls below 10x "
+                  "ML's once the true offset is subtracted: "
+                  + ", ".join(f"{r['label']} ({format_number(r['J_median'])} -> "
+                              f"{format_number(r['J_median_offset_removed'])})"
+                              for _, r in offset_bound.iterrows())
+                  + f". Wu and Shi's offset |h| = {np.linalg.norm(h_true):.2f} gauss is large "
+                  f"beside the ellipsoid (semi-axes {axes.min():.2f}-{axes.max():.2f} gauss); "
+                  "the offset, not the partial coverage, is what defeats them: even after the "
+                  "harness's power-of-two normalisation the data are far from the near-unit, "
+                  "near-centred sphere of the review's simulations."]
+    lines += ["", "### Figures", "",
+              f"![Fig. 3](<{link_prefix}fig3_objective.png>) (numbers: `fig3_objective.csv`)",
+              "", f"![Fig. 5](<{link_prefix}fig5_time.png>) (numbers: `fig5_time.csv`)", "",
+              f"![Fig. 6](<{link_prefix}fig6_divergence.png>) (numbers: "
+              "`fig6_divergence.csv`, per run: `perturbation_runs.csv`)", "",
+              "### Claims", "", "| claim | verdict | evidence |", "|---|---|---|"]
+    for _, c in evaluate_claims(results_dir).iterrows():
+        lines.append(f"| {c['claim']} | **{c['verdict']}** | {c['evidence']} |")
+    return "\n".join(lines) + "\n"
