@@ -6,8 +6,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from magbench.figures.sweeps import FIGURES, figure_data, write_figure
 from magbench.cli import main
+from magbench.figures.sweeps import FIGURES, figure_data, write_figure
 from magbench.report import build as report
 from magbench.report.build import FAILS, HOLDS, PARTLY, REVIEW
 from magbench.studies.review import with_coverage_column
