@@ -61,7 +61,7 @@ def method_style(name: str) -> MethodStyle:
         colour, marker = METHOD_STYLE[name]
     else:
         code = zlib.crc32(name.encode())
-        colour = f"#{0x55 + code % 0x66:02x}" * 3
+        colour = "#" + f"{0x55 + code % 0x66:02x}" * 3
         marker = _SPARE_MARKERS[code % len(_SPARE_MARKERS)]
     linestyle, width = FAMILY_LINE.get(family, FAMILY_LINE["extra"])
     return MethodStyle(color=colour, marker=marker, linestyle=linestyle, linewidth=width,

@@ -1,0 +1,31 @@
+"""One fixed style per method, valid and distinct, the same in every figure."""
+
+from __future__ import annotations
+
+from matplotlib.colors import is_color_like
+
+from magbench.figures.style import METHOD_STYLE, method_style
+from magbench.methods.registry import get_method, methods
+
+
+def test_every_registered_method_has_its_own_colour_and_marker():
+    assert set(methods()) <= set(METHOD_STYLE), "a shipped method has no fixed style"
+    pairs = [(method_style(m)["color"], method_style(m)["marker"]) for m in methods()]
+    assert len(set(pairs)) == len(pairs)
+    colours = [p[0] for p in pairs]
+    assert len(set(colours)) == len(colours)          # 22 distinct colours
+    assert all(is_color_like(c) for c in colours)
+
+
+def test_style_follows_the_family_and_is_stable():
+    assert method_style("magical")["linestyle"] == "-"           # the review's: solid
+    assert method_style("fang")["linestyle"] == "--"              # extra methods: dashed
+    assert method_style("magyc_nls")["linestyle"] == ":"          # gyro-aided: dotted
+    assert method_style("magical")["label"] == get_method("magical").label
+    assert method_style("dorveaux") == method_style("dorveaux")
+
+
+def test_an_unknown_method_gets_a_valid_grey_of_its_own():
+    style = method_style("someone_elses_method")
+    assert is_color_like(style["color"]) and style["label"] == "someone_elses_method"
+    assert style == method_style("someone_elses_method")
