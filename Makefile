@@ -30,16 +30,20 @@ lint: ## ruff over the package and the tests
 sweep-real: ## Every method on the real recordings in MAGBENCH_DATA (skipped when unset)
 	@if [ -z "$(MAGBENCH_DATA)" ]; then \
 	  echo "sweep real skipped: set MAGBENCH_DATA to a folder of recordings (see README, Real data)"; \
-	else $(PYTHON) -m magbench sweep=real $(ARGS); fi
+	else $(PYTHON) -m magbench sweep=real $(SWEEP_ARGS) $(ARGS); fi
 
 # A static pattern rule: make never applies an implicit `sweep-%:` rule to .PHONY targets.
 $(filter-out sweep-real,$(SWEEP_TARGETS)): sweep-%:
-	$(PYTHON) -m magbench sweep=$* $(ARGS)
+	$(PYTHON) -m magbench sweep=$* $(SWEEP_ARGS) $(ARGS)
 
 sweep-NAME: ## Run one sweep, e.g. `make sweep-gamma` (extra overrides: ARGS="trials=20")
 	@echo "use one of: $(SWEEP_TARGETS)"
 
-reproduce: $(addprefix sweep-,$(SWEEPS)) report ## Every sweep, then the figures and the report
+# A single `make sweep-gamma` reuses a finished run of the same config and refuses to replace
+# one of another config; reproducing means recomputing, so `reproduce` passes overwrite=true
+# to every sweep it runs (a target-specific variable reaches the prerequisites).
+reproduce: SWEEP_ARGS = overwrite=true
+reproduce: $(addprefix sweep-,$(SWEEPS)) report ## Recompute every sweep at its committed size, then the report
 
 bench: ## Time every method, peers, scaling with K and the parallel speed-up (results/bench/)
 	$(PYTHON) -m magbench bench $(ARGS)

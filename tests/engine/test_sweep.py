@@ -10,7 +10,7 @@ import pandas as pd
 import pytest
 
 from magbench.core.seeding import rng
-from magbench.engine.sweep import FolderBusy, Study, folder_lock, run_study
+from magbench.engine.sweep import FolderBusy, ResultsExist, Study, folder_lock, run_study
 
 
 @dataclass(frozen=True)
@@ -142,3 +142,25 @@ def test_a_second_run_on_a_busy_folder_is_refused(tmp_path):
         run_study(Toy(), tmp_path, progress=False)
     run_study(Toy(), tmp_path, progress=False)          # the lock went with its holder
     assert len(read(tmp_path)) == 12
+
+
+def test_a_finished_run_is_reused_and_never_silently_replaced(tmp_path, capsys):
+    run_study(Toy(), tmp_path, progress=False)
+    first = (tmp_path / "run.json").read_text()
+    run_study(Toy(), tmp_path, progress=False)           # same config: reused, not rerun
+    assert (tmp_path / "run.json").read_text() == first
+    assert "its tables are reused" in capsys.readouterr().err
+    with pytest.raises(ResultsExist, match=r"another configuration.*overwrite=true"):
+        run_study(Toy(seed=5), tmp_path, progress=False)
+    assert json.loads((tmp_path / "run.json").read_text())["fingerprint"] == Toy().fingerprint()
+    run_study(Toy(seed=5), tmp_path, progress=False, overwrite=True)
+    run_study(Toy(seed=5), tmp_path / "fresh", progress=False)
+    pd.testing.assert_frame_equal(read(tmp_path), read(tmp_path / "fresh"))
+
+
+def test_tables_without_a_run_record_are_not_replaced(tmp_path):
+    """Results written by an older magbench (no run.json) count as another configuration."""
+    (tmp_path / "rows.csv").write_text("unit,x\n0,1.0\n")
+    with pytest.raises(ResultsExist, match=r"no readable run\.json"):
+        run_study(Toy(), tmp_path, progress=False)
+    assert (tmp_path / "rows.csv").read_text() == "unit,x\n0,1.0\n"

@@ -45,7 +45,8 @@ def run(cfg: DictConfig) -> int:
     out_dir = common["results_dir"] / study.name
     run_study(study, out_dir, n_jobs=common["n_jobs"], chunk_size=common["chunk_size"],
               backend=common["backend"], scheduler_address=common["scheduler_address"],
-              progress=common["progress"], config=OmegaConf.to_container(cfg, resolve=True))
+              progress=common["progress"], config=OmegaConf.to_container(cfg, resolve=True),
+              overwrite=common["overwrite"])
     kind = cfg.sweep.get("kind", "review")
     if kind == "wushi":
         wushi.finish(study, out_dir)

@@ -152,8 +152,15 @@ def check_common(cfg: DictConfig) -> dict:
             timeout, "call_timeout_s", lambda t: t > 0, "> 0 seconds (or null for no limit)"),
         "plugins": tuple(plugins),
         "progress": bool(cfg.progress),
+        "overwrite": _flag(cfg.get("overwrite", False), "overwrite"),
         "results_dir": _results_dir(cfg),
     }
+
+
+def _flag(value: object, key: str) -> bool:
+    if not isinstance(value, bool):
+        raise UsageError(f"{key} must be true or false, got {value!r}")
+    return value
 
 
 def _results_dir(cfg: DictConfig) -> Path:

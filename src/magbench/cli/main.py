@@ -171,7 +171,7 @@ def _plain_keys(args: list[str]) -> list[str]:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of ``python -m magbench`` and the ``magbench`` script."""
-    from magbench.engine.sweep import FolderBusy
+    from magbench.engine.sweep import FolderBusy, ResultsExist
 
     args = list(sys.argv[1:] if argv is None else argv)
     if args and args[0] in ("--version", "-V", "version"):
@@ -194,7 +194,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 2
     try:
         return COMMANDS[command][0](compose_config(_plain_keys(args)))
-    except (UsageError, FolderBusy) as exc:
+    except (UsageError, FolderBusy, ResultsExist) as exc:
         print(f"magbench: error: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:

@@ -14,7 +14,10 @@ every study:
 * the parts are merged on disk into the final CSV files (rows in unit order, whatever finished
   first), ``run.json`` is written beside them and the parts are removed;
 * one run per folder at a time: a second run on the same folder is refused (:class:`FolderBusy`);
-  the lock is the operating system's, so a killed run leaves no stale lock behind.
+  the lock is the operating system's, so a killed run leaves no stale lock behind;
+* a finished run is never silently replaced: rerun with the same fingerprint, its tables are
+  reused as they are (and it says so); with another configuration the run is refused
+  (:class:`ResultsExist`) unless ``overwrite=True``.
 """
 
 from __future__ import annotations
@@ -39,11 +42,16 @@ from magbench.core.files import atomic_path, file_sha256, write_csv_atomic, writ
 from magbench.engine.plugins import load_plugins
 from magbench.engine.record import write_run_record
 
-__all__ = ["FolderBusy", "Study", "folder_lock", "parallel_backend", "run_study"]
+__all__ = ["FolderBusy", "ResultsExist", "Study", "finished_run", "folder_lock",
+           "parallel_backend", "run_study"]
 
 
 class FolderBusy(RuntimeError):
     """Another run holds the results folder."""
+
+
+class ResultsExist(RuntimeError):
+    """The results folder holds a finished run of another configuration."""
 
 
 class Study:
@@ -221,9 +229,35 @@ def _warn(message: str) -> None:
     warnings.warn(message, RuntimeWarning, stacklevel=3)
 
 
+def finished_run(study: Study, out_dir: Path | str) -> str | None:
+    """What ``out_dir`` holds of a finished run of ``study``'s kind.
+
+    Returns
+    -------
+    str or None
+        None when no table of the study is there; ``"same"`` when its ``run.json`` records the
+        study's fingerprint and every table is present; otherwise a short description of the
+        other run (its fingerprint, or why it cannot be identified).
+    """
+    out_dir = Path(out_dir)
+    files = [out_dir / file for file, _ in study.tables.values()]
+    if not any(f.exists() for f in files):
+        return None
+    try:
+        found = json.loads((out_dir / "run.json").read_text()).get("fingerprint")
+    except (OSError, ValueError, AttributeError):
+        found = None
+    if found is None:
+        return "a run with no readable run.json"
+    if found == study.fingerprint() and all(f.exists() for f in files):
+        return "same"
+    return f"a run of another configuration (fingerprint {found})"
+
+
 def run_study(study: Study, out_dir: Path | str, *, n_jobs: int = 1, chunk_size: int = 25,
               backend: str = "loky", scheduler_address: str | None = None,
-              progress: bool = True, config: Mapping | None = None) -> dict[str, Path]:
+              progress: bool = True, config: Mapping | None = None,
+              overwrite: bool = False) -> dict[str, Path]:
     """Run (or finish) ``study`` and write its tables, and ``run.json``, under ``out_dir``.
 
     Parameters
@@ -243,6 +277,8 @@ def run_study(study: Study, out_dir: Path | str, *, n_jobs: int = 1, chunk_size:
         Show a progress bar (stderr) with the time left.
     config : mapping, optional
         The user's configuration, recorded in ``run.json``.
+    overwrite : bool
+        Recompute and replace a finished run in ``out_dir`` (of this or another configuration).
 
     Returns
     -------
@@ -253,6 +289,8 @@ def run_study(study: Study, out_dir: Path | str, *, n_jobs: int = 1, chunk_size:
     ------
     FolderBusy
         Another run holds ``out_dir``.
+    ResultsExist
+        ``out_dir`` holds a finished run of another configuration and ``overwrite`` is False.
     """
     from joblib import Parallel, delayed
     from tqdm import tqdm
@@ -262,7 +300,16 @@ def run_study(study: Study, out_dir: Path | str, *, n_jobs: int = 1, chunk_size:
     load_plugins(study.plugins)
     units = study.units()
     chunks = [(s, min(s + chunk_size, len(units))) for s in range(0, len(units), chunk_size)]
+    written = {table: out_dir / file for table, (file, _) in study.tables.items()}
     with folder_lock(out_dir):
+        before = finished_run(study, out_dir)
+        if before == "same" and not overwrite:
+            print(f"{out_dir}: already holds this run (fingerprint {study.fingerprint()}); "
+                  "its tables are reused (overwrite=true recomputes them)", file=sys.stderr)
+            return written
+        if before is not None and not overwrite:
+            raise ResultsExist(f"{out_dir} holds {before}; choose another results_dir= or "
+                               "pass overwrite=true to replace it")
         parts = _Parts(out_dir, study)
         todo = [c for c in chunks if not parts.done(*c)]
         resumed = len(units) - sum(stop - start for start, stop in todo)
@@ -279,7 +326,6 @@ def run_study(study: Study, out_dir: Path | str, *, n_jobs: int = 1, chunk_size:
                                                 for a, b in todo):
                         parts.write(start, stops[start], rows)
                         bar.update(sum(weights[start:stops[start]]))
-        written = {table: out_dir / file for table, (file, _) in study.tables.items()}
         counts = {table: parts.merge(chunks, table, written[table]) for table in study.tables}
         finished = datetime.now(UTC)
         write_run_record(out_dir, study=study.name, fingerprint=study.fingerprint(),
