@@ -29,6 +29,8 @@ def test_baseline_runs_end_to_end(tmp_path, capsys):
     [
         ("trials=0", "trials must be an integer >= 1, got 0"),
         ("trials=abc", "trials must be an integer"),
+        ("trials=1000000000000", "trials must be an integer <= 1000000, got 1000000000000"),
+        ("overwrite=maybe", "overwrite must be true or false, got 'maybe'"),
         ("sweep=nope", "Could not find 'sweep/nope'"),
         ("nosuchkey=1", "Could not override 'nosuchkey'"),
         ("algorithms=[magical,xx]", "unknown algorithm(s) xx"),

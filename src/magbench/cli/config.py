@@ -65,11 +65,19 @@ def compose_config(overrides: Sequence[str]) -> DictConfig:
         raise UsageError(text) from None
 
 
-def check_integer(value: object, what: str, low: int) -> int:
-    """``value`` if it is an integer >= ``low``; otherwise a :class:`UsageError` naming it."""
+def check_integer(value: object, what: str, low: int, high: int | None = None) -> int:
+    """``value`` if it is an integer in [``low``, ``high``]; otherwise a :class:`UsageError`
+    naming it."""
     if isinstance(value, bool) or not isinstance(value, int) or value < low:
         raise UsageError(f"{what} must be an integer >= {low}, got {value!r}")
+    if high is not None and value > high:
+        raise UsageError(f"{what} must be an integer <= {high}, got {value!r}")
     return value
+
+
+#: The most trials a sweep accepts: its work units are listed in memory before the run (a
+#: million trials of eight points is 8e6 units, about 1 GB), and 250 is the review's size.
+MAX_TRIALS = 1_000_000
 
 
 def check_number(value: object, what: str, ok: Callable[[float], bool], expected: str) -> float:
@@ -180,7 +188,7 @@ def _results_dir(cfg: DictConfig) -> Path:
 def _trials(cfg: DictConfig, what: str) -> int:
     if cfg.get("trials") is None:
         raise UsageError(f"trials must be set for {what}")
-    return check_integer(cfg.trials, "trials", 1)
+    return check_integer(cfg.trials, "trials", 1, MAX_TRIALS)
 
 
 def _nominal(cfg: DictConfig, min_k: int) -> Point:
