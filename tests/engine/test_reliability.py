@@ -98,15 +98,30 @@ def test_a_killed_sweep_resumes_to_the_same_rows(tmp_path):
     assert not b.duplicated(["trial", "algorithm"]).any() and len(b) == 60
 
 
-def test_sigint_stops_cleanly_with_one_line(tmp_path):
+@pytest.mark.parametrize(("signum", "code", "word"), [(signal.SIGINT, 130, "interrupted"),
+                                                      (signal.SIGTERM, 143, "terminated")])
+def test_sigint_and_sigterm_stop_cleanly_with_one_line(tmp_path, signum, code, word):
     proc = subprocess.Popen(sweep_command(tmp_path), cwd=REPO, stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True)
     wait_for_parts(tmp_path / "baseline" / "parts", 1, proc)
-    proc.send_signal(signal.SIGINT)
+    proc.send_signal(signum)
     _, err = proc.communicate(timeout=30)
-    assert proc.returncode == 130
+    assert proc.returncode == code
     assert err.strip().splitlines() == [
-        "magbench: interrupted; finished chunks are kept and a rerun completes the rest"]
+        f"magbench: {word}; finished chunks are kept and a rerun completes the rest"]
+
+
+def test_a_killed_sweep_leaves_no_worker_process_behind(tmp_path):
+    psutil = pytest.importorskip("psutil")
+    proc = subprocess.Popen(sweep_command(tmp_path, "n_jobs=2"), cwd=REPO,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    wait_for_parts(tmp_path / "baseline" / "parts", 2, proc)
+    children = psutil.Process(proc.pid).children(recursive=True)
+    assert len(children) >= 2                       # the loky workers (and resource trackers)
+    proc.send_signal(signal.SIGKILL)
+    proc.wait(timeout=30)
+    _, alive = psutil.wait_procs(children, timeout=20)
+    assert alive == [], f"orphaned after SIGKILL: {[p.cmdline()[-3:] for p in alive]}"
 
 
 def test_dask_backend_gives_the_same_rows(tmp_path):

@@ -8,7 +8,9 @@ needs no ``+``).
 from __future__ import annotations
 
 import re
+import signal
 import sys
+import threading
 from collections.abc import Callable, Sequence
 
 from omegaconf import DictConfig
@@ -192,12 +194,30 @@ def main(argv: Sequence[str] | None = None) -> int:
               f"{', '.join(COMMANDS)} followed by key=value pairs (python -m magbench --help)",
               file=sys.stderr)
         return 2
+    previous = signal.signal(signal.SIGTERM, _terminate) if _main_thread() else None
     try:
         return COMMANDS[command][0](compose_config(_plain_keys(args)))
     except (UsageError, FolderBusy, ResultsExist) as exc:
         print(f"magbench: error: {exc}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
-        print("magbench: interrupted; finished chunks are kept and a rerun completes the rest",
+    except KeyboardInterrupt as stop:
+        what = "terminated" if isinstance(stop, Terminated) else "interrupted"
+        print(f"magbench: {what}; finished chunks are kept and a rerun completes the rest",
               file=sys.stderr)
-        return 130
+        return 143 if isinstance(stop, Terminated) else 130
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM, handled as Ctrl-C is: finished chunks are kept, one line, exit 143."""
+
+
+def _terminate(signum: int, frame: object) -> None:
+    raise Terminated
+
+
+def _main_thread() -> bool:
+    # signal.signal works only in the main thread (a host application may call main elsewhere).
+    return threading.current_thread() is threading.main_thread()

@@ -30,6 +30,7 @@ import json
 import os
 import shutil
 import sys
+import threading
 import time
 import warnings
 from collections.abc import Iterator, Mapping, Sequence
@@ -145,7 +146,33 @@ def parallel_backend(backend: str, n_jobs: int,
         yield {"n_jobs": -1, "client": client}
 
 
-def _run_chunk(study: Study, units: list, start: int) -> tuple[int, dict[str, list[dict]]]:
+_WATCHED_PARENT: list[int] = []
+
+
+def _exit_with_parent(parent_pid: int | None, poll_s: float = 1.0) -> None:
+    """In a loky worker, exit as soon as the run that started it is gone.
+
+    A run killed with SIGKILL cannot shut its worker pool down, and loky's idle workers (and,
+    through them, the resource trackers) would otherwise live on, orphaned, for many minutes.
+    Polling the parent's pid from a daemon thread is portable across POSIX systems and costs
+    nothing while the run lives. ``parent_pid`` is None in-process and on Dask, whose workers
+    have their own parents.
+    """
+    if parent_pid is None or os.getpid() == parent_pid or _WATCHED_PARENT:
+        return
+    _WATCHED_PARENT.append(parent_pid)
+
+    def watch() -> None:
+        while os.getppid() == parent_pid:
+            time.sleep(poll_s)
+        os._exit(1)
+
+    threading.Thread(target=watch, name="magbench-parent-watch", daemon=True).start()
+
+
+def _run_chunk(study: Study, units: list, start: int,
+               parent_pid: int | None = None) -> tuple[int, dict[str, list[dict]]]:
+    _exit_with_parent(parent_pid)
     load_plugins(study.plugins)
     out: dict[str, list[dict]] = {name: [] for name in study.tables}
     for unit in units:
@@ -322,7 +349,8 @@ def run_study(study: Study, out_dir: Path | str, *, n_jobs: int = 1, chunk_size:
                         Parallel(n_jobs=engine["n_jobs"], backend=engine.get("backend"),
                                  return_as="generator_unordered") as parallel:
                     stops = dict(todo)
-                    for start, rows in parallel(delayed(_run_chunk)(study, units[a:b], a)
+                    watch = os.getpid() if backend == "loky" else None
+                    for start, rows in parallel(delayed(_run_chunk)(study, units[a:b], a, watch)
                                                 for a, b in todo):
                         parts.write(start, stops[start], rows)
                         bar.update(sum(weights[start:stops[start]]))
