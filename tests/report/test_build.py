@@ -128,3 +128,38 @@ def test_metric_hypotheses_on_hand_made_rows():
     assert hyp["crb_floor"] == pytest.approx(5.0)
     assert hyp["paper"] == pytest.approx(2.28e5)
     assert np.isclose(hyp["paper_over_sq"], 2.28e5 / 50)
+
+
+def test_recommendations_name_the_equally_good_methods_and_never_a_variant():
+    base = summary("K", [300], {
+        "magical": {"RB_pct": [100], "accuracy": [397], "speed_hz": [300]},
+        "fang": {"RB_pct": [100], "accuracy": [395], "speed_hz": [1300]},
+        "vasconcelos_printed": {"RB_pct": [100], "accuracy": [397], "speed_hz": [5000]},
+        "sphere": {"RB_pct": [87.6], "accuracy": [16], "speed_hz": [1800]}})
+    lines = report.recommendations(base, None)
+    assert "2 methods are equally good" in lines[0] and "the fastest here is Fang" in lines[0]
+    assert "Vasconcelos (review" not in "\n".join(lines)         # variants are never advised
+    assert lines[1].startswith("- **Not for full soft-iron calibration**: Sphere fit (RB 87.6 %")
+
+
+def test_recommendations_on_partial_coverage_name_the_most_robust_per_cap():
+    cov = summary("cap_deg", [180.0, 60.0, 30.0], {
+        "magical": {"RB_pct": [100, 90, 35], "accuracy": [397, 50, 15], "speed_hz": [3] * 3},
+        "fang": {"RB_pct": [100, 94, 10], "accuracy": [395, 50, 14], "speed_hz": [3] * 3}})
+    text = report.recommendations(None, cov)[0]
+    assert "cap 60 deg: Fang 94 % (MAG.I.C.AL within 10 points)" in text
+    assert "cap 30 deg: MAG.I.C.AL 35 %." in text             # Fang is 25 points behind
+
+
+def test_top_share_is_a_paired_bootstrap_of_the_squared_metric():
+    rng = np.random.default_rng(1)
+    err = rng.gamma(2.0, 1e-6, 250)
+    rows = [{"trial": i, "algorithm": name, "sq_err": e * f}
+            for i, e in enumerate(err) for name, f in (("magical", 1.0), ("wu_shi", 1.2))]
+    text = report._top_share(pd.DataFrame(rows), ["magical", "wu_shi"])
+    # On the same datasets magical's error is always 1.2 times smaller: first in every draw.
+    assert "MAG.I.C.AL 100 %" in text and "the first place is significant" in text
+    rows += [{"trial": i, "algorithm": "dorveaux", "sq_err": e * (1 + 0.3 * rng.standard_normal())}
+             for i, e in enumerate(err)]
+    text = report._top_share(pd.DataFrame(rows), ["magical", "dorveaux"])
+    assert "not significant" in text
