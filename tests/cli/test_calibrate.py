@@ -9,6 +9,7 @@ import pandas as pd
 import pytest
 
 from magbench.cli import main
+from magbench.core.exports import GAUGE
 from magbench.core.geometry import fibonacci_sphere
 from magbench.core.model import Calibration
 
@@ -37,9 +38,9 @@ def test_one_method_writes_json_in_the_safe_gauge(tmp_path, capsys):
     path = save(tmp_path / "rec.csv", y)
     assert calibrate(f"file={path}", "method=magical", f"out={tmp_path / 'out'}") == 0
     data = json.loads((tmp_path / "out" / "calibration.json").read_text())
-    assert data["method"] == "magical" and data["correction"]["formula"] == "m = A (y - b)"
+    assert data["method"] == "magical" and data["gauge"] == GAUGE and data["version"] == 1
     T, h = np.array(data["T"]), np.array(data["h"])
-    A, b = np.array(data["correction"]["A"]), np.array(data["correction"]["b"])
+    A, b = np.array(data["A"]), np.array(data["b"])
     np.testing.assert_array_equal(A, A.T)
     assert np.linalg.eigvalsh(A).min() > 0
     np.testing.assert_allclose(T @ A, np.eye(3), atol=1e-12)        # T is the gauge's A^-1
@@ -96,7 +97,7 @@ def test_a_mirrored_method_answer_is_written_unmirrored(tmp_path, capsys):
     data = json.loads((tmp_path / "o" / "calibration.json").read_text())
     assert data["removed"]["mirrored"]
     assert data["removed"]["rotation_deg"] == pytest.approx(180.0, abs=1.0)
-    assert np.linalg.det(np.array(data["correction"]["A"])) > 0
+    assert np.linalg.det(np.array(data["A"])) > 0
     assert "mirror image, removed" in capsys.readouterr().out
 
 
@@ -194,3 +195,31 @@ def test_long_recordings_are_thinned_and_say_so(tmp_path, capsys):
     assert "using 1 sample in 3: 1000 of 3000" in capsys.readouterr().out
     data = json.loads((tmp_path / "o" / "calibration.json").read_text())
     assert data["stride"] == 3 and data["samples_in_file"] == 3000
+
+
+def test_writes_c_header_and_ardupilot_params_beside_the_json(tmp_path, capsys):
+    from tests.core.test_exports import ardupilot_correct, parse_header, parse_params
+
+    y = recording()
+    path = save(tmp_path / "rec.csv", y)
+    assert calibrate(f"file={path}", "method=ellipsoid", f"out={tmp_path / 'o'}") == 0
+    data = json.loads((tmp_path / "o" / "calibration.json").read_text())
+    A, b = np.array(data["A"]), np.array(data["b"])
+    header = (tmp_path / "o" / "calibration.h").read_text()
+    assert "Verdict: Ellipsoid fit: field magnitude error" in header
+    A32, b32 = parse_header(header, "mag_cal")
+    np.testing.assert_allclose((y.astype(np.float32) - b32) @ A32.T, (y - b) @ A.T, rtol=2e-6,
+                               atol=2e-6)
+    params = parse_params((tmp_path / "o" / "ardupilot.param").read_text())
+    corrected = ardupilot_correct(params, y) / data["field_strength"]
+    np.testing.assert_allclose(corrected, (y - b) @ A.T, rtol=2e-6, atol=2e-6)
+    assert "ardupilot.param" in capsys.readouterr().out
+
+
+def test_ardupilot_params_are_skipped_with_one_line_when_out_of_range(tmp_path, capsys):
+    path = save(tmp_path / "gauss.csv", recording() / 1000)       # gauss, not milligauss
+    assert calibrate(f"file={path}", "method=ellipsoid", f"out={tmp_path / 'o'}") == 0
+    out = capsys.readouterr().out
+    assert out.count("not writing ardupilot.param: field strength 0.53") == 1
+    assert (tmp_path / "o" / "calibration.h").exists()
+    assert not (tmp_path / "o" / "ardupilot.param").exists()

@@ -1,13 +1,24 @@
 """``python -m magbench calibrate file=PATH [method=NAME] [columns=[mx,my,mz]] [out=DIR]``.
 
-Calibrates a user's own recording: every applicable method (or the one named) is fitted on all
+Calibrates a user's own recording: every candidate method (or the one named) is fitted on all
 samples (J_r in sample, eq. 81) and on each half in time with J_r on the other half (out of
-sample), as in the real-data sweep (:mod:`magbench.studies.real`). The methods are ranked,
-meaningful fits first (:func:`magbench.studies.real.is_meaningful`), then by J_r out of sample
-(in sample where a recording is too short to split). The best (or the named) calibration is
-written as JSON with the model ``y = T m + h`` and the correction a firmware applies, ``m = A y
-+ b`` with ``A = T^-1`` and ``b = -T^-1 h``, in the recording's units; a picture shows the data
-before and after. The preprocessing is ``centre`` (remove the sphere-fit centre and radius
+sample), as in the real-data sweep (:mod:`magbench.studies.real`). The candidates are the
+registered methods except the review's printed variants (family ``variant``: benchmark-only,
+wrong as printed) and, without gyro data, the gyro-aided ones; ``method=NAME`` runs any one.
+The methods are ranked, meaningful fits first (:func:`magbench.studies.real.is_meaningful`),
+then by J_r out of sample (in sample where a recording is too short to split).
+
+The best (or the named) calibration is written in the safe gauge of :mod:`magbench.core.gauge`:
+the correction a firmware applies is ``m = A (y - b)`` with ``A = (T T^T)^(-1/2)`` symmetric
+positive definite and ``b = h``, in the recording's units (never rotated, never a mirror image;
+the rotation removed from the method's own ``T^-1`` is reported). Beside ``calibration.json``
+(:func:`magbench.core.exports.to_json_dict`) go ``calibration.h`` and ``ardupilot.param`` (the
+latter only where ArduPilot accepts the values, see :mod:`magbench.core.exports`). The verdict
+(:mod:`magbench.core.verdict`) is the corrected field magnitude's error in percent on the half
+in time each half-fit was not fitted on (in sample when there are no usable half-fits) and the
+heading error it implies; a warning is printed and stored when the field directions cover too
+little of the sphere. A picture shows the data before and after.
+The preprocessing is ``centre`` (remove the sphere-fit centre and radius
 first), which the real-data sweep found necessary for MAG.I.C.AL and Dorveaux when the offset
 exceeds the field radius; ``preprocess=scale`` selects the review's.
 """
@@ -24,8 +35,10 @@ import pandas as pd
 from omegaconf import DictConfig, OmegaConf
 
 from magbench.cli.config import UsageError, check_common, check_integer, check_options
+from magbench.core.exports import ardupilot_param_file, ardupilot_params, c_header, to_json_dict
 from magbench.core.files import write_csv_atomic, write_text_atomic
-from magbench.core.gauge import safe_gauge, symmetric_T
+from magbench.core.gauge import safe_gauge
+from magbench.core.model import Calibration
 from magbench.core.verdict import coverage_report, magnitude_verdict
 from magbench.figures.real import calibration_picture
 from magbench.figures.style import save_figure
@@ -90,9 +103,10 @@ def calibration_json(row: pd.Series, *, file: str, columns: list, n_file: int,
                      coverage: dict | None = None) -> dict:
     """The chosen calibration as a JSON-ready dict: the correction in the safe gauge.
 
-    ``T`` is the gauge's symmetric ``A^-1`` and ``correction`` holds ``m = A (y - b)``;
-    ``removed`` records the rotation angle taken out of the method's own ``T^-1`` and whether
-    it was a mirror image, with the method's ``T`` itself.
+    The schema of :func:`magbench.core.exports.to_json_dict` (``A``, ``b`` of ``m = A (y - b)``,
+    ``T = A^-1``, ``h = b``), plus the method, verdict and coverage; ``removed`` records the
+    rotation angle taken out of the method's own ``T^-1``, whether it was a mirror image, and
+    the method's ``T`` itself.
 
     Raises
     ------
@@ -103,14 +117,8 @@ def calibration_json(row: pd.Series, *, file: str, columns: list, n_file: int,
     gauge = safe_gauge(T, h)
     warnings_ = [coverage["warning"]] if coverage and coverage.get("warning") else []
     return {
-        "file": file, "columns": columns, "method": row["algorithm"],
-        "label": get_method(row["algorithm"]).label,
-        "units": "as recorded in the file (T, h and b in the file's units, m in field units)",
-        "model": "y = T m + h, ||m|| = 1 (review eq. 2); T in the safe gauge, T = A^-1",
-        "T": symmetric_T(T).tolist(), "h": h.tolist(),
-        "correction": {"formula": "m = A (y - b)",
-                       "gauge": "A = (T T^T)^(-1/2), symmetric positive definite; b = h",
-                       "A": gauge.A.tolist(), "b": gauge.b.tolist()},
+        **to_json_dict(Calibration(T, h), units="as recorded in the file", columns=columns),
+        "file": file, "method": row["algorithm"], "label": get_method(row["algorithm"]).label,
         "removed": {"rotation_deg": gauge.rotation_deg, "mirrored": gauge.mirrored,
                     "method_T": T.tolist()},
         "field_strength": float(np.cbrt(abs(np.linalg.det(T)))),
@@ -249,14 +257,36 @@ def run_calibrate(cfg: DictConfig) -> int:
                                verdict=chosen_verdict(trials, thinned, best, preprocess),
                                coverage=cover)
     write_text_atomic(json.dumps(payload, indent=2) + "\n", out / "calibration.json")
+    written = ["calibration.json (m = A (y - b))", *_write_exports(Calibration(T, h), payload,
+                                                                  out)]
     write_csv_atomic(ranked, out / "ranking.csv")
     save_figure(_picture(rec, payload, calibration_picture), out / "calibration.png")
     print(f"chosen: {payload['label']} (J_r in {payload['J_r_in']:.3g})")
     print("\n".join(_verdict_lines(payload)))
     for warning in payload["warnings"]:
         print(f"magbench: warning: {warning}", file=sys.stderr)
-    print(f"wrote {out}/calibration.json (m = A (y - b)), ranking.csv, calibration.png")
+    print(f"wrote {out}/: {', '.join([*written, 'ranking.csv', 'calibration.png'])}")
     return 0
+
+
+def _write_exports(cal: Calibration, payload: dict, out: Path) -> list[str]:
+    """calibration.h always; ardupilot.param when ArduPilot accepts the values (else one line
+    saying why not). Returns the names written."""
+    f = payload["verdict"]["field_error_pct"]
+    verdict = (f"{payload['label']}: field magnitude error {f['p95']:.2f} % (95th percentile), "
+               f"{f['max']:.2f} % (max), "
+               f"{'held out' if payload['verdict']['held_out'] else 'in sample'}; "
+               f"from {Path(payload['file']).name}")
+    write_text_atomic(c_header(cal, "mag_cal", verdict=verdict), out / "calibration.h")
+    try:
+        params = ardupilot_params(cal)
+    except ValueError as exc:
+        print(f"not writing ardupilot.param: {exc}")
+        return ["calibration.h"]
+    note = ("magbench calibration for ArduPilot: corrected = M (COMPASS_SCALE (raw + OFS)), "
+            f"raw in milligauss\n{verdict}")
+    write_text_atomic(ardupilot_param_file(params, note), out / "ardupilot.param")
+    return ["calibration.h", "ardupilot.param"]
 
 
 def _writable(row: pd.Series) -> bool:
@@ -268,8 +298,8 @@ def _writable(row: pd.Series) -> bool:
 
 
 def _picture(rec: Recording, payload: dict, draw):
-    A = np.array(payload["correction"]["A"])
-    b = np.array(payload["correction"]["b"])
+    A = np.array(payload["A"])
+    b = np.array(payload["b"])
     y = rec.thinned(5000).y
     before = y / float(np.mean(np.linalg.norm(y, axis=1)))
     after = (y - b) @ A.T
