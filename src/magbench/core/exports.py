@@ -231,8 +231,9 @@ def _check_ardupilot(field: float, offsets: np.ndarray, M: np.ndarray) -> None:
     lo, hi = ARDUPILOT_LIMITS["field_mgauss"]
     if not lo < field < hi:
         raise ValueError(f"field strength {field:.4g} mGauss is outside ArduPilot's accepted "
-                         f"({lo:g}, {hi:g}) mGauss; is the recording in milligauss? (set "
-                         "mgauss_per_unit: 1000 for gauss, 10 for microtesla)")
+                         f"({lo:g}, {hi:g}) mGauss; ArduPilot needs the recording in milligauss "
+                         "(convert it, or pass mgauss_per_unit to magbench.core.exports."
+                         "ardupilot_params: 1000 for gauss, 10 for microtesla)")
     worst = float(np.abs(offsets).max())
     if worst >= ARDUPILOT_LIMITS["offset_mgauss"]:
         raise ValueError(f"offset {worst:.4g} mGauss exceeds ArduPilot's COMPASS_OFFS_MAX "
