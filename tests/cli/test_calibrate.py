@@ -9,6 +9,7 @@ import pandas as pd
 import pytest
 
 from magbench.cli import main
+from magbench.core.exports import GAUGE
 from magbench.core.geometry import fibonacci_sphere
 from magbench.core.model import Calibration
 
@@ -32,16 +33,25 @@ def calibrate(*args):
     return main(["calibrate", "progress=false", *args])
 
 
-def test_one_method_writes_json_whose_correction_equals_apply(tmp_path, capsys):
+def test_one_method_writes_json_in_the_safe_gauge(tmp_path, capsys):
     y = recording()
     path = save(tmp_path / "rec.csv", y)
     assert calibrate(f"file={path}", "method=magical", f"out={tmp_path / 'out'}") == 0
     data = json.loads((tmp_path / "out" / "calibration.json").read_text())
-    assert data["method"] == "magical" and data["correction"]["formula"] == "m = A y + b"
+    assert data["method"] == "magical" and data["gauge"] == GAUGE and data["version"] == 1
     T, h = np.array(data["T"]), np.array(data["h"])
-    A, b = np.array(data["correction"]["A"]), np.array(data["correction"]["b"])
-    np.testing.assert_allclose(y @ A.T + b, Calibration(T, h).apply(y), atol=1e-12)
+    A, b = np.array(data["A"]), np.array(data["b"])
+    np.testing.assert_array_equal(A, A.T)
+    assert np.linalg.eigvalsh(A).min() > 0
+    np.testing.assert_allclose(T @ A, np.eye(3), atol=1e-12)        # T is the gauge's A^-1
+    own = Calibration(np.array(data["removed"]["method_T"]), h)
+    np.testing.assert_allclose(np.linalg.norm((y - b) @ A.T, axis=1),
+                               np.linalg.norm(own.apply(y), axis=1), rtol=1e-10)
+    np.testing.assert_allclose((y - b) @ A.T, Calibration(T, h).apply(y), atol=1e-12)
     np.testing.assert_allclose(h, H_TRUE, atol=2.0)          # noise 3 counts on ~500
+    # T_TRUE is upper triangular, not symmetric: the gauge's A inverts its symmetric factor.
+    np.testing.assert_allclose(np.linalg.inv(A), Calibration(T_TRUE, H_TRUE).safe().T, rtol=0.02,
+                               atol=3.0)
     assert data["J_r_in"] < 1e-3 and data["J_r_out"] < 1e-3 and data["meaningful"]
     assert data["samples_used"] == 240 and data["columns"] == ["mx", "my", "mz"]
     assert (tmp_path / "out" / "calibration.png").stat().st_size > 20_000
@@ -49,17 +59,81 @@ def test_one_method_writes_json_whose_correction_equals_apply(tmp_path, capsys):
     assert "   1  magical" in out and "calibration.json" in out
 
 
+def test_verdict_is_held_out_in_percent_and_degrees(tmp_path, capsys):
+    # Shuffled, so that each half in time covers the whole sphere (the lattice runs +Z to -Z).
+    y = np.random.default_rng(2).permutation(recording(sigma=3.0))
+    assert calibrate(f"file={save(tmp_path / 'rec.csv', y)}", "method=ellipsoid",
+                     f"out={tmp_path / 'o'}") == 0
+    v = json.loads((tmp_path / "o" / "calibration.json").read_text())["verdict"]
+    assert v["held_out"] and v["samples"] == 240
+    # Noise of 3 counts on a field radius of about 530 counts: 0.57 % along the field, so the
+    # magnitude error's 95th percentile is near 1.96 * 0.57 = 1.1 % (a little more held out).
+    assert 0.8 < v["field_error_pct"]["p95"] < 1.6
+    assert v["field_error_pct"]["max"] >= v["field_error_pct"]["p95"]
+    assert v["heading_error_deg"]["p95"] == pytest.approx(
+        np.degrees(np.arcsin(v["field_error_pct"]["p95"] / 100)))
+    out = capsys.readouterr()
+    assert "verdict (held out" in out.out and "heading error" in out.out
+    assert "coverage is insufficient" not in out.err
+
+
+def test_a_mirrored_method_answer_is_written_unmirrored(tmp_path, capsys):
+    from magbench.methods.registry import register, unregister
+
+    def mirrored(samples, **_):
+        from magbench.methods.api import calibrate as fit
+
+        cal = fit(samples, "ellipsoid")
+        flip = np.diag([1.0, -1.0, 1.0]) @ np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0],
+                                                      [0.0, 0.0, 1.0]])
+        return Calibration(cal.T @ flip, cal.h)
+
+    register("mirror_test", label="Mirrored", min_samples=9, family="extra")(mirrored)
+    try:
+        path = save(tmp_path / "rec.csv", recording())
+        assert calibrate(f"file={path}", "method=mirror_test", f"out={tmp_path / 'o'}") == 0
+    finally:
+        unregister("mirror_test")
+    data = json.loads((tmp_path / "o" / "calibration.json").read_text())
+    assert data["removed"]["mirrored"]
+    assert data["removed"]["rotation_deg"] == pytest.approx(180.0, abs=1.0)
+    assert np.linalg.det(np.array(data["A"])) > 0
+    assert "mirror image, removed" in capsys.readouterr().out
+
+
+def test_a_60_degree_cap_warns_and_names_the_gap(tmp_path, capsys):
+    rng = np.random.default_rng(1)
+    y = fibonacci_sphere(400, z_range=(0.5, 1.0)) @ T_TRUE.T + H_TRUE   # cap of 60 deg about +Z
+    path = save(tmp_path / "cap.csv", y + rng.standard_normal(y.shape))
+    assert calibrate(f"file={path}", "method=sphere", f"out={tmp_path / 'o'}") == 0
+    err = capsys.readouterr().err
+    assert "magbench: warning: coverage is insufficient" in err
+    data = json.loads((tmp_path / "o" / "calibration.json").read_text())
+    assert data["warnings"] == [data["coverage"]["warning"]]
+    assert data["coverage"]["largest_gap_deg"] > 100
+    assert np.array(data["coverage"]["gap_centre"])[2] < -0.8        # the uncovered -Z side
+
+
 def test_all_methods_are_ranked_and_the_best_is_chosen(tmp_path, capsys):
     path = save(tmp_path / "rec.csv", recording())
     assert calibrate(f"file={path}", f"out={tmp_path / 'o'}") == 0
     ranking = pd.read_csv(tmp_path / "o" / "ranking.csv")
     assert ranking["rank"].tolist() == list(range(1, len(ranking) + 1))
-    assert "magical" in set(ranking["algorithm"]) and "sar_ls" not in set(ranking["algorithm"])
+    names = set(ranking["algorithm"])
+    assert "magical" in names and "sar_ls" not in names                  # no gyro in the file
+    assert not names & {"vasconcelos_printed", "wu_shi_printed"}       # benchmark-only variants
     good = ranking[ranking["meaningful"]]
     assert good["J_r_out"].is_monotonic_increasing           # ranked by held-out J_r
     assert not ranking["meaningful"].iloc[len(good):].any()  # meaningful ones first
     chosen = json.loads((tmp_path / "o" / "calibration.json").read_text())["method"]
     assert chosen == good["algorithm"].iloc[0]
+
+
+def test_a_printed_variant_still_runs_when_named(tmp_path):
+    path = save(tmp_path / "rec.csv", recording())
+    assert calibrate(f"file={path}", "method=wu_shi_printed", f"out={tmp_path / 'o'}") == 0
+    assert json.loads((tmp_path / "o" / "calibration.json").read_text())["method"] == \
+        "wu_shi_printed"
 
 
 def test_columns_by_position_and_by_name(tmp_path):
@@ -121,3 +195,31 @@ def test_long_recordings_are_thinned_and_say_so(tmp_path, capsys):
     assert "using 1 sample in 3: 1000 of 3000" in capsys.readouterr().out
     data = json.loads((tmp_path / "o" / "calibration.json").read_text())
     assert data["stride"] == 3 and data["samples_in_file"] == 3000
+
+
+def test_writes_c_header_and_ardupilot_params_beside_the_json(tmp_path, capsys):
+    from tests.core.test_exports import ardupilot_correct, parse_header, parse_params
+
+    y = recording()
+    path = save(tmp_path / "rec.csv", y)
+    assert calibrate(f"file={path}", "method=ellipsoid", f"out={tmp_path / 'o'}") == 0
+    data = json.loads((tmp_path / "o" / "calibration.json").read_text())
+    A, b = np.array(data["A"]), np.array(data["b"])
+    header = (tmp_path / "o" / "calibration.h").read_text()
+    assert "Verdict: Ellipsoid fit: field magnitude error" in header
+    A32, b32 = parse_header(header, "mag_cal")
+    np.testing.assert_allclose((y.astype(np.float32) - b32) @ A32.T, (y - b) @ A.T, rtol=2e-6,
+                               atol=2e-6)
+    params = parse_params((tmp_path / "o" / "ardupilot.param").read_text())
+    corrected = ardupilot_correct(params, y) / data["field_strength"]
+    np.testing.assert_allclose(corrected, (y - b) @ A.T, rtol=2e-6, atol=2e-6)
+    assert "ardupilot.param" in capsys.readouterr().out
+
+
+def test_ardupilot_params_are_skipped_with_one_line_when_out_of_range(tmp_path, capsys):
+    path = save(tmp_path / "gauss.csv", recording() / 1000)       # gauss, not milligauss
+    assert calibrate(f"file={path}", "method=ellipsoid", f"out={tmp_path / 'o'}") == 0
+    out = capsys.readouterr().out
+    assert out.count("not writing ardupilot.param: field strength 0.53") == 1
+    assert (tmp_path / "o" / "calibration.h").exists()
+    assert not (tmp_path / "o" / "ardupilot.param").exists()

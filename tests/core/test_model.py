@@ -13,12 +13,25 @@ def test_apply_inverts_the_model():
     np.testing.assert_allclose(cal.apply(m @ T.T + h), m, atol=1e-12)
 
 
-def test_correction_is_the_firmware_form():
+def test_correction_is_the_firmware_form_in_the_safe_gauge():
     T = np.array([[1.1, 0.1, 0.0], [0.0, 0.9, 0.2], [0.05, 0.0, 1.0]])
     h = np.array([0.3, -0.2, 0.1])
     A, b = Calibration(T, h).correction()
-    y = np.array([[0.5, 0.2, -0.7]])
-    np.testing.assert_allclose(y @ A.T + b, Calibration(T, h).apply(y), atol=1e-14)
+    y = np.array([[0.5, 0.2, -0.7], [1.0, -1.0, 0.3]])
+    np.testing.assert_array_equal(b, h)
+    np.testing.assert_allclose(np.linalg.norm((y - b) @ A.T, axis=1),
+                               np.linalg.norm(Calibration(T, h).apply(y), axis=1), atol=1e-14)
+    np.testing.assert_allclose((y - b) @ A.T, Calibration(T, h).safe().apply(y), atol=1e-14)
+
+
+def test_apply_takes_a_single_sample():
+    cal = Calibration(np.diag([2.0, 4.0, 5.0]), [1.0, 2.0, 3.0])
+    out = cal.apply(np.array([3.0, 6.0, 8.0]))
+    assert out.shape == (3,)
+    np.testing.assert_allclose(out, [1.0, 1.0, 1.0])
+    np.testing.assert_array_equal(cal.apply([[3.0, 6.0, 8.0]]), out[None, :])
+    with pytest.raises(ValueError, match=r"shape \(K, 3\)"):
+        cal.apply(np.zeros(2))
 
 
 def test_calibration_is_immutable_and_shape_checked():

@@ -44,6 +44,12 @@ def _calibrate(cfg: DictConfig) -> int:
     return run_calibrate(cfg)
 
 
+def _apply(cfg: DictConfig) -> int:
+    from magbench.cli.apply import run_apply
+
+    return run_apply(cfg)
+
+
 def _methods(cfg: DictConfig) -> int:
     from magbench.cli.config import check_common
 
@@ -63,6 +69,9 @@ COMMANDS: dict[str, tuple[Callable[[DictConfig], int], str, str, tuple[str, ...]
                   "python -m magbench calibrate file=data.csv",
                   ("file", "method", "columns", "out", "preprocess", "max_samples", "seed",
                    "options", "call_timeout_s", "plugins")),
+    "apply": (_apply, "correct a recording with a saved calibration.json (m = A (y - b))",
+              "python -m magbench apply calibration=cal/calibration.json file=flight.csv "
+              "out=flight-corrected.csv", ("calibration", "file", "columns", "out")),
     "report": (_report, "redraw every figure and rewrite results/report.md from the CSV files",
                "python -m magbench report", ("results_dir",)),
     "bench": (_bench, "time every method, its scaling with K, peers and parallel speed-up",

@@ -15,8 +15,8 @@ import math
 import numpy as np
 
 __all__ = ["COVERAGE_ANGLE_DEG", "COVERAGE_GRID", "GOLDEN_RATIO", "MIN_COVERAGE",
-           "MIN_THICKNESS", "check_geometry", "coverage", "fibonacci_sphere", "sphere_fit",
-           "thickness", "unit_rows"]
+           "MIN_THICKNESS", "check_geometry", "coverage", "fibonacci_sphere", "largest_gap",
+           "sphere_fit", "thickness", "unit_rows"]
 
 GOLDEN_RATIO = (1.0 + np.sqrt(5.0)) / 2.0
 COVERAGE_GRID = 200
@@ -101,6 +101,35 @@ def coverage(directions: np.ndarray, *, grid: int = COVERAGE_GRID,
     for start in range(0, u.shape[0], 4096):      # bounded memory for long recordings
         best = np.maximum(best, (g @ u[start:start + 4096].T).max(axis=1))
     return float(np.mean(best >= cos_limit))
+
+
+def largest_gap(directions: np.ndarray, *, grid: int = 2000) -> tuple[float, np.ndarray]:
+    """The largest cap of directions holding no sample: its angular radius and its centre.
+
+    Parameters
+    ----------
+    directions : array_like, shape (K, 3)
+        Sample directions (need not be normalised).
+    grid : int
+        Fibonacci directions tried as the centre (2000 resolve the radius to about 3 deg).
+
+    Returns
+    -------
+    radius_deg : float
+        Angle in degrees from the centre to the nearest sample: 180 - theta for samples filling
+        a cap of half-angle theta (90 for a hemisphere), small for a full sphere.
+    centre : ndarray, shape (3,)
+        The unit direction farthest from every sample (the middle of the uncovered region).
+    """
+    u = unit_rows(np.asarray(directions, dtype=float))
+    g = fibonacci_sphere(grid)
+    if u.shape[0] == 0:
+        return 180.0, g[0]
+    nearest = np.full(grid, -1.0)
+    for start in range(0, u.shape[0], 4096):      # bounded memory for long recordings
+        nearest = np.maximum(nearest, (g @ u[start:start + 4096].T).max(axis=1))
+    worst = int(np.argmin(nearest))
+    return math.degrees(math.acos(min(1.0, float(nearest[worst])))), g[worst]
 
 
 def thickness(y: np.ndarray) -> float:

@@ -6,6 +6,10 @@ The measurement model throughout is eq. (2) of the review,
 
 with samples stored as a ``(K, 3)`` array, one measurement per row. Every method returns a
 :class:`Calibration` in that convention; the calibrated field is ``T^-1 (y - h)`` (eq. 82).
+What is written for others to use (:meth:`Calibration.correction`, :meth:`Calibration.safe`,
+the files of :mod:`magbench.core.exports`) is in the one gauge of :mod:`magbench.core.gauge`:
+``m = A (y - b)`` with ``A`` symmetric positive definite, the rotation and any mirror image
+that ``T`` carries removed.
 """
 
 from __future__ import annotations
@@ -13,6 +17,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+
+from magbench.core.gauge import safe_gauge, symmetric_T
 
 __all__ = ["Calibration", "CalibrationFailed", "as_samples"]
 
@@ -77,15 +83,88 @@ class Calibration:
         return bool(np.linalg.cond(self.T) < 1e12)
 
     def apply(self, samples: np.ndarray) -> np.ndarray:
-        """Calibrated field ``T^-1 (y - h)`` (review eq. 82) for ``(K, 3)`` samples."""
-        y = as_samples(samples, min_samples=1)
+        """Calibrated field ``T^-1 (y - h)`` (review eq. 82).
+
+        Parameters
+        ----------
+        samples : array_like, shape (K, 3) or (3,)
+            Samples, one per row, or a single sample.
+
+        Returns
+        -------
+        ndarray, shape (K, 3) or (3,)
+            The calibrated field, the same shape as the input.
+        """
+        single = np.ndim(samples) == 1
+        y = as_samples(np.reshape(samples, (1, -1)) if single else samples, min_samples=1)
         # Solve instead of inverting: T^-1 (y - h) for all rows at once.
-        return np.linalg.solve(self.T, (y - self.h).T).T
+        m = np.linalg.solve(self.T, (y - self.h).T).T
+        return m[0] if single else m
 
     def correction(self) -> tuple[np.ndarray, np.ndarray]:
-        """The firmware form ``m = A y + b`` with ``A = T^-1`` and ``b = -T^-1 h``."""
-        A = np.linalg.inv(self.T)
-        return A, -A @ self.h
+        """The firmware form ``m = A (y - b)`` in the safe gauge (:mod:`magbench.core.gauge`).
+
+        Returns
+        -------
+        A : ndarray, shape (3, 3)
+            ``(T T^T)^(-1/2)``, symmetric positive definite.
+        b : ndarray, shape (3,)
+            ``h``.
+
+        ``||A (y - b)|| = ||T^-1 (y - h)||`` for every sample; only the rotation (and mirror
+        image) that the model cannot determine is removed.
+
+        Raises
+        ------
+        CalibrationFailed
+            If ``T`` is not finite or is singular: no correction is ever written for it.
+        """
+        try:
+            gauge = safe_gauge(self.T, self.h)
+        except ValueError as exc:
+            raise CalibrationFailed(str(exc)) from None
+        return gauge.A, gauge.b
+
+    def safe(self) -> Calibration:
+        """The same calibration in the safe gauge: ``T' = (T T^T)^(1/2)`` (symmetric), ``h``.
+
+        ``safe().apply(y)`` equals ``A (y - b)`` of :meth:`correction`.
+
+        Raises
+        ------
+        CalibrationFailed
+            If ``T`` is not finite or is singular.
+        """
+        try:
+            T = symmetric_T(self.T)
+        except ValueError as exc:
+            raise CalibrationFailed(str(exc)) from None
+        return Calibration(T, self.h, self.n_iter, self.converged, self.message,
+                           self.gyro_bias)
+
+    def to_dict(self) -> dict:
+        """A JSON-ready dict (plain lists and numbers); :meth:`from_dict` reads it back exactly."""
+        return {"T": self.T.tolist(), "h": self.h.tolist(), "n_iter": self.n_iter,
+                "converged": self.converged, "message": self.message,
+                "gyro_bias": None if self.gyro_bias is None else self.gyro_bias.tolist()}
+
+    @classmethod
+    def from_dict(cls, data: dict) -> Calibration:
+        """The :class:`Calibration` of a :meth:`to_dict` dict (``gyro_bias`` and the bookkeeping
+        keys are optional).
+
+        Raises
+        ------
+        ValueError
+            If ``T`` or ``h`` is missing or has the wrong shape.
+        """
+        missing = [k for k in ("T", "h") if k not in data]
+        if missing:
+            raise ValueError(f"calibration dict lacks {', '.join(missing)}; expected keys T "
+                             "(3x3), h (3) and optionally n_iter, converged, message, gyro_bias")
+        return cls(np.array(data["T"], dtype=float), np.array(data["h"], dtype=float),
+                   int(data.get("n_iter", 0)), bool(data.get("converged", True)),
+                   str(data.get("message", "")), data.get("gyro_bias"))
 
 
 def as_samples(samples: object, *, min_samples: int = 1, name: str = "samples") -> np.ndarray:

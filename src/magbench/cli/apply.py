@@ -1,0 +1,107 @@
+"""``python -m magbench apply calibration=JSON file=CSV [out=CSV] [columns=[...]]``.
+
+Corrects a recording with a saved calibration: reads the ``calibration.json`` that ``calibrate``
+wrote (schema of :func:`magbench.core.exports.from_json_dict`, the correction
+``m = A (y - b)``), reads the samples (:func:`magbench.sources.recordings.read_samples`; no
+coverage check, since a calibration applies to any sample, even one) and writes the corrected
+samples to ``out`` under the same column names, after the time column ``t`` when the file has
+one. The columns are ``columns=[...]`` if given, else those the calibration was fitted on (the
+JSON's ``columns``), else ``mx, my, mz``. Rows with a missing value are dropped with a warning
+line, as in ``calibrate``.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+from omegaconf import DictConfig, OmegaConf
+
+from magbench.cli.config import UsageError
+from magbench.core.exports import from_json_dict
+from magbench.core.files import write_csv_atomic
+from magbench.core.model import Calibration
+from magbench.sources.recordings import Recording, read_samples
+
+__all__ = ["corrected_frame", "load_calibration", "run_apply"]
+
+
+def load_calibration(path: Path) -> tuple[Calibration, list | None]:
+    """The calibration in a written JSON file and the columns it records (None if absent).
+
+    Raises
+    ------
+    UsageError
+        Missing file, invalid JSON or a file that is not a magbench calibration; one line.
+    """
+    if not path.is_file():
+        raise UsageError(f"calibration file {path} not found; expected the calibration.json "
+                         "written by python -m magbench calibrate")
+    try:
+        data = json.loads(path.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise UsageError(f"calibration file {path} is not valid JSON ({exc}); expected the "
+                         "calibration.json written by python -m magbench calibrate") from None
+    try:
+        cal = from_json_dict(data)
+    except ValueError as exc:
+        raise UsageError(f"{path}: {exc}") from None
+    columns = data.get("columns")
+    if columns is not None and (not isinstance(columns, list) or len(columns) != 3):
+        raise UsageError(f"{path}: columns must list the three input columns, got {columns!r}")
+    return cal, columns
+
+
+def corrected_frame(rec: Recording, cal: Calibration, names: list[str]) -> pd.DataFrame:
+    """``t`` (if recorded) and the corrected samples ``A (y - b)`` under ``names``."""
+    m = cal.apply(rec.y)
+    frame = pd.DataFrame(m, columns=names)
+    if rec.t is not None:
+        frame.insert(0, "t", rec.t)
+    return frame
+
+
+def _columns(cfg: DictConfig, recorded: list | None) -> list | None:
+    columns = cfg.get("columns")
+    if columns is None:
+        return recorded
+    if OmegaConf.is_list(columns):
+        return list(OmegaConf.to_container(columns))
+    raise UsageError(f"columns must be a list of three names or positions, e.g. "
+                     f"columns=[mx,my,mz] or columns=[0,1,2], got {columns!r}")
+
+
+def run_apply(cfg: DictConfig) -> int:
+    """The ``apply`` command; a bad file or value raises :class:`UsageError`."""
+    if not cfg.get("calibration"):
+        raise UsageError("apply needs calibration=PATH, the calibration.json written by "
+                         "python -m magbench calibrate")
+    if not cfg.get("file"):
+        raise UsageError("apply needs file=PATH, a CSV of magnetometer samples to correct")
+    cal, recorded = load_calibration(Path(str(cfg.calibration)))
+    path = Path(str(cfg.file))
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        try:
+            rec = read_samples(path, _columns(cfg, recorded), min_samples=1, check=False)
+        except ValueError as exc:
+            raise UsageError(str(exc)) from None
+    for w in caught:
+        print(f"magbench: warning: {w.message}", file=sys.stderr)
+    out = Path(str(cfg.out)) if cfg.get("out") else Path(f"{rec.name}-corrected.csv")
+    if out.is_dir():
+        raise UsageError(f"out={out} is a folder; expected the name of the CSV file to write, "
+                         f"e.g. out={out / 'corrected.csv'}")
+    # A file without a header has no names to keep: call the axes mx, my, mz.
+    names = [f"m{'xyz'[i]}" if c.startswith("column ") else c for i, c in enumerate(rec.columns)]
+    frame = corrected_frame(rec, cal, names)
+    write_csv_atomic(frame, out)
+    norms = np.linalg.norm(frame[names].to_numpy(), axis=1)
+    print(f"{path.name}: corrected {rec.K} samples (columns {', '.join(rec.columns)}) with "
+          f"m = A (y - b); field magnitude {np.median(norms):.4f} (median, 1 = calibrated "
+          f"field); wrote {out}")
+    return 0
