@@ -17,6 +17,7 @@ from dataclasses import dataclass
 from functools import partial
 
 import numpy as np
+from numba import njit
 
 from magbench.core.model import Calibration, CalibrationFailed
 from magbench.methods.algorithms._common import row_norms
@@ -56,17 +57,86 @@ def lagrangian(y: np.ndarray, s: State) -> float:
     return objective(y, s) + float(s.lam @ (np.einsum("ij,ij->i", s.m, s.m) - 1.0))
 
 
+# The Newton step runs as compiled loops over the samples (numba): the gradient, the Hessian
+# blocks and the Schur complement are O(K) sums of 3- and 9-vectors, which as NumPy calls cost
+# far more in call overhead than in arithmetic. They take the arrays of a State.
+
+_UR, _UC = UPPER_ROWS, UPPER_COLS
+
+
+@njit(cache=True, error_model="numpy")
+def _residuals(y: np.ndarray, T: np.ndarray, h: np.ndarray, m: np.ndarray) -> np.ndarray:
+    K = y.shape[0]
+    r = np.empty((K, 3))
+    for k in range(K):
+        for a in range(3):
+            r[k, a] = y[k, a] - h[a] - (m[k, 0] * T[a, 0] + m[k, 1] * T[a, 1]
+                                        + m[k, 2] * T[a, 2])
+    return r
+
+
+@njit(cache=True, error_model="numpy")
+def _gradient(y: np.ndarray, T: np.ndarray, h: np.ndarray, m: np.ndarray, lam: np.ndarray
+              ) -> tuple[np.ndarray, np.ndarray]:
+    K = y.shape[0]
+    r = _residuals(y, T, h, m)
+    g_g = np.zeros(9)
+    g_l = np.empty((K, 4))
+    for k in range(K):
+        for e in range(6):                                         # J_T (A4)
+            g_g[e] += -2.0 * r[k, _UR[e]] * m[k, _UC[e]]
+        for a in range(3):                                         # J_h
+            g_g[6 + a] += -2.0 * r[k, a]
+        for j in range(3):                                         # -2 T^T r_k + 2 lam_k m_k
+            g_l[k, j] = -2.0 * (r[k, 0] * T[0, j] + r[k, 1] * T[1, j] + r[k, 2] * T[2, j]) \
+                + 2.0 * lam[k] * m[k, j]
+        g_l[k, 3] = m[k, 0] ** 2 + m[k, 1] ** 2 + m[k, 2] ** 2 - 1.0
+    return g_g, g_l
+
+
 def gradient(y: np.ndarray, s: State) -> tuple[np.ndarray, np.ndarray]:
     """Gradient (A4), (A6): the 9 global entries ``[J_T (upper), J_h]`` and ``(K, 4)`` local ones.
 
     ``J_T = -2 sum_k m_k kron r_k`` holds ``-2 sum_k r_ka m_kb`` at the entry of ``T_ab``.
     """
-    r = residuals(y, s)
-    g_T = -2.0 * (r.T @ s.m)[UPPER_ROWS, UPPER_COLS]
-    g_h = -2.0 * r.sum(axis=0)
-    g_m = -2.0 * r @ s.T + 2.0 * s.lam[:, None] * s.m               # -2 T^T r_k + 2 lam_k m_k
-    g_lam = np.einsum("ij,ij->i", s.m, s.m) - 1.0
-    return np.concatenate([g_T, g_h]), np.column_stack([g_m, g_lam])
+    return _gradient(*(np.ascontiguousarray(a, dtype=np.float64)
+                       for a in (y, s.T, s.h, s.m, s.lam)))
+
+
+@njit(cache=True, error_model="numpy")
+def _hessian_blocks(y: np.ndarray, T: np.ndarray, h: np.ndarray, m: np.ndarray
+                    ) -> tuple[np.ndarray, np.ndarray]:
+    K = y.shape[0]
+    r = _residuals(y, T, h, m)
+    mm = np.zeros((3, 3))
+    msum = np.zeros(3)
+    C = np.empty((K, 9, 3))
+    for k in range(K):
+        for b in range(3):
+            msum[b] += m[k, b]
+            for d in range(3):
+                mm[b, d] += m[k, b] * m[k, d]
+        # H_Tm_k = 2 ((m_k kron I) T - I kron r_k): entry (T_ab, m_c) is
+        # 2 m_b T_ac - 2 r_a delta_bc.
+        for e in range(6):
+            a, b = _UR[e], _UC[e]
+            for c in range(3):
+                C[k, e, c] = 2.0 * m[k, b] * T[a, c] - (2.0 * r[k, a] if b == c else 0.0)
+        for a in range(3):                                         # H_hm_k = 2 T
+            for c in range(3):
+                C[k, 6 + a, c] = 2.0 * T[a, c]
+    A = np.zeros((9, 9))
+    for e in range(6):
+        for f in range(6):
+            # H_TT = 2 sum (m m^T) kron I: entry (T_ab, T_cd) is 2 delta_ac sum m_b m_d.
+            if _UR[e] == _UR[f]:
+                A[e, f] = 2.0 * mm[_UC[e], _UC[f]]
+        # H_Th = 2 sum m kron I: entry (T_ab, h_c) is 2 delta_ac sum m_b.
+        A[e, 6 + _UR[e]] = 2.0 * msum[_UC[e]]
+        A[6 + _UR[e], e] = A[e, 6 + _UR[e]]
+    for a in range(3):
+        A[6 + a, 6 + a] = 2.0 * K                                  # H_hh = 2 K I
+    return A, C
 
 
 def hessian_blocks(y: np.ndarray, s: State) -> tuple[np.ndarray, np.ndarray]:
@@ -83,53 +153,100 @@ def hessian_blocks(y: np.ndarray, s: State) -> tuple[np.ndarray, np.ndarray]:
     C : ndarray, shape (K, 9, 3)
         Coupling of the global unknowns to ``m_k``: ``[H_Tm_k; H_hm_k]``.
     """
-    K = y.shape[0]
-    m, T = s.m, s.T
-    r = residuals(y, s)
-    A = np.zeros((9, 9))
-    # H_TT = 2 sum (m m^T) kron I: entry (T_ab, T_cd) is 2 delta_ac sum m_b m_d.
-    A[:6, :6] = (2.0 * (UPPER_ROWS[:, None] == UPPER_ROWS[None, :])
-                 * (m.T @ m)[UPPER_COLS[:, None], UPPER_COLS[None, :]])
-    # H_Th = 2 sum m kron I: entry (T_ab, h_c) is 2 delta_ac sum m_b.
-    A[:6, 6:] = 2.0 * (UPPER_ROWS[:, None] == np.arange(3)) * m.sum(axis=0)[UPPER_COLS][:, None]
-    A[6:, :6] = A[:6, 6:].T
-    A[6:, 6:] = 2.0 * K * np.eye(3)                                # H_hh = 2 K I
-    C = np.empty((K, 9, 3))
-    # H_Tm_k = 2 ((m_k kron I) T - I kron r_k): entry (T_ab, m_c) is 2 m_b T_ac - 2 r_a delta_bc.
-    C[:, :6, :] = (2.0 * m[:, UPPER_COLS, None] * T[UPPER_ROWS, :]
-                   - 2.0 * r[:, UPPER_ROWS, None] * np.eye(3)[UPPER_COLS])
-    C[:, 6:, :] = 2.0 * T                                          # H_hm_k = 2 T
-    return A, C
+    return _hessian_blocks(*(np.ascontiguousarray(a, dtype=np.float64)
+                             for a in (y, s.T, s.h, s.m)))
 
 
-class _BorderedInverse:
-    """``D_k^-1`` for all k at once, ``D_k = [[P_k, a_k], [a_k^T, 0]]``, ``P_k = 2 T^T T +
-    2 lam_k I``, ``a_k = 2 m_k``.
+@njit(cache=True, error_model="numpy")
+def _p_inv(V: np.ndarray, d: np.ndarray, p: np.ndarray) -> np.ndarray:
+    """``P_k^-1 p_k = V diag(d_k) V^T p_k`` for ``(K, 3)`` p (see :func:`_newton`)."""
+    K = p.shape[0]
+    x = np.zeros((K, 3))
+    for k in range(K):
+        for j in range(3):
+            t = (p[k, 0] * V[0, j] + p[k, 1] * V[1, j] + p[k, 2] * V[2, j]) * d[k, j]
+            for i in range(3):
+                x[k, i] += t * V[i, j]
+    return x
 
-    All ``P_k`` share the eigenvectors V of ``T^T T``, so ``P_k^-1 = V diag(d_k) V^T`` with
-    ``d_k = 1 / (2 eig(T^T T) + 2 lam_k)``: one 3x3 eigen-decomposition per iteration instead
-    of K 4x4 solves. With ``w_k = P_k^-1 a_k`` and ``gamma_k = a_k^T w_k``, the solution of
-    ``D_k [x; mu] = [p; q]`` is ``mu = (w_k^T p - q) / gamma_k``, ``x = P_k^-1 p - w_k mu``.
+
+@njit(cache=True, error_model="numpy")
+def _bordered_solve(V: np.ndarray, d: np.ndarray, w: np.ndarray, inv_gamma: np.ndarray,
+                    p: np.ndarray, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``[x; mu] = D_k^-1 [p_k; q_k]`` for ``(K, 3)`` p and ``(K,)`` q (see :func:`_newton`)."""
+    K = p.shape[0]
+    x = _p_inv(V, d, p)
+    mu = np.empty(K)
+    for k in range(K):
+        mu[k] = (w[k, 0] * p[k, 0] + w[k, 1] * p[k, 1] + w[k, 2] * p[k, 2] - q[k]) * inv_gamma[k]
+        for i in range(3):
+            x[k, i] -= w[k, i] * mu[k]
+    return x, mu
+
+
+@njit(cache=True, error_model="numpy")
+def _newton(y: np.ndarray, T: np.ndarray, h: np.ndarray, m: np.ndarray, lam: np.ndarray
+            ) -> tuple[int, np.ndarray, np.ndarray]:
+    """The step of :func:`newton_step`; status 0, or 1 (singular ``D_k``), 2 (singular S).
+
+    ``D_k^-1`` for all k at once, ``D_k = [[P_k, a_k], [a_k^T, 0]]``, ``P_k = 2 T^T T +
+    2 lam_k I``, ``a_k = 2 m_k``: all ``P_k`` share the eigenvectors V of ``T^T T``, so
+    ``P_k^-1 = V diag(d_k) V^T`` with ``d_k = 1 / (2 eig(T^T T) + 2 lam_k)``, one 3x3
+    eigen-decomposition per iteration instead of K 4x4 solves. With ``w_k = P_k^-1 a_k`` and
+    ``gamma_k = a_k^T w_k``, the solution of ``D_k [x; mu] = [p; q]`` is
+    ``mu = (w_k^T p - q) / gamma_k``, ``x = P_k^-1 p - w_k mu``.
     """
-
-    def __init__(self, s: State) -> None:
-        eigval, self.V = np.linalg.eigh(s.T.T @ s.T)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            self.d = 1.0 / (2.0 * eigval + 2.0 * s.lam[:, None])   # (K, 3), eigenbasis
-            self.w = self.p_inv(2.0 * s.m)
-            self.inv_gamma = 1.0 / np.einsum("ij,ij->i", 2.0 * s.m, self.w)
-        if not (np.all(np.isfinite(self.d)) and np.all(np.isfinite(self.inv_gamma))):
-            raise CalibrationFailed("Gauss-Newton: a per-sample Hessian block [[2T^T T + "
-                                    "2 lambda_k I, 2 m_k], [2 m_k^T, 0]] is singular")
-
-    def p_inv(self, p: np.ndarray) -> np.ndarray:
-        """``P_k^-1 p_k`` for ``(K, 3)`` p."""
-        return ((p @ self.V) * self.d) @ self.V.T
-
-    def solve(self, p: np.ndarray, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """``[x; mu] = D_k^-1 [p_k; q_k]`` for ``(K, 3)`` p and ``(K,)`` q."""
-        mu = (np.einsum("ij,ij->i", self.w, p) - q) * self.inv_gamma
-        return self.p_inv(p) - self.w * mu[:, None], mu
+    K = y.shape[0]
+    g_g, g_l = _gradient(y, T, h, m, lam)
+    A, C = _hessian_blocks(y, T, h, m)
+    eigval, V = np.linalg.eigh(T.T @ T)
+    d = np.empty((K, 3))
+    for k in range(K):
+        for i in range(3):
+            d[k, i] = 1.0 / (2.0 * eigval[i] + 2.0 * lam[k])
+    w = _p_inv(V, d, 2.0 * m)
+    inv_gamma = np.empty(K)
+    for k in range(K):
+        inv_gamma[k] = 1.0 / (2.0 * m[k, 0] * w[k, 0] + 2.0 * m[k, 1] * w[k, 1]
+                              + 2.0 * m[k, 2] * w[k, 2])
+    if not (np.all(np.isfinite(d)) and np.all(np.isfinite(inv_gamma))):
+        return 1, np.zeros(9), np.zeros((K, 4))
+    # S = A - sum_k C_k (P_k^-1 - w_k w_k^T / gamma_k) C_k^T
+    S = A.copy()
+    CV = np.empty((9, 3))
+    Cw = np.empty(9)
+    x0, _ = _bordered_solve(V, d, w, inv_gamma, g_l[:, :3].copy(), g_l[:, 3].copy())
+    reduced_rhs = g_g.copy()
+    for k in range(K):
+        for i in range(9):
+            for j in range(3):
+                CV[i, j] = C[k, i, 0] * V[0, j] + C[k, i, 1] * V[1, j] + C[k, i, 2] * V[2, j]
+            Cw[i] = C[k, i, 0] * w[k, 0] + C[k, i, 1] * w[k, 1] + C[k, i, 2] * w[k, 2]
+            reduced_rhs[i] -= C[k, i, 0] * x0[k, 0] + C[k, i, 1] * x0[k, 1] \
+                + C[k, i, 2] * x0[k, 2]
+        for i in range(9):
+            for j in range(i, 9):              # S is symmetric: the upper triangle, mirrored
+                S[i, j] += Cw[i] * Cw[j] * inv_gamma[k] - (
+                    CV[i, 0] * d[k, 0] * CV[j, 0] + CV[i, 1] * d[k, 1] * CV[j, 1]
+                    + CV[i, 2] * d[k, 2] * CV[j, 2])
+    for i in range(9):
+        for j in range(i):
+            S[i, j] = S[j, i]
+    if not np.all(np.isfinite(S)) or np.linalg.cond(S) > MAX_CONDITION:
+        return 2, np.zeros(9), np.zeros((K, 4))
+    dg = np.linalg.solve(S, reduced_rhs)
+    p = np.empty((K, 3))
+    for k in range(K):
+        for j in range(3):
+            p[k, j] = g_l[k, j] - (C[k, 0, j] * dg[0] + C[k, 1, j] * dg[1] + C[k, 2, j] * dg[2]
+                                   + C[k, 3, j] * dg[3] + C[k, 4, j] * dg[4]
+                                   + C[k, 5, j] * dg[5] + C[k, 6, j] * dg[6]
+                                   + C[k, 7, j] * dg[7] + C[k, 8, j] * dg[8])
+    dm, dlam = _bordered_solve(V, d, w, inv_gamma, p, g_l[:, 3].copy())
+    dl = np.empty((K, 4))
+    dl[:, :3] = dm
+    dl[:, 3] = dlam
+    return 0, dg, dl
 
 
 def newton_step(y: np.ndarray, s: State) -> tuple[np.ndarray, np.ndarray]:
@@ -138,8 +255,8 @@ def newton_step(y: np.ndarray, s: State) -> tuple[np.ndarray, np.ndarray]:
     With ``H = [[A, B], [B^T, D]]``, D block diagonal and ``B_k = [C_k, 0]``, the global step
     solves ``(A - sum_k B_k D_k^-1 B_k^T) dg = g_g - sum_k B_k D_k^-1 g_k`` and the local steps
     are ``dl_k = D_k^-1 (g_k - B_k^T dg)``. Since the lambda column of ``B_k`` is zero,
-    ``B_k D_k^-1 B_k^T = C_k (P_k^-1 - w_k w_k^T / gamma_k) C_k^T``; the sums over k are
-    matrix products.
+    ``B_k D_k^-1 B_k^T = C_k (P_k^-1 - w_k w_k^T / gamma_k) C_k^T`` (see :func:`_newton` for
+    ``D_k^-1``), summed over k in one compiled loop.
 
     Returns
     -------
@@ -153,23 +270,15 @@ def newton_step(y: np.ndarray, s: State) -> tuple[np.ndarray, np.ndarray]:
     CalibrationFailed
         If a per-sample block or the reduced 9x9 system is singular.
     """
-    K = y.shape[0]
-    g_g, g_l = gradient(y, s)
-    A, C = hessian_blocks(y, s)
-    Dinv = _BorderedInverse(s)
-    C_eig = C @ Dinv.V                                             # C_k V, (K, 9, 3)
-    C_eig_flat = C_eig.transpose(1, 0, 2).reshape(9, 3 * K)
-    C_w = np.einsum("kij,kj->ki", C, Dinv.w)                       # C_k w_k, (K, 9)
-    S = (A - (C_eig_flat * Dinv.d.reshape(1, 3 * K)) @ C_eig_flat.T
-         + (C_w * Dinv.inv_gamma[:, None]).T @ C_w)
-    x0, _ = Dinv.solve(g_l[:, :3], g_l[:, 3])                      # m-part of D_k^-1 g_k
-    reduced_rhs = g_g - np.einsum("kij,kj->i", C, x0)
-    if not np.all(np.isfinite(S)) or np.linalg.cond(S) > MAX_CONDITION:
+    status, dg, dl = _newton(*(np.ascontiguousarray(a, dtype=np.float64)
+                               for a in (y, s.T, s.h, s.m, s.lam)))
+    if status == 1:
+        raise CalibrationFailed("Gauss-Newton: a per-sample Hessian block [[2T^T T + "
+                                "2 lambda_k I, 2 m_k], [2 m_k^T, 0]] is singular")
+    if status == 2:
         raise CalibrationFailed("Gauss-Newton: the reduced Hessian (Schur complement) is "
                                 "singular")
-    dg = np.linalg.solve(S, reduced_rhs)
-    dm, dlam = Dinv.solve(g_l[:, :3] - np.einsum("kij,i->kj", C, dg), g_l[:, 3])
-    return dg, np.column_stack([dm, dlam])
+    return dg, dl
 
 
 def apply_step(s: State, dg: np.ndarray, dl: np.ndarray) -> State:
