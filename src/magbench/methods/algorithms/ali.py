@@ -302,29 +302,64 @@ def fit(samples: np.ndarray, *, rng: np.random.Generator, n_particles: int = 40,
     # Step 2: the swarm's best.
     best = int(np.argmin(p_fit))
     g, g_fit = p[best].copy(), float(p_fit[best])
-    history = np.empty(max_iter + 1)
-    history[0] = g_fit
     if bound is None:
         low, high = np.full(12, -np.inf), np.full(12, np.inf)
     else:
         low, high = centre - r0 * bound, centre + r0 * bound
-    r = np.empty((2, n_particles, 12))
 
+    it, stop, g_fit = run_swarm(rng, x, v, p, p_fit, g, g_fit, w, c1, c2, clamp, low, high,
+                                fitness.Rt, fitness.d, fitness.floor, int(max_iter), float(tol),
+                                float(rtol), int(window))
+    if stop == _STOP_TOL:
+        return _result(g, it, True, f"fitness (45) {g_fit:.3g} below tol after {it} iterations")
+    if stop == _STOP_STAGNATION:
+        return _result(g, it, True, f"fitness (45) {g_fit:.3g} stagnated over {window} "
+                                    f"iterations, after {it}")
+    return _result(g, max_iter, False, f"iteration cap {max_iter} reached, fitness (45) "
+                                       f"{g_fit:.3g}")
+
+
+#: How :func:`run_swarm` ended: iteration cap (rule 2), fitness below tol (rule 1), stagnation
+#: (rule 3).
+_STOP_CAP, _STOP_TOL, _STOP_STAGNATION = 0, 1, 2
+
+
+@njit(cache=True, error_model="numpy")
+def run_swarm(rng: np.random.Generator, x: np.ndarray, v: np.ndarray, p: np.ndarray,
+              p_fit: np.ndarray, g: np.ndarray, g_fit: float, w: float, c1: float, c2: float,
+              clamp: float, low: np.ndarray, high: np.ndarray, Rt: np.ndarray, d: np.ndarray,
+              floor: float, max_iter: int, tol: float, rtol: float, window: int
+              ) -> tuple[int, int, float]:
+    """Steps 3 and 4 of Algorithm 5, compiled: iterate until one of the three exit conditions.
+
+    ``x, v, p, p_fit, g`` are updated in place (see :func:`swarm_step`). The ``r1, r2`` of (47)
+    are drawn from ``rng`` inside the loop: numba's ``Generator.random`` uses the caller's bit
+    generator, so these are the numbers, in the order, that ``rng.random((2, S, 12))`` gives
+    in Python, and ``rng`` is left in the same state.
+
+    Returns
+    -------
+    n_iter : int
+        Iterations run.
+    stop : int
+        ``_STOP_TOL``, ``_STOP_STAGNATION`` or ``_STOP_CAP``.
+    g_fit : float
+        Fitness (45) of the swarm's best position ``g``.
+    """
+    S = x.shape[0]
+    history = np.empty(max_iter + 1)
+    history[0] = g_fit
     for it in range(1, max_iter + 1):
-        # Step 3: (47a) with inertia w, clamped, then (47b), the box, and the bests.
-        rng.random(out=r)                  # the numbers of rng.random((2, S, 12)), in order
-        g_fit = swarm_step(x, v, p, p_fit, g, g_fit, r, w, c1, c2, clamp, low, high,
-                           fitness.Rt, fitness.d, fitness.floor)
+        r = rng.random((2, S, 12))
+        g_fit = swarm_step(x, v, p, p_fit, g, g_fit, r, w, c1, c2, clamp, low, high, Rt, d,
+                           floor)
         history[it] = g_fit
         # Step 4: the three exit conditions.
         if g_fit <= tol:
-            return _result(g, it, True, f"fitness (45) {g_fit:.3g} below tol after {it} "
-                                        "iterations")
+            return it, _STOP_TOL, g_fit
         if it >= window and history[it - window] - g_fit <= rtol * history[it - window]:
-            return _result(g, it, True, f"fitness (45) {g_fit:.3g} stagnated over {window} "
-                                        f"iterations, after {it}")
-    return _result(g, max_iter, False, f"iteration cap {max_iter} reached, fitness (45) "
-                                       f"{g_fit:.3g}")
+            return it, _STOP_STAGNATION, g_fit
+    return max_iter, _STOP_CAP, g_fit
 
 
 def search_centre(samples: np.ndarray, start: str) -> tuple[np.ndarray, float]:
