@@ -43,6 +43,9 @@ def _distinct_rows(y: np.ndarray) -> int:
     """
     if y.shape[0] == 0:
         return 0
+    first = np.sort(y[:, 0])
+    if np.all(first[1:] != first[:-1]):
+        return y.shape[0]  # the first coordinates alone are all different (measured data)
     rows = y[np.lexsort(y.T[::-1])]
     return 1 + int(np.count_nonzero(np.any(rows[1:] != rows[:-1], axis=1)))
 
