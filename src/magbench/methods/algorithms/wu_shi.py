@@ -211,27 +211,52 @@ def _newton(y: np.ndarray, T: np.ndarray, h: np.ndarray, m: np.ndarray, lam: np.
                               + 2.0 * m[k, 2] * w[k, 2])
     if not (np.all(np.isfinite(d)) and np.all(np.isfinite(inv_gamma))):
         return 1, np.zeros(9), np.zeros((K, 4))
-    # S = A - sum_k C_k (P_k^-1 - w_k w_k^T / gamma_k) C_k^T
-    S = A.copy()
-    CV = np.empty((9, 3))
-    Cw = np.empty(9)
+    # S = A - sum_k C_k M_k C_k^T with M_k = P_k^-1 - w_k w_k^T / gamma_k (3x3, symmetric).
+    # The h rows of every C_k are the same 2 T (A7), so only the T rows (6x3) vary with k:
+    # S_TT -= sum_k C_Tk M_k C_Tk^T, S_Th -= (sum_k C_Tk M_k) 2 T^T, S_hh -= 2T (sum_k M_k) 2T^T.
     x0, _ = _bordered_solve(V, d, w, inv_gamma, g_l[:, :3].copy(), g_l[:, 3].copy())
+    S_TT = np.zeros((6, 6))
+    sum_CM = np.zeros((6, 3))
+    sum_M = np.zeros((3, 3))
+    sum_x0 = np.zeros(3)
     reduced_rhs = g_g.copy()
+    M = np.empty((3, 3))
+    CM = np.empty((6, 3))
     for k in range(K):
-        for i in range(9):
-            for j in range(3):
-                CV[i, j] = C[k, i, 0] * V[0, j] + C[k, i, 1] * V[1, j] + C[k, i, 2] * V[2, j]
-            Cw[i] = C[k, i, 0] * w[k, 0] + C[k, i, 1] * w[k, 1] + C[k, i, 2] * w[k, 2]
-            reduced_rhs[i] -= C[k, i, 0] * x0[k, 0] + C[k, i, 1] * x0[k, 1] \
-                + C[k, i, 2] * x0[k, 2]
-        for i in range(9):
-            for j in range(i, 9):              # S is symmetric: the upper triangle, mirrored
-                S[i, j] += Cw[i] * Cw[j] * inv_gamma[k] - (
-                    CV[i, 0] * d[k, 0] * CV[j, 0] + CV[i, 1] * d[k, 1] * CV[j, 1]
-                    + CV[i, 2] * d[k, 2] * CV[j, 2])
-    for i in range(9):
-        for j in range(i):
-            S[i, j] = S[j, i]
+        for a in range(3):
+            for b in range(a, 3):
+                M[a, b] = (V[a, 0] * d[k, 0] * V[b, 0] + V[a, 1] * d[k, 1] * V[b, 1]
+                           + V[a, 2] * d[k, 2] * V[b, 2]) - w[k, a] * w[k, b] * inv_gamma[k]
+                M[b, a] = M[a, b]
+                sum_M[a, b] += M[a, b]
+            sum_x0[a] += x0[k, a]
+        for e in range(6):
+            for c in range(3):
+                CM[e, c] = C[k, e, 0] * M[0, c] + C[k, e, 1] * M[1, c] + C[k, e, 2] * M[2, c]
+                sum_CM[e, c] += CM[e, c]
+            for f in range(e, 6):
+                S_TT[e, f] += CM[e, 0] * C[k, f, 0] + CM[e, 1] * C[k, f, 1] \
+                    + CM[e, 2] * C[k, f, 2]
+            reduced_rhs[e] -= C[k, e, 0] * x0[k, 0] + C[k, e, 1] * x0[k, 1] \
+                + C[k, e, 2] * x0[k, 2]
+    for a in range(3):
+        for b in range(a):
+            sum_M[a, b] = sum_M[b, a]
+    T2 = 2.0 * T
+    S = A.copy()
+    for e in range(6):
+        for f in range(e, 6):
+            S[e, f] -= S_TT[e, f]
+            S[f, e] = S[e, f]
+        for a in range(3):
+            S[e, 6 + a] -= sum_CM[e, 0] * T2[a, 0] + sum_CM[e, 1] * T2[a, 1] \
+                + sum_CM[e, 2] * T2[a, 2]
+            S[6 + a, e] = S[e, 6 + a]
+    hMh = T2 @ sum_M @ T2.T
+    for a in range(3):
+        reduced_rhs[6 + a] -= T2[a, 0] * sum_x0[0] + T2[a, 1] * sum_x0[1] + T2[a, 2] * sum_x0[2]
+        for b in range(3):
+            S[6 + a, 6 + b] -= hMh[a, b]
     if not np.all(np.isfinite(S)) or np.linalg.cond(S) > MAX_CONDITION:
         return 2, np.zeros(9), np.zeros((K, 4))
     dg = np.linalg.solve(S, reduced_rhs)
