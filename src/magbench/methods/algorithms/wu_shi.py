@@ -41,22 +41,6 @@ class State:
     lam: np.ndarray
 
 
-def residuals(y: np.ndarray, s: State) -> np.ndarray:
-    """``r_k = u_k - T m_k`` with ``u_k = y_k - h`` (Appendix A.2), shape ``(K, 3)``."""
-    return y - s.h - s.m @ s.T.T
-
-
-def objective(y: np.ndarray, s: State) -> float:
-    """Wu and Shi's ML objective (4) = review (51): ``sum_k ||y_k - T m_k - h||^2``."""
-    r = residuals(y, s)
-    return float(np.einsum("ij,ij->", r, r))
-
-
-def lagrangian(y: np.ndarray, s: State) -> float:
-    """The Lagrange function J(x) of eq. (52)."""
-    return objective(y, s) + float(s.lam @ (np.einsum("ij,ij->i", s.m, s.m) - 1.0))
-
-
 # The Newton step runs as compiled loops over the samples (numba): the gradient, the Hessian
 # blocks and the Schur complement are O(K) sums of 3- and 9-vectors, which as NumPy calls cost
 # far more in call overhead than in arithmetic. They take the arrays of a State.
@@ -66,6 +50,7 @@ _UR, _UC = UPPER_ROWS, UPPER_COLS
 
 @njit(cache=True, error_model="numpy")
 def _residuals(y: np.ndarray, T: np.ndarray, h: np.ndarray, m: np.ndarray) -> np.ndarray:
+    """``r_k = u_k - T m_k`` with ``u_k = y_k - h`` (Appendix A.2), shape ``(K, 3)``."""
     K = y.shape[0]
     r = np.empty((K, 3))
     for k in range(K):
@@ -73,6 +58,32 @@ def _residuals(y: np.ndarray, T: np.ndarray, h: np.ndarray, m: np.ndarray) -> np
             r[k, a] = y[k, a] - h[a] - (m[k, 0] * T[a, 0] + m[k, 1] * T[a, 1]
                                         + m[k, 2] * T[a, 2])
     return r
+
+
+def _arrays(y: np.ndarray, s: State) -> tuple[np.ndarray, ...]:
+    """``y, T, h, m, lam`` as contiguous float arrays, as the compiled functions take them."""
+    return tuple(np.ascontiguousarray(a, dtype=np.float64) for a in (y, s.T, s.h, s.m, s.lam))
+
+
+def residuals(y: np.ndarray, s: State) -> np.ndarray:
+    """``r_k = u_k - T m_k`` with ``u_k = y_k - h`` (Appendix A.2), shape ``(K, 3)``."""
+    return _residuals(*_arrays(y, s)[:4])
+
+
+def objective(y: np.ndarray, s: State) -> float:
+    """Wu and Shi's ML objective (4) = review (51): ``sum_k ||y_k - T m_k - h||^2``."""
+    r = residuals(y, s)
+    return float(np.einsum("ij,ij->", r, r))
+
+
+def lagrangian(y: np.ndarray, s: State, objective_value: float | None = None) -> float:
+    """The Lagrange function J(x) of eq. (52).
+
+    ``objective_value``, if given, is ``objective(y, s)`` already computed (refine needs both
+    and the objective is most of the cost).
+    """
+    obj = objective(y, s) if objective_value is None else objective_value
+    return obj + float(s.lam @ (np.einsum("ij,ij->i", s.m, s.m) - 1.0))
 
 
 @njit(cache=True, error_model="numpy")
@@ -99,8 +110,7 @@ def gradient(y: np.ndarray, s: State) -> tuple[np.ndarray, np.ndarray]:
 
     ``J_T = -2 sum_k m_k kron r_k`` holds ``-2 sum_k r_ka m_kb`` at the entry of ``T_ab``.
     """
-    return _gradient(*(np.ascontiguousarray(a, dtype=np.float64)
-                       for a in (y, s.T, s.h, s.m, s.lam)))
+    return _gradient(*_arrays(y, s))
 
 
 @njit(cache=True, error_model="numpy")
@@ -153,8 +163,7 @@ def hessian_blocks(y: np.ndarray, s: State) -> tuple[np.ndarray, np.ndarray]:
     C : ndarray, shape (K, 9, 3)
         Coupling of the global unknowns to ``m_k``: ``[H_Tm_k; H_hm_k]``.
     """
-    return _hessian_blocks(*(np.ascontiguousarray(a, dtype=np.float64)
-                             for a in (y, s.T, s.h, s.m)))
+    return _hessian_blocks(*_arrays(y, s)[:4])
 
 
 @njit(cache=True, error_model="numpy")
@@ -295,8 +304,7 @@ def newton_step(y: np.ndarray, s: State) -> tuple[np.ndarray, np.ndarray]:
     CalibrationFailed
         If a per-sample block or the reduced 9x9 system is singular.
     """
-    status, dg, dl = _newton(*(np.ascontiguousarray(a, dtype=np.float64)
-                               for a in (y, s.T, s.h, s.m, s.lam)))
+    status, dg, dl = _newton(*_arrays(y, s))
     if status == 1:
         raise CalibrationFailed("Gauss-Newton: a per-sample Hessian block [[2T^T T + "
                                 "2 lambda_k I, 2 m_k], [2 m_k^T, 0]] is singular")
@@ -363,7 +371,7 @@ def refine(samples: np.ndarray, T0: np.ndarray, h0: np.ndarray, *, max_iter: int
     y = samples
     s = initial_state(y, T0, h0)
     history = [objective(y, s)]
-    previous = lagrangian(y, s)
+    previous = lagrangian(y, s, history[0])
     for it in range(1, max_iter + 1):
         dg, dl = newton_step(y, s)
         s = apply_step(s, dg, dl)
@@ -372,7 +380,7 @@ def refine(samples: np.ndarray, T0: np.ndarray, h0: np.ndarray, *, max_iter: int
             raise CalibrationFailed(f"Gauss-Newton diverged (non-finite iterate at "
                                     f"iteration {it})")
         history.append(objective(y, s))
-        current = lagrangian(y, s)
+        current = lagrangian(y, s, history[-1])
         size = max(1.0, float(np.max(np.abs(np.concatenate([s.T.ravel(), s.h])))))
         step_small = float(np.max(np.abs(dg))) <= xtol * size
         cost_flat = abs(current - previous) <= rtol * abs(previous)
