@@ -48,7 +48,10 @@ def test_report_section_reads_the_csv_files(tmp_path):
                   "min_s": [0.001, 0.005], "note": ["", ""]}).to_csv(folder / "calls.csv")
     pd.DataFrame({"n_jobs": [1, 2], "wall_s": [10.0, 5.5], "trials": [100, 100],
                   "methods": [2, 2], "speedup": [1.0, 10 / 5.5]}).to_csv(folder / "parallel.csv")
+    pd.DataFrame({"algorithm": ["magical"], "compile_s": [7.5], "cached_first_s": [0.15],
+                  "import_s": [0.3], "second_s": [0.0006]}).to_csv(folder / "first_calls.csv")
     text = bench_report_section(tmp_path)
     assert "| MAG.I.C.AL | 2 | 1-3 | 500 | 29.4 |" in text
+    assert "| MAG.I.C.AL | 7.5e+03 | 150 | 0.6 |" in text
     assert "speed-up 1.82x" in text
     assert bench_report_section(tmp_path / "nothing") == ""

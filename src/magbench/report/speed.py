@@ -39,6 +39,18 @@ def bench_report_section(results_dir: Path | str) -> str:
                      f"{format_number(r.q25_s * 1e3)}-{format_number(r.q75_s * 1e3)} | "
                      f"{format_number(1 / r.median_s)} | {format_number(float(ref))} | "
                      f"{format_number(ratio, 2)} |")
+    if (folder / "first_calls.csv").exists():
+        first = pd.read_csv(folder / "first_calls.csv")
+        lines += ["", "First call in a fresh process (not in the medians above): with an empty "
+                  "numba cache the method's loops are compiled; with the on-disk cache they are "
+                  "loaded, which every sweep worker pays once.", "",
+                  "| method | compile (ms) | cached first call (ms) | next call (ms) |",
+                  "|---|---:|---:|---:|"]
+        for r in first.itertuples(index=False):
+            label = get_method(r.algorithm).label if r.algorithm in methods() else r.algorithm
+            lines.append(f"| {label} | {format_number(r.compile_s * 1e3)} | "
+                         f"{format_number(r.cached_first_s * 1e3)} | "
+                         f"{format_number(r.second_s * 1e3)} |")
     if (folder / "peers.csv").exists():
         peers = pd.read_csv(folder / "peers.csv")
         lines += ["", "Peers on the same 20 nominal datasets (speed-up = peer time / magbench "

@@ -10,6 +10,10 @@ text: :mod:`magbench.report.speed`).
 from __future__ import annotations
 
 import importlib.util
+import os
+import subprocess
+import sys
+import tempfile
 import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -25,7 +29,8 @@ from magbench.methods.registry import get_method, methods
 from magbench.sources.synthetic import Point, make_dataset
 from magbench.studies.review import ReviewStudy
 
-__all__ = ["SIZES", "bench_calls", "bench_parallel", "bench_peers", "run_bench"]
+__all__ = ["SIZES", "bench_calls", "bench_first_calls", "bench_parallel", "bench_peers",
+           "run_bench"]
 
 SIZES = (50, 150, 300, 1000, 3000, 10000)
 
@@ -79,6 +84,61 @@ def bench_calls(names: Sequence[str], sizes: Sequence[int] = SIZES, datasets: in
             skip = time.perf_counter() - start > budget_s
             if progress:
                 progress(f"{name} K={K}: median {np.median(t) * 1e3:.3g} ms")
+    return pd.DataFrame(rows)
+
+
+#: Run in a fresh interpreter by :func:`bench_first_calls`: import time, then the first and the
+#: second call of one method on one nominal K = 300 dataset, in seconds.
+_FIRST_CALL = """
+import sys, time
+import numpy as np
+start = time.perf_counter()
+import magbench.methods.algorithms
+from magbench.methods.api import calibrate
+from magbench.sources.synthetic import Point, make_dataset
+imported = time.perf_counter()
+y = make_dataset(np.random.default_rng(0), Point(K=300)).y
+times = []
+for _ in range(2):
+    t = time.perf_counter()
+    try:
+        calibrate(y, sys.argv[1])
+    except Exception:
+        pass
+    times.append(time.perf_counter() - t)
+print(imported - start, times[0], times[1])
+"""
+
+
+def bench_first_calls(names: Sequence[str],
+                      progress: Callable[[str], None] | None = None) -> pd.DataFrame:
+    """First-call cost per method: the numba compilation that the steady-state medians exclude.
+
+    Each method runs in two fresh interpreters sharing a numba cache folder that starts empty:
+    the first compiles the method's loops (``compile_s``, what a machine pays once after
+    installing or changing the code), the second loads them from the on-disk cache
+    (``cached_first_s``, what every sweep worker pays once). ``import_s`` is the import of the
+    methods (numba included); ``second_s`` is the following, steady-state call.
+    """
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(p for p in sys.path if p)}
+    for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+        env.setdefault(var, "1")
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for name in names:
+            env["NUMBA_CACHE_DIR"] = str(Path(tmp) / name)
+            row: dict[str, object] = {"algorithm": name}
+            for column in ("compile_s", "cached_first_s"):
+                out = subprocess.run([sys.executable, "-c", _FIRST_CALL, name], env=env,
+                                     capture_output=True, text=True, check=True)
+                imported, first, second = (float(v) for v in out.stdout.split()[-3:])
+                row[column] = first
+            row["import_s"], row["second_s"] = imported, second
+            rows.append(row)
+            if progress:
+                progress(f"{name}: first call {row['compile_s'] * 1e3:.4g} ms with an empty "
+                         f"numba cache, {row['cached_first_s'] * 1e3:.4g} ms cached, then "
+                         f"{second * 1e3:.3g} ms")
     return pd.DataFrame(rows)
 
 
@@ -154,8 +214,6 @@ def bench_peers(datasets: int = 20, repeats: int = 3, seed: int = 0) -> pd.DataF
 def bench_parallel(trials: int = 250, algorithms: Sequence[str] | None = None,
                    workdir: Path | None = None) -> pd.DataFrame:
     """Wall-clock time of one sweep with 1 and with 2 workers, and the speed-up."""
-    import tempfile
-
     spec = ReviewStudy("bench_parallel", [Point()], trials, 0, list(algorithms or methods()))
     rows = []
     with tempfile.TemporaryDirectory(dir=workdir) as tmp:
@@ -173,11 +231,12 @@ def bench_parallel(trials: int = 250, algorithms: Sequence[str] | None = None,
 def run_bench(results_dir: Path | str, names: Sequence[str] | None = None,
               sizes: Sequence[int] = SIZES, parallel_trials: int = 250,
               progress: Callable[[str], None] | None = print) -> Path:
-    """Run every benchmark and write ``calls.csv``, ``peers.csv`` and ``parallel.csv`` under
-    ``<results_dir>/bench``."""
+    """Run every benchmark and write ``calls.csv``, ``first_calls.csv``, ``peers.csv`` and
+    ``parallel.csv`` under ``<results_dir>/bench``."""
     folder = Path(results_dir) / "bench"
     folder.mkdir(parents=True, exist_ok=True)
     names = list(names or [m for m in methods() if not get_method(m).needs_gyro])
+    write_csv_atomic(bench_first_calls(names, progress=progress), folder / "first_calls.csv")
     calls = bench_calls(names, sizes, progress=progress)
     write_csv_atomic(calls, folder / "calls.csv")
     write_csv_atomic(bench_peers(), folder / "peers.csv")

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 import magbench
-from magbench.core.metrics import accuracy_cost
+from magbench.core.metrics import accuracy_cost, trivial_cost
 from magbench.core.model import CalibrationFailed
 from magbench.methods.algorithms import wu_shi
 from magbench.methods.algorithms._wu_shi_init import UPPER, initial_estimate
@@ -171,7 +171,11 @@ def test_review_literal_start_is_r_itself_and_can_diverge():
     np.testing.assert_allclose(T_chol @ T_inv, np.eye(3), atol=1e-12)
     np.testing.assert_array_equal(h, h_chol)
     literal = magbench.calibrate(d.y, "wu_shi", t0_form="chol")
-    assert not literal.converged and accuracy_cost(literal.T, literal.h, d.T, d.h)[0] > 1.0
+    # Where a Newton run that does not converge ends is chaotic (one-ulp changes of the data
+    # move its J between about 1 and 1e6), so "diverged" is judged by the review's own test: the
+    # estimate is not meaningful, J >= delta J_o (76) with delta = 0.5.
+    J_literal = accuracy_cost(literal.T, literal.h, d.T, d.h)[0]
+    assert not literal.converged and J_literal > 0.5 * trivial_cost(d.T, d.h)
     default = magbench.calibrate(d.y, "wu_shi")
     assert default.converged and accuracy_cost(default.T, default.h, d.T, d.h)[0] < 0.01
 

@@ -69,6 +69,7 @@ the default 0.25 (and 92 % meaningful at beta = 0.5 against 72 % with 0.5).
 from __future__ import annotations
 
 import numpy as np
+from numba import njit
 
 from magbench.core.model import Calibration
 from magbench.methods.registry import register
@@ -85,18 +86,10 @@ VARIANTS: dict[str, tuple[float, float, float, float]] = {
 #: Position of ``T[i, j]`` in a particle ``x = [h; vec(T^T)]`` (46): ``3 + 3 i + j``.
 _T0 = 3
 
-
-def _t(i: int, j: int) -> int:
-    return _T0 + 3 * (i % 3) + (j % 3)
-
-
-#: Gather indices of the four factors of every 2x2 minor: cofactor(T)[i, j] =
-#: T[i+1, j+1] T[i+2, j+2] - T[i+1, j+2] T[i+2, j+1] (indices mod 3).
-_MINOR = np.array([[_t(i + a, j + b) for i in range(3) for j in range(3)]
-                   for a, b in ((1, 1), (2, 2), (1, 2), (2, 1))])
-
-#: Upper-triangle entries of the 4x4 N, in the order of the monomials of :func:`monomials`.
-_N_UPPER = np.array([0, 5, 10, 1, 2, 6, 3, 7, 11, 15])
+#: Upper-triangle entries ``(a, b)`` of the 4x4 N, in the order of the monomials of
+#: :func:`monomials`.
+_N_ROWS = np.array([0, 1, 2, 0, 0, 1, 0, 1, 2, 3])
+_N_COLS = np.array([0, 1, 2, 1, 2, 2, 3, 3, 3, 3])
 
 
 def monomials(samples: np.ndarray) -> np.ndarray:
@@ -106,6 +99,7 @@ def monomials(samples: np.ndarray) -> np.ndarray:
                             2 * y2 * y3, 2 * y1, 2 * y2, 2 * y3, np.ones_like(y1)])
 
 
+@njit(cache=True, error_model="numpy")
 def quadric_coefficients(swarm: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Unscaled quadric coefficients of every particle and ``det(T)^2``.
 
@@ -122,14 +116,58 @@ def quadric_coefficients(swarm: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     det2 : ndarray, shape (S,)
         ``det(T)^2`` (zero for a singular particle).
     """
-    g = swarm[:, _MINOR]                                             # (S, 4, 9)
-    cof = (g[:, 0] * g[:, 1] - g[:, 2] * g[:, 3]).reshape(-1, 3, 3)
-    det = np.einsum("si,si->s", swarm[:, _T0:_T0 + 3], cof[:, 0])     # first-row expansion
-    # det(T) T^-1 [I, -h] = cof^T [I, -h]; its Gram matrix is det^2 N.
-    adj = cof.transpose(0, 2, 1)
-    B = np.concatenate([adj, -np.matmul(adj, swarm[:, :3, None])], axis=2)   # (S, 3, 4)
-    N = np.matmul(B.transpose(0, 2, 1), B).reshape(-1, 16)
-    return N[:, _N_UPPER], det * det
+    S = swarm.shape[0]
+    c = np.empty((S, 10))
+    det2 = np.empty(S)
+    cof = np.empty((3, 3))
+    B = np.empty((3, 4))
+    for s in range(S):
+        x = swarm[s]
+        # cofactor(T)[i, j] = T[i+1, j+1] T[i+2, j+2] - T[i+1, j+2] T[i+2, j+1] (indices mod 3)
+        for i in range(3):
+            i1, i2 = _T0 + 3 * ((i + 1) % 3), _T0 + 3 * ((i + 2) % 3)
+            for j in range(3):
+                j1, j2 = (j + 1) % 3, (j + 2) % 3
+                cof[i, j] = x[i1 + j1] * x[i2 + j2] - x[i1 + j2] * x[i2 + j1]
+        det = x[_T0] * cof[0, 0] + x[_T0 + 1] * cof[0, 1] + x[_T0 + 2] * cof[0, 2]
+        # det(T) T^-1 [I, -h] = cof^T [I, -h]; its Gram matrix is det^2 N.
+        for i in range(3):
+            for j in range(3):
+                B[i, j] = cof[j, i]
+            B[i, 3] = -(cof[0, i] * x[0] + cof[1, i] * x[1] + cof[2, i] * x[2])
+        for e in range(10):
+            a, b = _N_ROWS[e], _N_COLS[e]
+            c[s, e] = B[0, a] * B[0, b] + B[1, a] * B[1, b] + B[2, a] * B[2, b]
+        det2[s] = det * det
+    return c, det2
+
+
+@njit(cache=True, error_model="numpy")
+def swarm_fitness(swarm: np.ndarray, Rt: np.ndarray, d: np.ndarray, floor: float
+                  ) -> np.ndarray:
+    """J (45) of every particle by the QR reduction of the module notes; ``inf`` if T is singular.
+
+    Parameters
+    ----------
+    swarm : ndarray, shape (S, 12)
+        Particles ``[h; vec(T^T)]`` (46).
+    Rt, d, floor : ndarray (10, 10), ndarray (10,), float
+        ``R^T``, ``Q^T 1`` and ``||(I - Q Q^T) 1||^2`` of the dataset (see :class:`SwarmFitness`).
+    """
+    c, det2 = quadric_coefficients(swarm)
+    J = np.empty(swarm.shape[0])
+    for s in range(swarm.shape[0]):
+        total = 0.0
+        for j in range(10):
+            acc = 0.0
+            for i in range(10):
+                acc += c[s, i] * Rt[i, j]
+            r = acc / det2[s] - d[j]
+            total += r * r
+        J[s] = np.sqrt(total + floor)
+        if not np.isfinite(J[s]):
+            J[s] = np.inf
+    return J
 
 
 class SwarmFitness:
@@ -137,20 +175,57 @@ class SwarmFitness:
 
     def __init__(self, samples: np.ndarray) -> None:
         Q, R = np.linalg.qr(monomials(samples))
-        self._Rt = R.T
-        self._d = Q.sum(axis=0)                                      # Q^T 1
+        self.Rt = np.ascontiguousarray(R.T)
+        self.d = Q.sum(axis=0)                                       # Q^T 1
         # ||(I - Q Q^T) 1||^2, the part of (45) no quadric can explain, from the residual vector:
         # K - ||Q^T 1||^2 would cancel catastrophically (about 1e-13 absolute, i.e. a false
         # fitness floor of about 3e-7 on noise-free data).
-        self._floor = float(np.sum((1.0 - Q @ self._d) ** 2))
+        self.floor = float(np.sum((1.0 - Q @ self.d) ** 2))
 
     def __call__(self, swarm: np.ndarray) -> np.ndarray:
         """J (45) of every particle of an ``(S, 12)`` swarm; ``inf`` where T is singular."""
-        c, det2 = quadric_coefficients(swarm)
-        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-            r = (c @ self._Rt) / det2[:, None] - self._d
-            J = np.sqrt(np.einsum("si,si->s", r, r) + self._floor)
-        return np.where(np.isfinite(J), J, np.inf)
+        return swarm_fitness(np.ascontiguousarray(swarm, dtype=np.float64), self.Rt, self.d,
+                             self.floor)
+
+
+@njit(cache=True, error_model="numpy")
+def swarm_step(x: np.ndarray, v: np.ndarray, p: np.ndarray, p_fit: np.ndarray,
+               g: np.ndarray, g_fit: float, r: np.ndarray, w: float, c1: float, c2: float,
+               clamp: float, low: np.ndarray, high: np.ndarray, Rt: np.ndarray,
+               d: np.ndarray, floor: float) -> float:
+    """Step 3 of Algorithm 5, in place: (47) with clamp and box, fitness, personal and swarm best.
+
+    ``x, v, p, p_fit, g`` are updated in place; ``r`` holds the ``(2, S, 12)`` uniform numbers
+    ``r1, r2`` of (47); ``low, high`` bound the box (``-inf, inf`` for none). Returns the new
+    swarm-best fitness.
+    """
+    S, n = x.shape
+    for s in range(S):
+        for j in range(n):
+            # (47a), evaluated in the order NumPy evaluates the vector expression
+            vj = w * v[s, j] + c1 * r[0, s, j] * (p[s, j] - x[s, j]) \
+                + c2 * r[1, s, j] * (g[j] - x[s, j])
+            if vj < -clamp:
+                vj = -clamp
+            elif vj > clamp:
+                vj = clamp
+            xj = x[s, j] + vj                                      # (47b)
+            # the box: clip, and stop a coordinate that hits the wall
+            if xj < low[j]:
+                xj, vj = low[j], 0.0
+            elif xj > high[j]:
+                xj, vj = high[j], 0.0
+            x[s, j], v[s, j] = xj, vj
+    f = swarm_fitness(x, Rt, d, floor)
+    for s in range(S):
+        if f[s] < p_fit[s]:
+            p[s, :] = x[s, :]
+            p_fit[s] = f[s]
+    best = np.argmin(p_fit)
+    if p_fit[best] < g_fit:
+        g[:] = p[best]
+        g_fit = p_fit[best]
+    return g_fit
 
 
 def fitness_direct(samples: np.ndarray, T: np.ndarray, h: np.ndarray) -> float:
@@ -227,34 +302,64 @@ def fit(samples: np.ndarray, *, rng: np.random.Generator, n_particles: int = 40,
     # Step 2: the swarm's best.
     best = int(np.argmin(p_fit))
     g, g_fit = p[best].copy(), float(p_fit[best])
+    if bound is None:
+        low, high = np.full(12, -np.inf), np.full(12, np.inf)
+    else:
+        low, high = centre - r0 * bound, centre + r0 * bound
+
+    it, stop, g_fit = run_swarm(rng, x, v, p, p_fit, g, g_fit, w, c1, c2, clamp, low, high,
+                                fitness.Rt, fitness.d, fitness.floor, int(max_iter), float(tol),
+                                float(rtol), int(window))
+    if stop == _STOP_TOL:
+        return _result(g, it, True, f"fitness (45) {g_fit:.3g} below tol after {it} iterations")
+    if stop == _STOP_STAGNATION:
+        return _result(g, it, True, f"fitness (45) {g_fit:.3g} stagnated over {window} "
+                                    f"iterations, after {it}")
+    return _result(g, max_iter, False, f"iteration cap {max_iter} reached, fitness (45) "
+                                       f"{g_fit:.3g}")
+
+
+#: How :func:`run_swarm` ended: iteration cap (rule 2), fitness below tol (rule 1), stagnation
+#: (rule 3).
+_STOP_CAP, _STOP_TOL, _STOP_STAGNATION = 0, 1, 2
+
+
+@njit(cache=True, error_model="numpy")
+def run_swarm(rng: np.random.Generator, x: np.ndarray, v: np.ndarray, p: np.ndarray,
+              p_fit: np.ndarray, g: np.ndarray, g_fit: float, w: float, c1: float, c2: float,
+              clamp: float, low: np.ndarray, high: np.ndarray, Rt: np.ndarray, d: np.ndarray,
+              floor: float, max_iter: int, tol: float, rtol: float, window: int
+              ) -> tuple[int, int, float]:
+    """Steps 3 and 4 of Algorithm 5, compiled: iterate until one of the three exit conditions.
+
+    ``x, v, p, p_fit, g`` are updated in place (see :func:`swarm_step`). The ``r1, r2`` of (47)
+    are drawn from ``rng`` inside the loop: numba's ``Generator.random`` uses the caller's bit
+    generator, so these are the numbers, in the order, that ``rng.random((2, S, 12))`` gives
+    in Python, and ``rng`` is left in the same state.
+
+    Returns
+    -------
+    n_iter : int
+        Iterations run.
+    stop : int
+        ``_STOP_TOL``, ``_STOP_STAGNATION`` or ``_STOP_CAP``.
+    g_fit : float
+        Fitness (45) of the swarm's best position ``g``.
+    """
+    S = x.shape[0]
     history = np.empty(max_iter + 1)
     history[0] = g_fit
-
     for it in range(1, max_iter + 1):
-        # Step 3: (47a) with inertia w, clamped, then (47b).
-        r = rng.random((2, n_particles, 12))
-        v = w * v + c1 * r[0] * (p - x) + c2 * r[1] * (g - x)
-        np.clip(v, -clamp, clamp, out=v)
-        x = x + v
-        if bound is not None:
-            _confine(x, v, centre - r0 * bound, centre + r0 * bound)
-        f = fitness(x)
-        better = f < p_fit
-        np.copyto(p, x, where=better[:, None])
-        np.minimum(p_fit, f, out=p_fit)
-        best = int(np.argmin(p_fit))
-        if p_fit[best] < g_fit:
-            g, g_fit = p[best].copy(), float(p_fit[best])
+        r = rng.random((2, S, 12))
+        g_fit = swarm_step(x, v, p, p_fit, g, g_fit, r, w, c1, c2, clamp, low, high, Rt, d,
+                           floor)
         history[it] = g_fit
         # Step 4: the three exit conditions.
         if g_fit <= tol:
-            return _result(g, it, True, f"fitness (45) {g_fit:.3g} below tol after {it} "
-                                        "iterations")
+            return it, _STOP_TOL, g_fit
         if it >= window and history[it - window] - g_fit <= rtol * history[it - window]:
-            return _result(g, it, True, f"fitness (45) {g_fit:.3g} stagnated over {window} "
-                                        f"iterations, after {it}")
-    return _result(g, max_iter, False, f"iteration cap {max_iter} reached, fitness (45) "
-                                       f"{g_fit:.3g}")
+            return it, _STOP_STAGNATION, g_fit
+    return max_iter, _STOP_CAP, g_fit
 
 
 def search_centre(samples: np.ndarray, start: str) -> tuple[np.ndarray, float]:
@@ -269,13 +374,6 @@ def search_centre(samples: np.ndarray, start: str) -> tuple[np.ndarray, float]:
         h0 = samples.mean(axis=0)
         return h0, float(np.sqrt(np.mean(np.sum((samples - h0) ** 2, axis=1))))
     raise ValueError(f"start must be 'data' or 'identity', got {start!r}")
-
-
-def _confine(x: np.ndarray, v: np.ndarray, low: np.ndarray, high: np.ndarray) -> None:
-    """Keep particles in the box ``[low, high]`` in place: clip, and stop them at the wall."""
-    outside = (x < low) | (x > high)
-    np.clip(x, low, high, out=x)
-    v[outside] = 0.0
 
 
 def _result(g: np.ndarray, n_iter: int, converged: bool, message: str) -> Calibration:

@@ -22,6 +22,7 @@ As in TWOSTEP, the bias of (16)-(17) is the ``b`` of the Alonso-Shuster model
 from __future__ import annotations
 
 import numpy as np
+from numba import njit
 
 from magbench.core.model import Calibration, CalibrationFailed
 from magbench.methods.algorithms._twostep_model import (
@@ -108,21 +109,51 @@ def run_filter(y: np.ndarray, theta: np.ndarray, P: np.ndarray, sigma: float,
     Updates ``theta`` and ``P`` in place (they are the caller's fresh copies).
     """
     G = correction_maps(y)
-    minus_2G = -2.0 * G                            # H(theta_k) = u_k^T (-2 G_k)
     # sigma_k^2 = a ||u_k||^2 + c: (5b) at the current estimate, or with ||u_k||^2 set to 1
     a, c = (4.0 * sigma**2, 6.0 * sigma**4) if variance == "5b" else (0.0, noise_variance(sigma))
-    dot, outer = np.dot, np.outer
-    for _ in range(passes):
-        for y_k, G_k, minus_2G_k in zip(y, G, minus_2G, strict=True):
-            u = y_k + dot(G_k, theta)              # (I + D_k) y_k - h_k
-            u2 = float(dot(u, u))
-            H = dot(u, minus_2G_k)                 # (19)-(21)
-            PH = dot(P, H)
-            gain = PH / (float(dot(H, PH)) + a * u2 + c)    # (18c), a scalar innovation variance
-            # z_k - phi(theta_k) = (||y_k||^2 - 1) - (||y_k||^2 - ||u_k||^2), by (4) and (17)
-            theta += gain * (u2 - 1.0)             # (18a)
-            P -= outer(gain, PH)                   # (18b): (I - K H) P = P - K (P H^T)^T
+    _filter_loop(np.ascontiguousarray(y, dtype=np.float64), G, -2.0 * G, theta, P, a, c,
+                 int(passes))
     return theta, P
+
+
+@njit(cache=True, error_model="numpy")
+def _filter_loop(y: np.ndarray, G: np.ndarray, minus_2G: np.ndarray, theta: np.ndarray,
+                 P: np.ndarray, a: float, c: float, passes: int) -> None:
+    """The per-sample updates (18) of :func:`run_filter`, compiled; ``theta, P`` in place.
+
+    ``H(theta_k) = u_k^T (-2 G_k)`` (19)-(21), with ``-2 G_k`` precomputed for all samples.
+    """
+    n = theta.shape[0]
+    u = np.empty(3)
+    H = np.empty(n)
+    PH = np.empty(n)
+    for _ in range(passes):
+        for k in range(y.shape[0]):
+            for i in range(3):                     # (I + D_k) y_k - h_k
+                acc = 0.0
+                for j in range(n):
+                    acc += G[k, i, j] * theta[j]
+                u[i] = y[k, i] + acc
+            u2 = u[0] * u[0] + u[1] * u[1] + u[2] * u[2]
+            for j in range(n):                     # (19)-(21)
+                H[j] = u[0] * minus_2G[k, 0, j] + u[1] * minus_2G[k, 1, j] \
+                    + u[2] * minus_2G[k, 2, j]
+            HPH = 0.0
+            for i in range(n):
+                acc = 0.0
+                for j in range(n):
+                    acc += P[i, j] * H[j]
+                PH[i] = acc
+                HPH += H[i] * acc
+            # (18c): a scalar innovation variance, so the gain is PH / scalar
+            s_k = HPH + a * u2 + c
+            # z_k - phi(theta_k) = (||y_k||^2 - 1) - (||y_k||^2 - ||u_k||^2), by (4) and (17)
+            innovation = u2 - 1.0
+            for i in range(n):
+                gain_i = PH[i] / s_k
+                theta[i] += gain_i * innovation    # (18a)
+                for j in range(n):                 # (18b): P - K (P H^T)^T
+                    P[i, j] -= gain_i * PH[j]
 
 
 @register("crassidis", label="Crassidis EKF", min_samples=9, paper_key="Crassidis")

@@ -8,10 +8,53 @@ their own normalised directions (25), applies it (26) and accumulates it into th
 from __future__ import annotations
 
 import numpy as np
+from numba import njit
 
 from magbench.core.model import Calibration
-from magbench.methods.algorithms._common import fit_affine, row_norms
+from magbench.methods.algorithms._common import fit_affine
 from magbench.methods.registry import register
+
+
+@njit(cache=True, error_model="numpy")
+def iterate(y: np.ndarray, max_iter: int, tol: float
+            ) -> tuple[np.ndarray, np.ndarray, int, float]:
+    """Algorithm 3's loop (24)-(29), compiled: the accumulated map ``A~, B~`` (28).
+
+    Parameters
+    ----------
+    y : ndarray, shape (K, 3)
+        Measurements.
+    max_iter, tol : int, float
+        See :func:`fit`.
+
+    Returns
+    -------
+    A_total, B_total : ndarray, shapes (3, 3) and (3,)
+        The accumulated map (28).
+    n_iter : int
+        Iterations run.
+    J_stop : float
+        The last ``J_stop`` (29).
+    """
+    K = y.shape[0]
+    m = y.copy()                                                   # (24)
+    target = np.empty_like(m)
+    A_total, B_total = np.eye(3), np.zeros(3)
+    it, J_stop = 0, np.inf
+    while it < max_iter and J_stop > tol:
+        it += 1
+        for k in range(K):
+            norm = np.sqrt(m[k, 0] * m[k, 0] + m[k, 1] * m[k, 1] + m[k, 2] * m[k, 2])
+            for j in range(3):
+                target[k, j] = m[k, j] / norm
+        A, B = fit_affine(m, target)                               # minimise (25)
+        for k in range(K):                                         # (26), in place
+            m0, m1, m2 = m[k, 0], m[k, 1], m[k, 2]
+            for i in range(3):
+                m[k, i] = A[i, 0] * m0 + A[i, 1] * m1 + A[i, 2] * m2 + B[i]
+        A_total, B_total = A @ A_total, A @ B_total + B            # (28)
+        J_stop = np.sqrt(np.sum(B * B)) + np.sqrt(np.sum((A - np.eye(3)) ** 2))   # (29)
+    return A_total, B_total, it, J_stop
 
 
 @register("dorveaux", label="Dorveaux", min_samples=4, paper_key="Dorveaux")
@@ -34,15 +77,8 @@ def fit(samples: np.ndarray, *, max_iter: int = 5000, tol: float = 1e-12) -> Cal
     Calibration
         ``T = A~^-1`` and ``h = -A~^-1 B~`` (31); ``converged`` is False at the cap.
     """
-    m = samples.copy()                                             # (24)
-    A_total, B_total = np.eye(3), np.zeros(3)
-    it, J_stop = 0, np.inf
-    while it < max_iter and J_stop > tol:
-        it += 1
-        A, B = fit_affine(m, m / row_norms(m)[:, None])            # minimise (25)
-        m = m @ A.T + B                                            # (26)
-        A_total, B_total = A @ A_total, A @ B_total + B            # (28)
-        J_stop = float(np.linalg.norm(B) + np.linalg.norm(A - np.eye(3)))   # (29)
+    A_total, B_total, it, J_stop = iterate(np.ascontiguousarray(samples, dtype=np.float64),
+                                           int(max_iter), float(tol))
     T = np.linalg.inv(A_total)                                     # (31)
     h = -T @ B_total
     converged = J_stop <= tol

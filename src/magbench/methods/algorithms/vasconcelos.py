@@ -27,6 +27,7 @@ from __future__ import annotations
 from functools import partial
 
 import numpy as np
+from numba import njit
 
 from magbench.core.model import Calibration, CalibrationFailed
 from magbench.methods.algorithms._common import row_norms
@@ -142,7 +143,7 @@ def cost(x: np.ndarray, y: np.ndarray, sigma: float) -> float:
 
 def gradient_hessian(x: np.ndarray, y: np.ndarray,
                      sigma: float) -> tuple[float, np.ndarray, np.ndarray]:
-    """J (33), its gradient (A1) and Hessian (A2)-(A3) at ``x``, vectorised over samples.
+    """J (33), its gradient (A1) and Hessian (A2)-(A3) at ``x``, summed over samples.
 
     With ``u_k = y_k - h``, ``v_k = T^ u_k``, ``r_k = ||v_k||`` and ``c_k = 1 - 1/r_k``:
     ``d r_k / d vec(T^) = (u_k kron v_k) / r_k`` because ``vec(v_k u_k^T) = u_k kron v_k`` for the
@@ -155,27 +156,85 @@ def gradient_hessian(x: np.ndarray, y: np.ndarray,
     gradient : ndarray, shape (12,)
     hessian : ndarray, shape (12, 12)
     """
-    T_hat, h = unpack(x)
-    u = y - h
-    v = u @ T_hat.T
-    r = row_norms(v)
-    c = 1.0 - 1.0 / r
-    inv_r3 = 1.0 / r**3
-    w = (u[:, :, None] * v[:, None, :]).reshape(-1, 9)          # rows u_k kron v_k
+    T_hat, h = unpack(np.asarray(x, dtype=np.float64))
+    return _gradient_hessian(np.ascontiguousarray(T_hat), np.ascontiguousarray(h),
+                             np.ascontiguousarray(y, dtype=np.float64), float(sigma))
+
+
+@njit(cache=True, error_model="numpy")
+def _gradient_hessian(T_hat: np.ndarray, h: np.ndarray, y: np.ndarray,
+                      sigma: float) -> tuple[float, np.ndarray, np.ndarray]:
+    # One compiled pass over the samples accumulates the sums that (A1)-(A3) need, with
+    # w_k = u_k kron v_k (w[3a + b] = u_a v_b): sum c w, sum c v, sum c u, sum c u u^T,
+    # sum w w^T / r^3, sum w v^T / r^3, sum v v^T / r^3, sum c and sum (r - 1)^2.
+    cw = np.zeros(9)
+    cv = np.zeros(3)
+    cu = np.zeros(3)
+    cuu = np.zeros((3, 3))
+    ww = np.zeros((9, 9))
+    wv = np.zeros((9, 3))
+    vv = np.zeros((3, 3))
+    c_sum, sq = 0.0, 0.0
+    u = np.empty(3)
+    v = np.empty(3)
+    w = np.empty(9)
+    for k in range(y.shape[0]):
+        for a in range(3):
+            u[a] = y[k, a] - h[a]
+        for a in range(3):
+            v[a] = T_hat[a, 0] * u[0] + T_hat[a, 1] * u[1] + T_hat[a, 2] * u[2]
+        r = np.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
+        c = 1.0 - 1.0 / r
+        inv_r3 = 1.0 / r**3
+        for a in range(3):
+            for b in range(3):
+                w[3 * a + b] = u[a] * v[b]
+        for i in range(9):
+            cw[i] += c * w[i]
+            for j in range(i, 9):
+                ww[i, j] += w[i] * inv_r3 * w[j]
+            for b in range(3):
+                wv[i, b] += w[i] * inv_r3 * v[b]
+        for a in range(3):
+            cv[a] += c * v[a]
+            cu[a] += c * u[a]
+            for b in range(a, 3):
+                cuu[a, b] += u[a] * c * u[b]
+                vv[a, b] += v[a] * inv_r3 * v[b]
+        c_sum += c
+        sq += (r - 1.0) ** 2
+    for i in range(9):
+        for j in range(i):
+            ww[i, j] = ww[j, i]
+    for a in range(3):
+        for b in range(a):
+            cuu[a, b] = cuu[b, a]
+            vv[a, b] = vv[b, a]
     scale = 2.0 / sigma**2
-    grad_T = scale * (c @ w)                                    # (A1a)
-    grad_h = -scale * (T_hat.T @ (c @ v))                       # (A1b)
-    cu = c @ u
-    H_TT = scale * ((w.T * inv_r3) @ w                          # (A3a)
-                    + np.kron((u.T * c) @ u, np.eye(3)))
-    H_Th = -scale * (((w.T * inv_r3) @ v) @ T_hat               # (A3b)
-                     + np.kron(cu[:, None], T_hat) + np.kron(np.eye(3), (c @ v)[:, None]))
+    gradient = np.empty(12)
+    gradient[:9] = scale * cw                                   # (A1a)
+    gradient[9:] = -scale * (T_hat.T @ cv)                      # (A1b)
+    hessian = np.empty((12, 12))
     TtT = T_hat.T @ T_hat
-    H_hh = scale * (T_hat.T @ ((v.T * inv_r3) @ v) @ T_hat      # (A3c)
-                    + c.sum() * TtT)
-    hessian = np.block([[H_TT, H_Th], [H_Th.T, H_hh]])          # (A2)
-    J = float(np.sum((r - 1.0) ** 2)) / sigma**2
-    return J, np.concatenate([grad_T, grad_h]), hessian
+    wvT = wv @ T_hat
+    vvT = T_hat.T @ vv @ T_hat
+    for a in range(3):
+        for b in range(3):
+            i = 3 * a + b
+            for c2 in range(3):
+                for d2 in range(3):
+                    # (A3a): kron(sum c u u^T, I) has cuu[a, c2] at (3a + b, 3c2 + b)
+                    kron = cuu[a, c2] if b == d2 else 0.0
+                    hessian[i, 3 * c2 + d2] = scale * (ww[i, 3 * c2 + d2] + kron)
+            for c2 in range(3):
+                # (A3b): kron(cu, T^) has cu_a T^[b, c2]; kron(I, c v) has delta_a,c2 cv_b
+                hessian[i, 9 + c2] = -scale * (wvT[i, c2] + cu[a] * T_hat[b, c2]
+                                               + (cv[b] if a == c2 else 0.0))
+                hessian[9 + c2, i] = hessian[i, 9 + c2]
+    for a in range(3):
+        for b in range(3):
+            hessian[9 + a, 9 + b] = scale * (vvT[a, b] + c_sum * TtT[a, b])   # (A3c)
+    return sq / sigma**2, gradient, hessian                     # (A2) assembled above
 
 
 def _newton_step(g: np.ndarray, H: np.ndarray) -> np.ndarray:

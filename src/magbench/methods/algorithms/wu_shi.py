@@ -17,6 +17,7 @@ from dataclasses import dataclass
 from functools import partial
 
 import numpy as np
+from numba import njit
 
 from magbench.core.model import Calibration, CalibrationFailed
 from magbench.methods.algorithms._common import row_norms
@@ -40,9 +41,33 @@ class State:
     lam: np.ndarray
 
 
+# The Newton step runs as compiled loops over the samples (numba): the gradient, the Hessian
+# blocks and the Schur complement are O(K) sums of 3- and 9-vectors, which as NumPy calls cost
+# far more in call overhead than in arithmetic. They take the arrays of a State.
+
+_UR, _UC = UPPER_ROWS, UPPER_COLS
+
+
+@njit(cache=True, error_model="numpy")
+def _residuals(y: np.ndarray, T: np.ndarray, h: np.ndarray, m: np.ndarray) -> np.ndarray:
+    """``r_k = u_k - T m_k`` with ``u_k = y_k - h`` (Appendix A.2), shape ``(K, 3)``."""
+    K = y.shape[0]
+    r = np.empty((K, 3))
+    for k in range(K):
+        for a in range(3):
+            r[k, a] = y[k, a] - h[a] - (m[k, 0] * T[a, 0] + m[k, 1] * T[a, 1]
+                                        + m[k, 2] * T[a, 2])
+    return r
+
+
+def _arrays(y: np.ndarray, s: State) -> tuple[np.ndarray, ...]:
+    """``y, T, h, m, lam`` as contiguous float arrays, as the compiled functions take them."""
+    return tuple(np.ascontiguousarray(a, dtype=np.float64) for a in (y, s.T, s.h, s.m, s.lam))
+
+
 def residuals(y: np.ndarray, s: State) -> np.ndarray:
     """``r_k = u_k - T m_k`` with ``u_k = y_k - h`` (Appendix A.2), shape ``(K, 3)``."""
-    return y - s.h - s.m @ s.T.T
+    return _residuals(*_arrays(y, s)[:4])
 
 
 def objective(y: np.ndarray, s: State) -> float:
@@ -51,9 +76,33 @@ def objective(y: np.ndarray, s: State) -> float:
     return float(np.einsum("ij,ij->", r, r))
 
 
-def lagrangian(y: np.ndarray, s: State) -> float:
-    """The Lagrange function J(x) of eq. (52)."""
-    return objective(y, s) + float(s.lam @ (np.einsum("ij,ij->i", s.m, s.m) - 1.0))
+def lagrangian(y: np.ndarray, s: State, objective_value: float | None = None) -> float:
+    """The Lagrange function J(x) of eq. (52).
+
+    ``objective_value``, if given, is ``objective(y, s)`` already computed (refine needs both
+    and the objective is most of the cost).
+    """
+    obj = objective(y, s) if objective_value is None else objective_value
+    return obj + float(s.lam @ (np.einsum("ij,ij->i", s.m, s.m) - 1.0))
+
+
+@njit(cache=True, error_model="numpy")
+def _gradient(y: np.ndarray, T: np.ndarray, h: np.ndarray, m: np.ndarray, lam: np.ndarray
+              ) -> tuple[np.ndarray, np.ndarray]:
+    K = y.shape[0]
+    r = _residuals(y, T, h, m)
+    g_g = np.zeros(9)
+    g_l = np.empty((K, 4))
+    for k in range(K):
+        for e in range(6):                                         # J_T (A4)
+            g_g[e] += -2.0 * r[k, _UR[e]] * m[k, _UC[e]]
+        for a in range(3):                                         # J_h
+            g_g[6 + a] += -2.0 * r[k, a]
+        for j in range(3):                                         # -2 T^T r_k + 2 lam_k m_k
+            g_l[k, j] = -2.0 * (r[k, 0] * T[0, j] + r[k, 1] * T[1, j] + r[k, 2] * T[2, j]) \
+                + 2.0 * lam[k] * m[k, j]
+        g_l[k, 3] = m[k, 0] ** 2 + m[k, 1] ** 2 + m[k, 2] ** 2 - 1.0
+    return g_g, g_l
 
 
 def gradient(y: np.ndarray, s: State) -> tuple[np.ndarray, np.ndarray]:
@@ -61,12 +110,43 @@ def gradient(y: np.ndarray, s: State) -> tuple[np.ndarray, np.ndarray]:
 
     ``J_T = -2 sum_k m_k kron r_k`` holds ``-2 sum_k r_ka m_kb`` at the entry of ``T_ab``.
     """
-    r = residuals(y, s)
-    g_T = -2.0 * (r.T @ s.m)[UPPER_ROWS, UPPER_COLS]
-    g_h = -2.0 * r.sum(axis=0)
-    g_m = -2.0 * r @ s.T + 2.0 * s.lam[:, None] * s.m               # -2 T^T r_k + 2 lam_k m_k
-    g_lam = np.einsum("ij,ij->i", s.m, s.m) - 1.0
-    return np.concatenate([g_T, g_h]), np.column_stack([g_m, g_lam])
+    return _gradient(*_arrays(y, s))
+
+
+@njit(cache=True, error_model="numpy")
+def _hessian_blocks(y: np.ndarray, T: np.ndarray, h: np.ndarray, m: np.ndarray
+                    ) -> tuple[np.ndarray, np.ndarray]:
+    K = y.shape[0]
+    r = _residuals(y, T, h, m)
+    mm = np.zeros((3, 3))
+    msum = np.zeros(3)
+    C = np.empty((K, 9, 3))
+    for k in range(K):
+        for b in range(3):
+            msum[b] += m[k, b]
+            for d in range(3):
+                mm[b, d] += m[k, b] * m[k, d]
+        # H_Tm_k = 2 ((m_k kron I) T - I kron r_k): entry (T_ab, m_c) is
+        # 2 m_b T_ac - 2 r_a delta_bc.
+        for e in range(6):
+            a, b = _UR[e], _UC[e]
+            for c in range(3):
+                C[k, e, c] = 2.0 * m[k, b] * T[a, c] - (2.0 * r[k, a] if b == c else 0.0)
+        for a in range(3):                                         # H_hm_k = 2 T
+            for c in range(3):
+                C[k, 6 + a, c] = 2.0 * T[a, c]
+    A = np.zeros((9, 9))
+    for e in range(6):
+        for f in range(6):
+            # H_TT = 2 sum (m m^T) kron I: entry (T_ab, T_cd) is 2 delta_ac sum m_b m_d.
+            if _UR[e] == _UR[f]:
+                A[e, f] = 2.0 * mm[_UC[e], _UC[f]]
+        # H_Th = 2 sum m kron I: entry (T_ab, h_c) is 2 delta_ac sum m_b.
+        A[e, 6 + _UR[e]] = 2.0 * msum[_UC[e]]
+        A[6 + _UR[e], e] = A[e, 6 + _UR[e]]
+    for a in range(3):
+        A[6 + a, 6 + a] = 2.0 * K                                  # H_hh = 2 K I
+    return A, C
 
 
 def hessian_blocks(y: np.ndarray, s: State) -> tuple[np.ndarray, np.ndarray]:
@@ -83,53 +163,124 @@ def hessian_blocks(y: np.ndarray, s: State) -> tuple[np.ndarray, np.ndarray]:
     C : ndarray, shape (K, 9, 3)
         Coupling of the global unknowns to ``m_k``: ``[H_Tm_k; H_hm_k]``.
     """
-    K = y.shape[0]
-    m, T = s.m, s.T
-    r = residuals(y, s)
-    A = np.zeros((9, 9))
-    # H_TT = 2 sum (m m^T) kron I: entry (T_ab, T_cd) is 2 delta_ac sum m_b m_d.
-    A[:6, :6] = (2.0 * (UPPER_ROWS[:, None] == UPPER_ROWS[None, :])
-                 * (m.T @ m)[UPPER_COLS[:, None], UPPER_COLS[None, :]])
-    # H_Th = 2 sum m kron I: entry (T_ab, h_c) is 2 delta_ac sum m_b.
-    A[:6, 6:] = 2.0 * (UPPER_ROWS[:, None] == np.arange(3)) * m.sum(axis=0)[UPPER_COLS][:, None]
-    A[6:, :6] = A[:6, 6:].T
-    A[6:, 6:] = 2.0 * K * np.eye(3)                                # H_hh = 2 K I
-    C = np.empty((K, 9, 3))
-    # H_Tm_k = 2 ((m_k kron I) T - I kron r_k): entry (T_ab, m_c) is 2 m_b T_ac - 2 r_a delta_bc.
-    C[:, :6, :] = (2.0 * m[:, UPPER_COLS, None] * T[UPPER_ROWS, :]
-                   - 2.0 * r[:, UPPER_ROWS, None] * np.eye(3)[UPPER_COLS])
-    C[:, 6:, :] = 2.0 * T                                          # H_hm_k = 2 T
-    return A, C
+    return _hessian_blocks(*_arrays(y, s)[:4])
 
 
-class _BorderedInverse:
-    """``D_k^-1`` for all k at once, ``D_k = [[P_k, a_k], [a_k^T, 0]]``, ``P_k = 2 T^T T +
-    2 lam_k I``, ``a_k = 2 m_k``.
+@njit(cache=True, error_model="numpy")
+def _p_inv(V: np.ndarray, d: np.ndarray, p: np.ndarray) -> np.ndarray:
+    """``P_k^-1 p_k = V diag(d_k) V^T p_k`` for ``(K, 3)`` p (see :func:`_newton`)."""
+    K = p.shape[0]
+    x = np.zeros((K, 3))
+    for k in range(K):
+        for j in range(3):
+            t = (p[k, 0] * V[0, j] + p[k, 1] * V[1, j] + p[k, 2] * V[2, j]) * d[k, j]
+            for i in range(3):
+                x[k, i] += t * V[i, j]
+    return x
 
-    All ``P_k`` share the eigenvectors V of ``T^T T``, so ``P_k^-1 = V diag(d_k) V^T`` with
-    ``d_k = 1 / (2 eig(T^T T) + 2 lam_k)``: one 3x3 eigen-decomposition per iteration instead
-    of K 4x4 solves. With ``w_k = P_k^-1 a_k`` and ``gamma_k = a_k^T w_k``, the solution of
-    ``D_k [x; mu] = [p; q]`` is ``mu = (w_k^T p - q) / gamma_k``, ``x = P_k^-1 p - w_k mu``.
+
+@njit(cache=True, error_model="numpy")
+def _bordered_solve(V: np.ndarray, d: np.ndarray, w: np.ndarray, inv_gamma: np.ndarray,
+                    p: np.ndarray, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``[x; mu] = D_k^-1 [p_k; q_k]`` for ``(K, 3)`` p and ``(K,)`` q (see :func:`_newton`)."""
+    K = p.shape[0]
+    x = _p_inv(V, d, p)
+    mu = np.empty(K)
+    for k in range(K):
+        mu[k] = (w[k, 0] * p[k, 0] + w[k, 1] * p[k, 1] + w[k, 2] * p[k, 2] - q[k]) * inv_gamma[k]
+        for i in range(3):
+            x[k, i] -= w[k, i] * mu[k]
+    return x, mu
+
+
+@njit(cache=True, error_model="numpy")
+def _newton(y: np.ndarray, T: np.ndarray, h: np.ndarray, m: np.ndarray, lam: np.ndarray
+            ) -> tuple[int, np.ndarray, np.ndarray]:
+    """The step of :func:`newton_step`; status 0, or 1 (singular ``D_k``), 2 (singular S).
+
+    ``D_k^-1`` for all k at once, ``D_k = [[P_k, a_k], [a_k^T, 0]]``, ``P_k = 2 T^T T +
+    2 lam_k I``, ``a_k = 2 m_k``: all ``P_k`` share the eigenvectors V of ``T^T T``, so
+    ``P_k^-1 = V diag(d_k) V^T`` with ``d_k = 1 / (2 eig(T^T T) + 2 lam_k)``, one 3x3
+    eigen-decomposition per iteration instead of K 4x4 solves. With ``w_k = P_k^-1 a_k`` and
+    ``gamma_k = a_k^T w_k``, the solution of ``D_k [x; mu] = [p; q]`` is
+    ``mu = (w_k^T p - q) / gamma_k``, ``x = P_k^-1 p - w_k mu``.
     """
-
-    def __init__(self, s: State) -> None:
-        eigval, self.V = np.linalg.eigh(s.T.T @ s.T)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            self.d = 1.0 / (2.0 * eigval + 2.0 * s.lam[:, None])   # (K, 3), eigenbasis
-            self.w = self.p_inv(2.0 * s.m)
-            self.inv_gamma = 1.0 / np.einsum("ij,ij->i", 2.0 * s.m, self.w)
-        if not (np.all(np.isfinite(self.d)) and np.all(np.isfinite(self.inv_gamma))):
-            raise CalibrationFailed("Gauss-Newton: a per-sample Hessian block [[2T^T T + "
-                                    "2 lambda_k I, 2 m_k], [2 m_k^T, 0]] is singular")
-
-    def p_inv(self, p: np.ndarray) -> np.ndarray:
-        """``P_k^-1 p_k`` for ``(K, 3)`` p."""
-        return ((p @ self.V) * self.d) @ self.V.T
-
-    def solve(self, p: np.ndarray, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """``[x; mu] = D_k^-1 [p_k; q_k]`` for ``(K, 3)`` p and ``(K,)`` q."""
-        mu = (np.einsum("ij,ij->i", self.w, p) - q) * self.inv_gamma
-        return self.p_inv(p) - self.w * mu[:, None], mu
+    K = y.shape[0]
+    g_g, g_l = _gradient(y, T, h, m, lam)
+    A, C = _hessian_blocks(y, T, h, m)
+    eigval, V = np.linalg.eigh(T.T @ T)
+    d = np.empty((K, 3))
+    for k in range(K):
+        for i in range(3):
+            d[k, i] = 1.0 / (2.0 * eigval[i] + 2.0 * lam[k])
+    w = _p_inv(V, d, 2.0 * m)
+    inv_gamma = np.empty(K)
+    for k in range(K):
+        inv_gamma[k] = 1.0 / (2.0 * m[k, 0] * w[k, 0] + 2.0 * m[k, 1] * w[k, 1]
+                              + 2.0 * m[k, 2] * w[k, 2])
+    if not (np.all(np.isfinite(d)) and np.all(np.isfinite(inv_gamma))):
+        return 1, np.zeros(9), np.zeros((K, 4))
+    # S = A - sum_k C_k M_k C_k^T with M_k = P_k^-1 - w_k w_k^T / gamma_k (3x3, symmetric).
+    # The h rows of every C_k are the same 2 T (A7), so only the T rows (6x3) vary with k:
+    # S_TT -= sum_k C_Tk M_k C_Tk^T, S_Th -= (sum_k C_Tk M_k) 2 T^T, S_hh -= 2T (sum_k M_k) 2T^T.
+    x0, _ = _bordered_solve(V, d, w, inv_gamma, g_l[:, :3].copy(), g_l[:, 3].copy())
+    S_TT = np.zeros((6, 6))
+    sum_CM = np.zeros((6, 3))
+    sum_M = np.zeros((3, 3))
+    sum_x0 = np.zeros(3)
+    reduced_rhs = g_g.copy()
+    M = np.empty((3, 3))
+    CM = np.empty((6, 3))
+    for k in range(K):
+        for a in range(3):
+            for b in range(a, 3):
+                M[a, b] = (V[a, 0] * d[k, 0] * V[b, 0] + V[a, 1] * d[k, 1] * V[b, 1]
+                           + V[a, 2] * d[k, 2] * V[b, 2]) - w[k, a] * w[k, b] * inv_gamma[k]
+                M[b, a] = M[a, b]
+                sum_M[a, b] += M[a, b]
+            sum_x0[a] += x0[k, a]
+        for e in range(6):
+            for c in range(3):
+                CM[e, c] = C[k, e, 0] * M[0, c] + C[k, e, 1] * M[1, c] + C[k, e, 2] * M[2, c]
+                sum_CM[e, c] += CM[e, c]
+            for f in range(e, 6):
+                S_TT[e, f] += CM[e, 0] * C[k, f, 0] + CM[e, 1] * C[k, f, 1] \
+                    + CM[e, 2] * C[k, f, 2]
+            reduced_rhs[e] -= C[k, e, 0] * x0[k, 0] + C[k, e, 1] * x0[k, 1] \
+                + C[k, e, 2] * x0[k, 2]
+    for a in range(3):
+        for b in range(a):
+            sum_M[a, b] = sum_M[b, a]
+    T2 = 2.0 * T
+    S = A.copy()
+    for e in range(6):
+        for f in range(e, 6):
+            S[e, f] -= S_TT[e, f]
+            S[f, e] = S[e, f]
+        for a in range(3):
+            S[e, 6 + a] -= sum_CM[e, 0] * T2[a, 0] + sum_CM[e, 1] * T2[a, 1] \
+                + sum_CM[e, 2] * T2[a, 2]
+            S[6 + a, e] = S[e, 6 + a]
+    hMh = T2 @ sum_M @ T2.T
+    for a in range(3):
+        reduced_rhs[6 + a] -= T2[a, 0] * sum_x0[0] + T2[a, 1] * sum_x0[1] + T2[a, 2] * sum_x0[2]
+        for b in range(3):
+            S[6 + a, 6 + b] -= hMh[a, b]
+    if not np.all(np.isfinite(S)) or np.linalg.cond(S) > MAX_CONDITION:
+        return 2, np.zeros(9), np.zeros((K, 4))
+    dg = np.linalg.solve(S, reduced_rhs)
+    p = np.empty((K, 3))
+    for k in range(K):
+        for j in range(3):
+            p[k, j] = g_l[k, j] - (C[k, 0, j] * dg[0] + C[k, 1, j] * dg[1] + C[k, 2, j] * dg[2]
+                                   + C[k, 3, j] * dg[3] + C[k, 4, j] * dg[4]
+                                   + C[k, 5, j] * dg[5] + C[k, 6, j] * dg[6]
+                                   + C[k, 7, j] * dg[7] + C[k, 8, j] * dg[8])
+    dm, dlam = _bordered_solve(V, d, w, inv_gamma, p, g_l[:, 3].copy())
+    dl = np.empty((K, 4))
+    dl[:, :3] = dm
+    dl[:, 3] = dlam
+    return 0, dg, dl
 
 
 def newton_step(y: np.ndarray, s: State) -> tuple[np.ndarray, np.ndarray]:
@@ -138,8 +289,8 @@ def newton_step(y: np.ndarray, s: State) -> tuple[np.ndarray, np.ndarray]:
     With ``H = [[A, B], [B^T, D]]``, D block diagonal and ``B_k = [C_k, 0]``, the global step
     solves ``(A - sum_k B_k D_k^-1 B_k^T) dg = g_g - sum_k B_k D_k^-1 g_k`` and the local steps
     are ``dl_k = D_k^-1 (g_k - B_k^T dg)``. Since the lambda column of ``B_k`` is zero,
-    ``B_k D_k^-1 B_k^T = C_k (P_k^-1 - w_k w_k^T / gamma_k) C_k^T``; the sums over k are
-    matrix products.
+    ``B_k D_k^-1 B_k^T = C_k (P_k^-1 - w_k w_k^T / gamma_k) C_k^T`` (see :func:`_newton` for
+    ``D_k^-1``), summed over k in one compiled loop.
 
     Returns
     -------
@@ -153,23 +304,14 @@ def newton_step(y: np.ndarray, s: State) -> tuple[np.ndarray, np.ndarray]:
     CalibrationFailed
         If a per-sample block or the reduced 9x9 system is singular.
     """
-    K = y.shape[0]
-    g_g, g_l = gradient(y, s)
-    A, C = hessian_blocks(y, s)
-    Dinv = _BorderedInverse(s)
-    C_eig = C @ Dinv.V                                             # C_k V, (K, 9, 3)
-    C_eig_flat = C_eig.transpose(1, 0, 2).reshape(9, 3 * K)
-    C_w = np.einsum("kij,kj->ki", C, Dinv.w)                       # C_k w_k, (K, 9)
-    S = (A - (C_eig_flat * Dinv.d.reshape(1, 3 * K)) @ C_eig_flat.T
-         + (C_w * Dinv.inv_gamma[:, None]).T @ C_w)
-    x0, _ = Dinv.solve(g_l[:, :3], g_l[:, 3])                      # m-part of D_k^-1 g_k
-    reduced_rhs = g_g - np.einsum("kij,kj->i", C, x0)
-    if not np.all(np.isfinite(S)) or np.linalg.cond(S) > MAX_CONDITION:
+    status, dg, dl = _newton(*_arrays(y, s))
+    if status == 1:
+        raise CalibrationFailed("Gauss-Newton: a per-sample Hessian block [[2T^T T + "
+                                "2 lambda_k I, 2 m_k], [2 m_k^T, 0]] is singular")
+    if status == 2:
         raise CalibrationFailed("Gauss-Newton: the reduced Hessian (Schur complement) is "
                                 "singular")
-    dg = np.linalg.solve(S, reduced_rhs)
-    dm, dlam = Dinv.solve(g_l[:, :3] - np.einsum("kij,i->kj", C, dg), g_l[:, 3])
-    return dg, np.column_stack([dm, dlam])
+    return dg, dl
 
 
 def apply_step(s: State, dg: np.ndarray, dl: np.ndarray) -> State:
@@ -229,7 +371,7 @@ def refine(samples: np.ndarray, T0: np.ndarray, h0: np.ndarray, *, max_iter: int
     y = samples
     s = initial_state(y, T0, h0)
     history = [objective(y, s)]
-    previous = lagrangian(y, s)
+    previous = lagrangian(y, s, history[0])
     for it in range(1, max_iter + 1):
         dg, dl = newton_step(y, s)
         s = apply_step(s, dg, dl)
@@ -238,7 +380,7 @@ def refine(samples: np.ndarray, T0: np.ndarray, h0: np.ndarray, *, max_iter: int
             raise CalibrationFailed(f"Gauss-Newton diverged (non-finite iterate at "
                                     f"iteration {it})")
         history.append(objective(y, s))
-        current = lagrangian(y, s)
+        current = lagrangian(y, s, history[-1])
         size = max(1.0, float(np.max(np.abs(np.concatenate([s.T.ravel(), s.h])))))
         step_small = float(np.max(np.abs(dg))) <= xtol * size
         cost_flat = abs(current - previous) <= rtol * abs(previous)
