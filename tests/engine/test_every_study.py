@@ -102,11 +102,12 @@ def test_same_rows_with_one_worker_two_workers_and_dask(kind, tmp_path):
     pd.testing.assert_frame_equal(runs["one"], runs["dask"])
 
 
-def command(kind: str, tmp_path: Path, results: Path) -> list[str]:
+def slow_args(kind: str, tmp_path: Path, results: Path) -> list[str]:
+    """A run of ``kind`` slow enough to be killed mid-way (a 0.15 s method per unit)."""
     args, _, _ = kind_args(kind, tmp_path)
-    return [sys.executable, "-m", "magbench", *args, f"plugins=[{FAULTY}]",
-            "algorithms=[faulty_slow,sphere]", "options.faulty_slow.delay=0.15",
-            "chunk_size=1", "n_jobs=1", "progress=false", f"results_dir={results}"]
+    return [*args, f"plugins=[{FAULTY}]", "algorithms=[faulty_slow,sphere]",
+            "options.faulty_slow.delay=0.15", "chunk_size=1", "n_jobs=1", "progress=false",
+            f"results_dir={results}"]
 
 
 @pytest.mark.parametrize("kind", KINDS)
@@ -114,8 +115,9 @@ def test_a_killed_run_of_every_kind_resumes_to_the_same_rows(kind, faulty, tmp_p
     _, folder, name = kind_args(kind, tmp_path)
     # The uninterrupted run and the resumed one run in this process; only the killed one needs
     # its own process.
-    assert main(command(kind, tmp_path, tmp_path / "full")[3:]) == 0
-    proc = subprocess.Popen(command(kind, tmp_path, tmp_path / "cut"), cwd=REPO,
+    assert main(slow_args(kind, tmp_path, tmp_path / "full")) == 0
+    proc = subprocess.Popen([sys.executable, "-m", "magbench",
+                             *slow_args(kind, tmp_path, tmp_path / "cut")], cwd=REPO,
                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     parts = tmp_path / "cut" / folder / "parts"
     start = time.monotonic()
@@ -126,7 +128,7 @@ def test_a_killed_run_of_every_kind_resumes_to_the_same_rows(kind, faulty, tmp_p
     proc.send_signal(signal.SIGKILL)
     proc.wait(timeout=30)
     assert not (tmp_path / "cut" / folder / name).exists()
-    assert main(command(kind, tmp_path, tmp_path / "cut")[3:]) == 0
+    assert main(slow_args(kind, tmp_path, tmp_path / "cut")) == 0
     pd.testing.assert_frame_equal(table(tmp_path / "cut" / folder, name),
                                   table(tmp_path / "full" / folder, name))
 

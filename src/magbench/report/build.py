@@ -352,7 +352,7 @@ RECOMMEND_RB_PCT, RECOMMEND_EFFICIENCY = 99.0, 0.9
 def _family(name: str) -> str:
     try:
         return get_method(name).family
-    except (KeyError, ValueError):
+    except ValueError:
         return "extra"          # a plugin's method that is not registered in this process
 
 
@@ -388,7 +388,8 @@ def recommendations(baseline: pd.DataFrame | None, coverage: pd.DataFrame | None
     if coverage is not None:
         c = with_coverage_column(coverage)
         c = c[[_family(n) != "variant" for n in c["algorithm"]]]
-        wide = c[(c["coverage"] != "full sphere") & (c["cap_deg"] >= 90) | (c["band_deg"] < 90)]
+        # Partial but wide: caps of a hemisphere or more, and every band.
+        wide = c[((c["coverage"] != "full sphere") & (c["cap_deg"] >= 90)) | (c["band_deg"] < 90)]
         robust = [cov for cov, rows in wide.groupby("coverage", sort=False)
                   if (rows["RB_pct"] >= RECOMMEND_RB_PCT).any()]
         narrow = c[(c["cap_deg"] < 90) & (c["band_deg"] >= 90)]
