@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import shutil
 import subprocess
 import sys
 import tomllib
@@ -34,8 +35,15 @@ def test_the_configuration_is_package_data():
 def test_a_built_wheel_runs_a_sweep_from_another_folder(tmp_path):
     """A non-editable install (the wheel, not src/) finds its configs from any folder."""
     pip = [sys.executable, "-m", "pip"]
+    # Build from a copy: setuptools writes build/ and *.egg-info beside the sources.
+    source = tmp_path / "source"
+    skip = shutil.ignore_patterns("__pycache__", "*.egg-info", "build")
+    for part in ("src", "conf"):
+        shutil.copytree(REPO / part, source / part, ignore=skip)
+    for part in ("pyproject.toml", "README.md"):
+        shutil.copy(REPO / part, source / part)
     built = subprocess.run([*pip, "wheel", "-q", "--no-deps", "-w", str(tmp_path / "w"),
-                            str(REPO)], capture_output=True, text=True, timeout=300)
+                            str(source)], capture_output=True, text=True, timeout=300)
     if built.returncode != 0 and any(s in built.stderr.lower() for s in
                                      ("connection", "could not find a version", "network")):
         pytest.skip("building the wheel needs setuptools from the package index")
