@@ -91,3 +91,15 @@ def test_make_reproduce_runs_every_sweep_then_the_report():
     for sweep in SWEEPS:
         assert f"-m magbench sweep={sweep}" in dry, f"make reproduce skips sweep {sweep}"
     assert dry.rstrip().endswith("-m magbench report")
+
+
+@pytest.mark.parametrize(("vary", "message"), [
+    ("options.crassidis.nope", "crassidis has no option 'nope'; it accepts: theta0, P0"),
+    ("options.magical.max_iter", "names 'magical', which is not among the selected"),
+    ("options.crassidis", "an option axis is written options.<method>.<option>"),
+])
+def test_a_bad_option_axis_stops_with_one_line_and_status_2(vary, message, tmp_path, capsys):
+    assert run("sweep=p0", f"sweep.vary={vary}", f"results_dir={tmp_path}") == 2
+    err = capsys.readouterr().err
+    assert err.startswith("magbench: error: ") and message in err and err.count("\n") == 1
+    assert not (tmp_path / "p0").exists()
