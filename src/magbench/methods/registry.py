@@ -20,7 +20,7 @@ __all__ = ["DISPLAY_ORDER", "Method", "get_method", "methods", "register", "unre
 DISPLAY_ORDER = (
     "twostep", "crassidis", "dorveaux", "vasconcelos", "ali", "wu_shi", "magical",
     "wu_shi_nm", "ellipsoid", "fang", "sphere", "twostep_hi",
-    "vasconcelos_printed", "wu_shi_printed",
+    "vasconcelos_printed", "wu_shi_printed", "twostep_no_svd", "crassidis_prior",
 )
 
 
