@@ -15,7 +15,7 @@ import subprocess
 import sys
 import tempfile
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -30,7 +30,7 @@ from magbench.sources.synthetic import Point, make_dataset
 from magbench.studies.review import ReviewStudy
 
 __all__ = ["SIZES", "bench_calls", "bench_first_calls", "bench_parallel", "bench_peers",
-           "run_bench"]
+           "format_reproduce_times", "reproduce_times", "run_bench"]
 
 SIZES = (50, 150, 300, 1000, 3000, 10000)
 
@@ -243,3 +243,70 @@ def run_bench(results_dir: Path | str, names: Sequence[str] | None = None,
     if parallel_trials:
         write_csv_atomic(bench_parallel(parallel_trials, names), folder / "parallel.csv")
     return folder
+
+
+# --- make reproduce: where its time goes, per sweep ------------------------------------------
+
+def reproduce_times(steps: Sequence[Mapping[str, object]], results_dir: Path | str,
+                    machine: Mapping[str, object] | None = None) -> pd.DataFrame:
+    """Per-step table of one ``make reproduce`` run, with a ``total`` row.
+
+    Parameters
+    ----------
+    steps : sequence of mappings
+        One per step in the order run, each with ``step`` (a sweep's folder name or
+        ``report``), ``wall_s`` and ``cpu_s`` (this process and its workers, see
+        :func:`magbench.engine.record.cpu_seconds`); other keys (the load average, say) are
+        kept as columns.
+    results_dir : path
+        Where the sweeps wrote their tables: ``method_s``, the sum of the timed calibration
+        calls (column ``time_s`` of ``<step>/trials.csv``), is read from there; NaN for steps
+        without one (the report, the Wu-Shi study).
+    machine : mapping, optional
+        Columns repeated on every row (CPU model, core count, workers, commit).
+
+    Returns
+    -------
+    DataFrame
+        ``step, wall_s, cpu_s, cpu_per_wall, method_s, overhead_cpu_s, share_wall`` and the
+        extra columns; ``overhead_cpu_s = cpu_s - method_s`` is what the step spent outside the
+        calibration calls (start-up, data, metrics, files, figures); ``share_wall`` is the
+        step's part of the total wall time.
+    """
+    table = pd.DataFrame([dict(row) for row in steps])
+    if table.empty:
+        table = pd.DataFrame(columns=["step", "wall_s", "cpu_s"])
+    method = []
+    for step in table["step"]:
+        path = Path(results_dir) / str(step) / "trials.csv"
+        try:
+            method.append(float(pd.read_csv(path, usecols=["time_s"])["time_s"].sum()))
+        except (OSError, ValueError):  # no such table, or one without timed calls
+            method.append(np.nan)
+    table["method_s"] = method
+    total = {"step": "total", "wall_s": table["wall_s"].sum(), "cpu_s": table["cpu_s"].sum(),
+             "method_s": table["method_s"].sum(min_count=1)}
+    table = pd.concat([table, pd.DataFrame([total])], ignore_index=True)
+    table["cpu_per_wall"] = table["cpu_s"] / table["wall_s"]
+    table["overhead_cpu_s"] = table["cpu_s"] - table["method_s"]
+    table["share_wall"] = table["wall_s"] / total["wall_s"] if total["wall_s"] else np.nan
+    for key, value in (machine or {}).items():
+        table[key] = value
+    first = ["step", "wall_s", "cpu_s", "cpu_per_wall", "method_s", "overhead_cpu_s",
+             "share_wall"]
+    return table[first + [c for c in table.columns if c not in first]]
+
+
+def format_reproduce_times(table: pd.DataFrame) -> str:
+    """The table of :func:`reproduce_times` as aligned text lines (what ``reproduce`` prints)."""
+    lines = [f"{'step':<12}{'wall s':>9}{'CPU s':>9}{'CPU/wall':>10}{'in calls s':>12}"
+             f"{'share':>8}"]
+    for row in table.itertuples():
+        method = "-" if pd.isna(row.method_s) else f"{row.method_s:.1f}"
+        lines.append(f"{row.step!s:<12}{row.wall_s:>9.1f}{row.cpu_s:>9.1f}"
+                     f"{row.cpu_per_wall:>10.2f}{method:>12}{row.share_wall:>8.0%}")
+    total = table[table["step"] == "total"]
+    if len(total):
+        minutes, seconds = divmod(float(total["wall_s"].iloc[0]), 60)
+        lines.append(f"make reproduce: {int(minutes)} min {seconds:.0f} s wall")
+    return "\n".join(lines)
