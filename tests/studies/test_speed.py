@@ -76,3 +76,15 @@ def test_reproduce_times_add_up_and_read_the_calls_time(tmp_path):
     text = bench.format_reproduce_times(table)
     assert text.splitlines()[2].split() == ["gamma", "3.0", "5.0", "1.67", "3.5", "30%"]
     assert text.endswith("make reproduce: 0 min 10 s wall")
+
+
+def test_requirement_closure_follows_requirements_but_not_extras():
+    closure = bench._requirement_closure(["pandas"])
+    assert {"pandas", "numpy", "python-dateutil"} <= closure
+    assert "pytest" not in closure          # pandas[test] is an extra, not a requirement
+
+
+def test_install_size_of_a_missing_peer_is_recorded_as_unknown(monkeypatch):
+    monkeypatch.setattr(bench, "PEER_PACKAGES", ("no-such-peer-package",))
+    row = bench.peer_install_size().iloc[0]
+    assert row["package"] == "no-such-peer-package" and np.isnan(row["added_mb"])
