@@ -41,6 +41,15 @@ def _datasets(K: int, n: int, seed: int) -> list:
     return [make_dataset(np.random.default_rng([seed, K, i]), Point(K=K)) for i in range(n)]
 
 
+def blas_threads() -> str:
+    """The BLAS thread setting the timings ran with (``OPENBLAS_NUM_THREADS``, else
+    ``OMP_NUM_THREADS``, else ``"default"``: as many as cores)."""
+    for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+        if os.environ.get(var):
+            return os.environ[var]
+    return "default"
+
+
 def _time_call(fn: Callable[[], object], repeats: int) -> np.ndarray:
     fn()  # warm-up: first-call imports and caches are not the method's cost
     times = []
@@ -336,8 +345,16 @@ def run_bench(results_dir: Path | str, names: Sequence[str] | None = None,
     folder = Path(results_dir) / "bench"
     folder.mkdir(parents=True, exist_ok=True)
     names = list(names or [m for m in methods() if not get_method(m).needs_gyro])
+    threads = blas_threads()
+    if threads != "1" and progress:
+        # Seen in the committed calls.csv of 2026-11-23: with BLAS threads, every call above a
+        # size threshold (K ~ 1000-3000) paid a constant 15-60 ms of thread wake-up on a busy
+        # machine, which looked like nonlinear growth with K (TWOSTEP 110x from 1000 to 10000).
+        progress(f"warning: BLAS threads {threads!r}, not 1: large-K timings include thread "
+                 "start-up (python -m magbench sets 1 unless OPENBLAS_NUM_THREADS is set)")
     write_csv_atomic(bench_first_calls(names, progress=progress), folder / "first_calls.csv")
     calls = bench_calls(names, sizes, progress=progress)
+    calls["blas_threads"] = threads
     write_csv_atomic(calls, folder / "calls.csv")
     write_csv_atomic(bench_peers(), folder / "peers.csv")
     write_csv_atomic(peer_install_size(), folder / "peer_install.csv")
