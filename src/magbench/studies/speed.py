@@ -388,8 +388,11 @@ def reproduce_times(steps: Sequence[Mapping[str, object]], results_dir: Path | s
     DataFrame
         ``step, wall_s, cpu_s, cpu_per_wall, method_s, overhead_cpu_s, share_wall`` and the
         extra columns; ``overhead_cpu_s = cpu_s - method_s`` is what the step spent outside the
-        calibration calls (start-up, data, metrics, files, figures); ``share_wall`` is the
-        step's part of the total wall time.
+        calibration calls (start-up, data, metrics, files, figures) on a quiet machine. The
+        calls are timed by the wall clock, so on a busy one ``method_s`` includes waiting for
+        a CPU and the overhead can come out negative: a sign to rerun when the machine is
+        quiet (``load_1min`` records the load). ``share_wall`` is the step's part of the total
+        wall time.
     """
     table = pd.DataFrame([dict(row) for row in steps])
     if table.empty:
