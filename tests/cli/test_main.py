@@ -6,6 +6,7 @@ import pandas as pd
 import pytest
 
 from magbench.cli import main
+from magbench.cli.commands import reproduce_sweeps
 
 
 def run(*args):
@@ -87,14 +88,24 @@ def test_a_sweep_point_with_an_unknown_parameter_is_rejected(tmp_path, capsys):
 
 
 @pytest.mark.skipif(shutil.which("make") is None, reason="make is not installed")
-def test_make_reproduce_runs_every_sweep_then_the_report():
+def test_make_reproduce_runs_the_reproduce_command():
     # make never applies an implicit rule to a .PHONY target: check the real command list.
     repo = Path(__file__).resolve().parents[2]
     dry = subprocess.run(["make", "-n", "reproduce", "MAGBENCH_DATA=/data"], cwd=repo,
                          capture_output=True, text=True, check=True).stdout
-    for sweep in SWEEPS:
-        assert f"-m magbench sweep={sweep}" in dry, f"make reproduce skips sweep {sweep}"
-    assert dry.rstrip().endswith("-m magbench report")
+    assert dry.rstrip().endswith("-m magbench reproduce")
+
+
+def test_reproduce_runs_every_sweep_baseline_first():
+    sweeps = reproduce_sweeps()
+    assert sorted(sweeps) == SWEEPS and sweeps[0] == "baseline"
+
+
+def test_reproduce_checks_every_sweep_before_running_any(tmp_path, capsys):
+    # trials does not apply to the real sweep: refused before the baseline has run.
+    assert run("reproduce", "trials=2", f"data_dir={tmp_path}", f"results_dir={tmp_path}") == 2
+    assert "trials does not apply to sweep=real" in capsys.readouterr().err
+    assert not (tmp_path / "baseline").exists()
 
 
 @pytest.mark.parametrize(("vary", "message"), [

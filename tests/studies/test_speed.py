@@ -55,3 +55,36 @@ def test_report_section_reads_the_csv_files(tmp_path):
     assert "| MAG.I.C.AL | 7.5e+03 | 150 | 0.6 |" in text
     assert "speed-up 1.82x" in text
     assert bench_report_section(tmp_path / "nothing") == ""
+
+
+def test_reproduce_times_add_up_and_read_the_calls_time(tmp_path):
+    (tmp_path / "gamma").mkdir()
+    pd.DataFrame({"algorithm": ["a", "b", "a"], "time_s": [1.0, 2.0, 0.5]}).to_csv(
+        tmp_path / "gamma" / "trials.csv", index=False)
+    steps = [{"step": "start-up", "wall_s": 1.0, "cpu_s": 1.0, "load_1min": 0.1},
+             {"step": "gamma", "wall_s": 3.0, "cpu_s": 5.0, "load_1min": 0.2},
+             {"step": "report", "wall_s": 6.0, "cpu_s": 6.0, "load_1min": 0.3}]
+    table = bench.reproduce_times(steps, tmp_path, {"cpu_model": "X", "n_jobs": 2})
+    assert list(table["step"]) == ["start-up", "gamma", "report", "total"]
+    total = table.iloc[-1]
+    assert (total["wall_s"], total["cpu_s"], total["method_s"]) == (10.0, 12.0, 3.5)
+    gamma = table.iloc[1]
+    assert gamma["method_s"] == 3.5 and gamma["overhead_cpu_s"] == 1.5
+    assert gamma["cpu_per_wall"] == pytest.approx(5 / 3) and gamma["share_wall"] == 0.3
+    assert np.isnan(table.iloc[2]["method_s"])          # the report times no calls
+    assert set(table["cpu_model"]) == {"X"} and list(table["load_1min"][:3]) == [0.1, 0.2, 0.3]
+    text = bench.format_reproduce_times(table)
+    assert text.splitlines()[2].split() == ["gamma", "3.0", "5.0", "1.67", "3.5", "30%"]
+    assert text.endswith("make reproduce: 0 min 10 s wall")
+
+
+def test_requirement_closure_follows_requirements_but_not_extras():
+    closure = bench._requirement_closure(["pandas"])
+    assert {"pandas", "numpy", "python-dateutil"} <= closure
+    assert "pytest" not in closure          # pandas[test] is an extra, not a requirement
+
+
+def test_install_size_of_a_missing_peer_is_recorded_as_unknown(monkeypatch):
+    monkeypatch.setattr(bench, "PEER_PACKAGES", ("no-such-peer-package",))
+    row = bench.peer_install_size().iloc[0]
+    assert row["package"] == "no-such-peer-package" and np.isnan(row["added_mb"])

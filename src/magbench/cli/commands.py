@@ -1,4 +1,4 @@
-"""The commands: run a sweep (any kind), bench, report, calibrate, methods.
+"""The commands: run a sweep (any kind), reproduce, bench, report, calibrate, methods.
 
 A sweep command checks its config (:mod:`magbench.cli.config`), runs its study on the engine,
 writes its statistics, draws its figures and writes its report text, in that order; ``report``
@@ -7,14 +7,18 @@ redraws every figure and rewrites the report from the CSV files alone.
 
 from __future__ import annotations
 
+import os
 import sys
+import time
+from collections.abc import Sequence
 from pathlib import Path
 
 import pandas as pd
 from omegaconf import DictConfig, OmegaConf
 
-from magbench.cli.config import study_for
+from magbench.cli.config import check_common, compose_config, config_dir, study_for
 from magbench.core.files import write_csv_atomic, write_text_atomic
+from magbench.engine.record import cpu_model, cpu_seconds, git_commit, process_age_s
 from magbench.engine.sweep import run_study
 from magbench.figures.gyro import write_gyro_figure
 from magbench.figures.options import option_column, write_option_figure
@@ -31,17 +35,20 @@ from magbench.report.speed import bench_report_section
 from magbench.report.wushi import evaluate_claims, wushi_report_section
 from magbench.studies import wushi
 from magbench.studies.review import with_coverage_column
-from magbench.studies.speed import run_bench
+from magbench.studies.speed import format_reproduce_times, reproduce_times, run_bench
 
-__all__ = ["bench", "draw_figures", "report", "run"]
+__all__ = ["bench", "draw_figures", "report", "reproduce", "reproduce_sweeps", "run"]
 
 
 def _say(cfg: DictConfig, text: str) -> None:
     print(text)
 
 
-def run(cfg: DictConfig) -> int:
-    """``python -m magbench sweep=NAME``: the study, its statistics, figures and text."""
+def run(cfg: DictConfig, figures: bool = True) -> int:
+    """``python -m magbench sweep=NAME``: the study, its statistics, figures and text.
+
+    ``figures=False`` leaves the figures to a later ``report`` (as :func:`reproduce` does).
+    """
     study, common = study_for(cfg)
     out_dir = common["results_dir"] / study.name
     run_study(study, out_dir, n_jobs=common["n_jobs"], chunk_size=common["chunk_size"],
@@ -56,12 +63,13 @@ def run(cfg: DictConfig) -> int:
     if kind == "review":
         write_sweep_tables(study.name, pd.read_csv(out_dir / "summary.csv"), out_dir,
                            delta=study.delta)
-    figures = draw_sweep_figures(kind, study.name, out_dir)
+    drawn = draw_sweep_figures(kind, study.name, out_dir) if figures else []
     _write_section(kind, out_dir)
     table = next(iter(study.tables.values()))[0]
     trials = pd.read_csv(out_dir / table, usecols=["ok"])
     n_bad = int((~trials["ok"].astype(bool)).sum())
-    shown = ", ".join(p.name for p in figures) or "no figure for this sweep"
+    shown = ", ".join(p.name for p in drawn) or ("no figure for this sweep" if figures
+                                                    else "drawn by the report")
     _say(cfg, f"sweep {study.name}: {len(trials)} rows ({n_bad} not ok) -> {out_dir}/ "
               f"({table}, figures: {shown})")
     return 0
@@ -139,6 +147,62 @@ def bench(cfg: DictConfig) -> int:
     write_text_atomic(bench_report_section(common["results_dir"]), folder / "bench.md")
     print(f"benchmark written to {folder}/ (calls.csv, first_calls.csv, scaling.png, peers.csv, "
           "parallel.csv, bench.md)")
+    return 0
+
+
+#: The order of ``make reproduce``; sweeps found in ``conf/sweep/`` but not named here follow.
+REPRODUCE_ORDER = ("baseline", "gamma", "beta", "K", "sigma", "coverage", "wushi", "gyro", "real")
+
+
+def reproduce_sweeps() -> list[str]:
+    """Every sweep of ``conf/sweep/``, in :data:`REPRODUCE_ORDER` and then by name."""
+    found = sorted(p.stem for p in (config_dir() / "sweep").glob("*.yaml"))
+    return [s for s in REPRODUCE_ORDER if s in found] + [s for s in found
+                                                         if s not in REPRODUCE_ORDER]
+
+
+def reproduce(overrides: Sequence[str]) -> int:
+    """``python -m magbench reproduce`` (``make reproduce``): every sweep, then the report.
+
+    Each sweep is composed as ``sweep=NAME overwrite=true`` plus ``overrides`` and run as
+    ``python -m magbench sweep=NAME`` would run it, but all in this one process: the worker
+    processes (joblib's reusable pool) start, import magbench and load the compiled loops once
+    instead of once per sweep, and every figure is drawn once, by the report. The real sweep is
+    skipped, with a line, when no ``data_dir`` (``$MAGBENCH_DATA``) is set. The wall and CPU
+    time of each step (workers included) are printed and written to
+    ``<results_dir>/bench/reproduce_times.csv`` with the CPU model.
+    """
+    steps = [{"step": "start-up", "wall_s": process_age_s(), "cpu_s": cpu_seconds(),
+              "load_1min": os.getloadavg()[0]}]
+    cfg = compose_config(list(overrides))
+    common = check_common(cfg)
+
+    def timed(step: str, work: object) -> None:
+        wall, cpu, load = time.perf_counter(), cpu_seconds(), os.getloadavg()[0]
+        work()
+        steps.append({"step": step, "wall_s": time.perf_counter() - wall,
+                      "cpu_s": cpu_seconds() - cpu, "load_1min": load})
+
+    sweeps = []
+    for name in reproduce_sweeps():
+        sweep_cfg = compose_config([*overrides, f"sweep={name}", "overwrite=true"])
+        if sweep_cfg.sweep.get("kind") == "real" and not sweep_cfg.get("data_dir"):
+            print(f"sweep {name} skipped: set MAGBENCH_DATA to a folder of recordings "
+                  "(see README, Real data)")
+            continue
+        study_for(sweep_cfg)  # every sweep's config is checked before any of them runs
+        sweeps.append(sweep_cfg)
+    for sweep_cfg in sweeps:
+        timed(str(sweep_cfg.sweep.name), lambda c=sweep_cfg: run(c, figures=False))
+    timed("report", lambda: report(cfg))
+    machine = {"cpu_model": cpu_model(), "cpu_count": os.cpu_count(),
+               "n_jobs": common["n_jobs"], "git_commit": git_commit()}
+    table = reproduce_times(steps, common["results_dir"], machine)
+    path = common["results_dir"] / "bench" / "reproduce_times.csv"
+    write_csv_atomic(table, path)
+    print(format_reproduce_times(table))
+    print(f"per-step times written to {path} ({machine['cpu_model']}, "
+          f"{machine['cpu_count']} CPUs, n_jobs={machine['n_jobs']})")
     return 0
 
 

@@ -33,6 +33,12 @@ def _bench(cfg: DictConfig) -> int:
     return bench(cfg)
 
 
+def _reproduce(overrides: Sequence[str]) -> int:
+    from magbench.cli.commands import reproduce
+
+    return reproduce(overrides)
+
+
 def _report(cfg: DictConfig) -> int:
     from magbench.cli.commands import report
 
@@ -59,8 +65,9 @@ def _methods(cfg: DictConfig) -> int:
     return 0
 
 
-#: command -> (function, one line, example, the config keys it reads)
-COMMANDS: dict[str, tuple[Callable[[DictConfig], int], str, str, tuple[str, ...]]] = {
+#: command -> (function, one line, example, the config keys it reads); every function takes the
+#: composed config except ``reproduce``'s, which composes one per sweep from the overrides.
+COMMANDS: dict[str, tuple[Callable[..., int], str, str, tuple[str, ...]]] = {
     "run": (_run, "run one sweep (the default command)",
             "python -m magbench sweep=gamma trials=20 results_dir=/tmp/try",
             ("sweep", "trials", "seed", "n_jobs", "chunk_size", "algorithms", "options", "delta",
@@ -73,6 +80,10 @@ COMMANDS: dict[str, tuple[Callable[[DictConfig], int], str, str, tuple[str, ...]
     "apply": (_apply, "correct a recording with a saved calibration.json (m = A (y - b))",
               "python -m magbench apply calibration=cal/calibration.json file=flight.csv "
               "out=flight-corrected.csv", ("calibration", "file", "columns", "out")),
+    "reproduce": (_reproduce, "every sweep at its committed size, then the report (make "
+                  "reproduce); per-step times to results/bench/reproduce_times.csv",
+                  "python -m magbench reproduce",
+                  ("results_dir", "n_jobs", "progress", "data_dir")),
     "report": (_report, "redraw every figure and rewrite results/report.md from the CSV files",
                "python -m magbench report", ("results_dir",)),
     "bench": (_bench, "time every method, its scaling with K, peers and parallel speed-up",
@@ -221,6 +232,8 @@ def _main(argv: Sequence[str] | None) -> int:
         return 2
     previous = signal.signal(signal.SIGTERM, _terminate) if _main_thread() else None
     try:
+        if command == "reproduce":
+            return _reproduce(_plain_keys(args))
         return COMMANDS[command][0](compose_config(_plain_keys(args)))
     except (UsageError, FolderBusy, ResultsExist) as exc:
         print(f"magbench: error: {exc}", file=sys.stderr)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import os
 import platform
+import resource
 import subprocess
 import sys
 from importlib import metadata
@@ -12,7 +13,8 @@ from pathlib import Path
 
 from magbench.core.files import write_text_atomic
 
-__all__ = ["cpu_model", "git_commit", "package_versions", "write_run_record"]
+__all__ = ["cpu_model", "cpu_seconds", "git_commit", "package_versions", "process_age_s",
+           "write_run_record"]
 
 PACKAGES = ("magbench", "numpy", "scipy", "pandas", "matplotlib", "joblib", "hydra-core",
             "numba", "dask", "distributed")
@@ -27,6 +29,55 @@ def cpu_model() -> str:
     except OSError:
         pass
     return platform.processor() or platform.machine()
+
+
+def _proc_cpu_ticks(stat: str) -> tuple[int, int]:
+    """``(ppid, utime + stime + cutime + cstime)`` from the text of ``/proc/<pid>/stat``.
+
+    The command name (field 2) may hold spaces and parentheses, so the fields are counted from
+    its closing parenthesis: state, ppid, ..., utime (14), stime, cutime, cstime (17).
+    """
+    fields = stat[stat.rindex(")") + 2:].split()
+    return int(fields[1]), sum(int(v) for v in fields[11:15])
+
+
+def cpu_seconds() -> float:
+    """CPU time (user + system, seconds) of this process and all its descendants so far.
+
+    Finished descendants count through ``getrusage(RUSAGE_CHILDREN)`` once waited for; live
+    ones, such as joblib's worker pool, which outlives each sweep, are read from ``/proc``
+    (Linux; elsewhere only this process and finished children are counted). The difference of
+    two calls is the CPU time spent in between, workers included.
+    """
+    own = resource.getrusage(resource.RUSAGE_SELF)
+    done = resource.getrusage(resource.RUSAGE_CHILDREN)
+    total = own.ru_utime + own.ru_stime + done.ru_utime + done.ru_stime
+    proc = Path("/proc")
+    if not (proc / "self" / "stat").exists():
+        return total
+    parents, ticks = {}, {}
+    for stat in proc.glob("[0-9]*/stat"):
+        try:
+            parents[int(stat.parent.name)], ticks[int(stat.parent.name)] = \
+                _proc_cpu_ticks(stat.read_text())
+        except (OSError, ValueError, IndexError):
+            continue  # the process ended while the table was read
+    live, frontier = set(), {os.getpid()}
+    while frontier:
+        frontier = {pid for pid, ppid in parents.items() if ppid in frontier} - live
+        live |= frontier
+    return total + sum(ticks[pid] for pid in live) / os.sysconf("SC_CLK_TCK")
+
+
+def process_age_s() -> float:
+    """Wall time since this process started (``/proc``; NaN where it cannot be read): the
+    interpreter's start-up and imports, which a timer started in Python misses."""
+    try:
+        stat = Path("/proc/self/stat").read_text()
+        started = int(stat[stat.rindex(")") + 2:].split()[19]) / os.sysconf("SC_CLK_TCK")
+        return float(Path("/proc/uptime").read_text().split()[0]) - started
+    except (OSError, ValueError, IndexError):
+        return float("nan")
 
 
 def git_commit() -> str:

@@ -53,12 +53,13 @@ def bench_report_section(results_dir: Path | str) -> str:
                          f"{format_number(r.second_s * 1e3)} |")
     if (folder / "peers.csv").exists():
         peers = pd.read_csv(folder / "peers.csv")
-        lines += ["", "Peers on the same 20 nominal datasets (speed-up = peer time / magbench "
+        lines += ["", "Peers on the same nominal datasets (speed-up = peer time / magbench "
                   "time; J = eq. 74 after converting conventions):", "",
-                  "| peer | magbench | speed-up | peer mean J | magbench mean J | note |",
-                  "|---|---|---:|---:|---:|---|"]
+                  "| peer | K | magbench | speed-up | peer mean J | magbench mean J | note |",
+                  "|---|---:|---|---:|---:|---:|---|"]
         for r in peers.itertuples(index=False):
-            lines.append(f"| {r.peer} | {r.magbench} | "
+            K = getattr(r, "K", 300)
+            lines.append(f"| {r.peer} | {'-' if pd.isna(K) else int(K)} | {r.magbench} | "
                          f"{format_number(getattr(r, 'speedup', np.nan), 3)} | "
                          f"{format_number(getattr(r, 'peer_mean_J', np.nan))} | "
                          f"{format_number(getattr(r, 'magbench_mean_J', np.nan))} | "

@@ -10,12 +10,13 @@ text: :mod:`magbench.report.speed`).
 from __future__ import annotations
 
 import importlib.util
+import math
 import os
 import subprocess
 import sys
 import tempfile
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -27,16 +28,26 @@ from magbench.engine.sweep import run_study
 from magbench.methods.api import calibrate
 from magbench.methods.registry import get_method, methods
 from magbench.sources.synthetic import Point, make_dataset
+from magbench.studies.real import DEFAULT_MAX_SAMPLES
 from magbench.studies.review import ReviewStudy
 
 __all__ = ["SIZES", "bench_calls", "bench_first_calls", "bench_parallel", "bench_peers",
-           "run_bench"]
+           "format_reproduce_times", "peer_install_size", "reproduce_times", "run_bench"]
 
 SIZES = (50, 150, 300, 1000, 3000, 10000)
 
 
 def _datasets(K: int, n: int, seed: int) -> list:
     return [make_dataset(np.random.default_rng([seed, K, i]), Point(K=K)) for i in range(n)]
+
+
+def blas_threads() -> str:
+    """The BLAS thread setting the timings ran with (``OPENBLAS_NUM_THREADS``, else
+    ``OMP_NUM_THREADS``, else ``"default"``: as many as cores)."""
+    for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+        if os.environ.get(var):
+            return os.environ[var]
+    return "default"
 
 
 def _time_call(fn: Callable[[], object], repeats: int) -> np.ndarray:
@@ -181,33 +192,131 @@ PEERS = {  # peer -> (package, function, magbench method it is paired with)
 }
 
 
-def bench_peers(datasets: int = 20, repeats: int = 3, seed: int = 0) -> pd.DataFrame:
-    """Each installed peer against its magbench counterpart on the same nominal datasets."""
-    rows = []
-    data = _datasets(300, datasets, seed)
-    registered = set(methods())
-    for peer, (package, fn, ours) in PEERS.items():
-        if importlib.util.find_spec(package) is None or ours not in registered:
-            rows.append({"peer": peer, "magbench": ours, "note": f"{package} not installed"
-                         if ours in registered else f"{ours} not registered"})
+#: magbench's side of the calibrate comparison: the candidate ``calibrate`` would keep.
+BEST = "best"
+
+#: The peers' install cost is counted over these distributions and everything they require
+#: that magbench itself does not.
+PEER_PACKAGES = ("navlib", "magcal")
+
+
+def _requirement_closure(names: Sequence[str]) -> set[str]:
+    """The installed distributions ``names`` need, themselves included (normalised names);
+    environment markers other than extras are not evaluated (a platform-only requirement is
+    counted if it is installed)."""
+    from importlib import metadata
+    from re import split
+
+    todo, seen = [n.lower().replace("_", "-") for n in names], set()
+    while todo:
+        name = todo.pop()
+        if name in seen:
             continue
-        t_peer, t_ours, J_peer, J_ours, failures = [], [], [], [], 0
-        for d in data:
-            try:
-                T, h = fn(d.y)
-                J_peer.append(accuracy_cost(T, h, d.T, d.h)[0])
-            except Exception:
-                failures += 1
-            cal = calibrate(d.y, ours)
-            J_ours.append(accuracy_cost(cal.T, cal.h, d.T, d.h)[0])
-            t_peer.append(np.median(_time_call(lambda y=d.y, f=fn: f(y), repeats)))
-            t_ours.append(np.median(_time_call(lambda y=d.y, o=ours: calibrate(y, o), repeats)))
-        rows.append({"peer": peer, "magbench": ours, "peer_median_s": np.median(t_peer),
-                     "magbench_median_s": np.median(t_ours),
-                     "speedup": np.median(t_peer) / np.median(t_ours),
-                     "peer_mean_J": np.mean(J_peer) if J_peer else np.nan,
-                     "magbench_mean_J": np.mean(J_ours), "peer_failures": failures,
-                     "note": ""})
+        try:
+            requires = metadata.requires(name) or []
+        except metadata.PackageNotFoundError:
+            continue
+        seen.add(name)
+        todo += [split(r"[ ;<>=!~\[(]", r, maxsplit=1)[0].lower().replace("_", "-")
+                 for r in requires if "extra ==" not in r]
+    return seen
+
+
+def peer_install_size() -> pd.DataFrame:
+    """Installed size of each peer and of what it adds to a magbench installation.
+
+    ``own_mb`` is the peer's own files; ``added_mb`` and ``added_packages`` count it with every
+    distribution it requires that magbench (with its default dependencies) does not; NaN for a
+    peer that is not installed.
+    """
+    from importlib import metadata
+
+    ours = _requirement_closure(["magbench"])
+    rows = []
+    for package in PEER_PACKAGES:
+        try:
+            version = metadata.version(package)
+        except metadata.PackageNotFoundError:
+            rows.append({"package": package, "version": "", "own_mb": np.nan,
+                         "added_mb": np.nan, "added_packages": np.nan})
+            continue
+        added = sorted(_requirement_closure([package]) - ours)
+
+        def size_mb(name: str) -> float:
+            files = metadata.distribution(name).files or []
+            return sum(f.locate().stat().st_size for f in files if f.locate().exists()) / 1e6
+
+        rows.append({"package": package, "version": version, "own_mb": size_mb(package),
+                     "added_mb": sum(size_mb(n) for n in added),
+                     "added_packages": len(added), "added": " ".join(added)})
+    return pd.DataFrame(rows)
+
+
+def _best_candidate(y: np.ndarray, candidates: Sequence[str]) -> str:
+    """The candidate with the smallest RMS field-magnitude residual on ``y``: the ranking of
+    ``calibrate`` (in sample, meaningful fits alike) without its held-out split."""
+    best, best_r = candidates[0], np.inf
+    for name in candidates:
+        try:
+            cal = calibrate(y, name)
+        except Exception:
+            continue
+        r = float(np.sqrt(np.mean((np.linalg.norm(cal.apply(y), axis=1) - 1.0) ** 2)))
+        if r < best_r:
+            best, best_r = name, r
+    return best
+
+
+def bench_peers(sizes: Sequence[int] = (300, 10000), datasets: int = 20, repeats: int = 3,
+                seed: int = 0, large_datasets: int = 5) -> pd.DataFrame:
+    """Each installed peer against magbench on the same nominal datasets, per K.
+
+    Two rows per peer and K: against its counterpart (same algorithm, same samples), and
+    against ``best``, what ``python -m magbench calibrate`` does with such a recording: it
+    thins it to at most :data:`~magbench.studies.real.DEFAULT_MAX_SAMPLES` samples (every
+    ``ceil(K / 2000)``-th) and keeps the method with the smallest magnitude residual among the
+    non-variant, gyro-free ones (chosen here on the first dataset of each K, timed on all).
+    The 10 000-sample row of ``best`` is the user-facing comparison of issue 16; the peers fit
+    every sample. K above 1000 uses ``large_datasets`` datasets. A peer that is not installed
+    gives one row per K saying so (``pip install 'magbench[peers]'``).
+    """
+    rows = []
+    registered = set(methods())
+    candidates = [m for m in methods() if get_method(m).family != "variant"
+                  and not get_method(m).needs_gyro]
+    for K in sizes:
+        data = _datasets(K, datasets if K <= 1000 else large_datasets, seed)
+        stride = math.ceil(K / DEFAULT_MAX_SAMPLES)                  # calibrate's thinning
+        best = _best_candidate(data[0].y[::stride], candidates)
+        for peer, (package, fn, counterpart) in PEERS.items():
+            if importlib.util.find_spec(package) is None or counterpart not in registered:
+                rows.append({"peer": peer, "K": K, "magbench": counterpart,
+                             "note": f"{package} not installed (pip install 'magbench[peers]')"
+                             if counterpart in registered else f"{counterpart} not registered"})
+                continue
+            for ours in (counterpart, BEST):
+                name, step = (best, stride) if ours == BEST else (ours, 1)
+                t_peer, t_ours, J_peer, J_ours, failures = [], [], [], [], 0
+                for d in data:
+                    try:
+                        T, h = fn(d.y)
+                        J_peer.append(accuracy_cost(T, h, d.T, d.h)[0])
+                    except Exception:
+                        failures += 1
+                    cal = calibrate(d.y[::step], name)
+                    J_ours.append(accuracy_cost(cal.T, cal.h, d.T, d.h)[0])
+                    t_peer.append(np.median(_time_call(lambda y=d.y, f=fn: f(y), repeats)))
+                    t_ours.append(np.median(_time_call(
+                        lambda y=d.y[::step], o=name: calibrate(y, o), repeats)))
+                rows.append({"peer": peer, "K": K, "magbench": name,
+                             "peer_median_s": np.median(t_peer),
+                             "magbench_median_s": np.median(t_ours),
+                             "speedup": np.median(t_peer) / np.median(t_ours),
+                             "peer_mean_J": np.mean(J_peer) if J_peer else np.nan,
+                             "magbench_mean_J": np.mean(J_ours), "peer_failures": failures,
+                             "magbench_samples": K // step + (K % step > 0),
+                             "note": f"calibrate's choice, 1 sample in {step}"
+                             if ours == BEST else ""})
     return pd.DataFrame(rows)
 
 
@@ -231,15 +340,94 @@ def bench_parallel(trials: int = 250, algorithms: Sequence[str] | None = None,
 def run_bench(results_dir: Path | str, names: Sequence[str] | None = None,
               sizes: Sequence[int] = SIZES, parallel_trials: int = 250,
               progress: Callable[[str], None] | None = print) -> Path:
-    """Run every benchmark and write ``calls.csv``, ``first_calls.csv``, ``peers.csv`` and
-    ``parallel.csv`` under ``<results_dir>/bench``."""
+    """Run every benchmark and write ``calls.csv``, ``first_calls.csv``, ``peers.csv``,
+    ``peer_install.csv`` and ``parallel.csv`` under ``<results_dir>/bench``."""
     folder = Path(results_dir) / "bench"
     folder.mkdir(parents=True, exist_ok=True)
     names = list(names or [m for m in methods() if not get_method(m).needs_gyro])
+    threads = blas_threads()
+    if threads != "1" and progress:
+        # Seen in the committed calls.csv of 2026-11-23: with BLAS threads, every call above a
+        # size threshold (K ~ 1000-3000) paid a constant 15-60 ms of thread wake-up on a busy
+        # machine, which looked like nonlinear growth with K (TWOSTEP 110x from 1000 to 10000).
+        progress(f"warning: BLAS threads {threads!r}, not 1: large-K timings include thread "
+                 "start-up (python -m magbench sets 1 unless OPENBLAS_NUM_THREADS is set)")
     write_csv_atomic(bench_first_calls(names, progress=progress), folder / "first_calls.csv")
     calls = bench_calls(names, sizes, progress=progress)
+    calls["blas_threads"] = threads
     write_csv_atomic(calls, folder / "calls.csv")
     write_csv_atomic(bench_peers(), folder / "peers.csv")
+    write_csv_atomic(peer_install_size(), folder / "peer_install.csv")
     if parallel_trials:
         write_csv_atomic(bench_parallel(parallel_trials, names), folder / "parallel.csv")
     return folder
+
+
+# --- make reproduce: where its time goes, per sweep ------------------------------------------
+
+def reproduce_times(steps: Sequence[Mapping[str, object]], results_dir: Path | str,
+                    machine: Mapping[str, object] | None = None) -> pd.DataFrame:
+    """Per-step table of one ``make reproduce`` run, with a ``total`` row.
+
+    Parameters
+    ----------
+    steps : sequence of mappings
+        One per step in the order run, each with ``step`` (a sweep's folder name or
+        ``report``), ``wall_s`` and ``cpu_s`` (this process and its workers, see
+        :func:`magbench.engine.record.cpu_seconds`); other keys (the load average, say) are
+        kept as columns.
+    results_dir : path
+        Where the sweeps wrote their tables: ``method_s``, the sum of the timed calibration
+        calls (column ``time_s`` of ``<step>/trials.csv``), is read from there; NaN for steps
+        without one (the report, the Wu-Shi study).
+    machine : mapping, optional
+        Columns repeated on every row (CPU model, core count, workers, commit).
+
+    Returns
+    -------
+    DataFrame
+        ``step, wall_s, cpu_s, cpu_per_wall, method_s, overhead_cpu_s, share_wall`` and the
+        extra columns; ``overhead_cpu_s = cpu_s - method_s`` is what the step spent outside the
+        calibration calls (start-up, data, metrics, files, figures) on a quiet machine. The
+        calls are timed by the wall clock, so on a busy one ``method_s`` includes waiting for
+        a CPU and the overhead can come out negative: a sign to rerun when the machine is
+        quiet (``load_1min`` records the load). ``share_wall`` is the step's part of the total
+        wall time.
+    """
+    table = pd.DataFrame([dict(row) for row in steps])
+    if table.empty:
+        table = pd.DataFrame(columns=["step", "wall_s", "cpu_s"])
+    method = []
+    for step in table["step"]:
+        path = Path(results_dir) / str(step) / "trials.csv"
+        try:
+            method.append(float(pd.read_csv(path, usecols=["time_s"])["time_s"].sum()))
+        except (OSError, ValueError):  # no such table, or one without timed calls
+            method.append(np.nan)
+    table["method_s"] = method
+    total = {"step": "total", "wall_s": table["wall_s"].sum(), "cpu_s": table["cpu_s"].sum(),
+             "method_s": table["method_s"].sum(min_count=1)}
+    table = pd.concat([table, pd.DataFrame([total])], ignore_index=True)
+    table["cpu_per_wall"] = table["cpu_s"] / table["wall_s"]
+    table["overhead_cpu_s"] = table["cpu_s"] - table["method_s"]
+    table["share_wall"] = table["wall_s"] / total["wall_s"] if total["wall_s"] else np.nan
+    for key, value in (machine or {}).items():
+        table[key] = value
+    first = ["step", "wall_s", "cpu_s", "cpu_per_wall", "method_s", "overhead_cpu_s",
+             "share_wall"]
+    return table[first + [c for c in table.columns if c not in first]]
+
+
+def format_reproduce_times(table: pd.DataFrame) -> str:
+    """The table of :func:`reproduce_times` as aligned text lines (what ``reproduce`` prints)."""
+    lines = [f"{'step':<12}{'wall s':>9}{'CPU s':>9}{'CPU/wall':>10}{'in calls s':>12}"
+             f"{'share':>8}"]
+    for row in table.itertuples():
+        method = "-" if pd.isna(row.method_s) else f"{row.method_s:.1f}"
+        lines.append(f"{row.step!s:<12}{row.wall_s:>9.1f}{row.cpu_s:>9.1f}"
+                     f"{row.cpu_per_wall:>10.2f}{method:>12}{row.share_wall:>8.0%}")
+    total = table[table["step"] == "total"]
+    if len(total):
+        minutes, seconds = divmod(float(total["wall_s"].iloc[0]), 60)
+        lines.append(f"make reproduce: {int(minutes)} min {seconds:.0f} s wall")
+    return "\n".join(lines)

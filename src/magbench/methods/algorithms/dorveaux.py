@@ -37,21 +37,25 @@ def iterate(y: np.ndarray, max_iter: int, tol: float
         The last ``J_stop`` (29).
     """
     K = y.shape[0]
-    m = y.copy()                                                   # (24)
+    # Coordinates as contiguous rows (3, K): the per-sample loops below then vectorise.
+    m = np.ascontiguousarray(y.T)                                  # (24)
     target = np.empty_like(m)
+    m0, m1, m2, t0, t1, t2 = m[0], m[1], m[2], target[0], target[1], target[2]
     A_total, B_total = np.eye(3), np.zeros(3)
     it, J_stop = 0, np.inf
     while it < max_iter and J_stop > tol:
         it += 1
         for k in range(K):
-            norm = np.sqrt(m[k, 0] * m[k, 0] + m[k, 1] * m[k, 1] + m[k, 2] * m[k, 2])
-            for j in range(3):
-                target[k, j] = m[k, j] / norm
+            norm = np.sqrt(m0[k] * m0[k] + m1[k] * m1[k] + m2[k] * m2[k])
+            t0[k] = m0[k] / norm
+            t1[k] = m1[k] / norm
+            t2[k] = m2[k] / norm
         A, B = fit_affine(m, target)                               # minimise (25)
         for k in range(K):                                         # (26), in place
-            m0, m1, m2 = m[k, 0], m[k, 1], m[k, 2]
-            for i in range(3):
-                m[k, i] = A[i, 0] * m0 + A[i, 1] * m1 + A[i, 2] * m2 + B[i]
+            a0, a1, a2 = m0[k], m1[k], m2[k]
+            m0[k] = A[0, 0] * a0 + A[0, 1] * a1 + A[0, 2] * a2 + B[0]
+            m1[k] = A[1, 0] * a0 + A[1, 1] * a1 + A[1, 2] * a2 + B[1]
+            m2[k] = A[2, 0] * a0 + A[2, 1] * a1 + A[2, 2] * a2 + B[2]
         A_total, B_total = A @ A_total, A @ B_total + B            # (28)
         J_stop = np.sqrt(np.sum(B * B)) + np.sqrt(np.sum((A - np.eye(3)) ** 2))   # (29)
     return A_total, B_total, it, J_stop

@@ -49,28 +49,31 @@ def iterate(y: np.ndarray, max_iter: int, tol: float, rtol: float, xtol: float =
         The last cost (65).
     """
     K = y.shape[0]
-    m = np.empty_like(y)
-    m_tilde = np.empty_like(y)
+    # Coordinates as contiguous rows (3, K): the per-sample loops below then vectorise.
+    yc = np.ascontiguousarray(y.T)
+    m = np.empty_like(yc)
+    m_tilde = np.empty_like(yc)
+    y0, y1, y2, m0, m1, m2 = yc[0], yc[1], yc[2], m[0], m[1], m[2]
+    u0, u1, u2 = m_tilde[0], m_tilde[1], m_tilde[2]
     for k in range(K):                                             # (59)
-        norm = np.sqrt(y[k, 0] ** 2 + y[k, 1] ** 2 + y[k, 2] ** 2)
-        for j in range(3):
-            m[k, j] = y[k, j] / norm
+        norm = np.sqrt(y0[k] ** 2 + y1[k] ** 2 + y2[k] ** 2)
+        m0[k], m1[k], m2[k] = y0[k] / norm, y1[k] / norm, y2[k] / norm
     previous = np.inf
     T, h, J = np.eye(3), np.zeros(3), np.inf
     for it in range(1, max_iter + 1):
         T_previous, h_previous = T, h
-        T, h = fit_affine(m, y)                                    # (62), (61b)
+        T, h = fit_affine(m, yc)                                   # (62), (61b)
         # (64) for all k at once; one 3x3 inverse and a product beat a K-right-hand-side solve
         # (profiled: the solve was 40 % of the run time) and T is well conditioned here.
         T_inv = np.linalg.inv(T)
         for k in range(K):
-            u0, u1, u2 = y[k, 0] - h[0], y[k, 1] - h[1], y[k, 2] - h[2]
-            for i in range(3):
-                m_tilde[k, i] = T_inv[i, 0] * u0 + T_inv[i, 1] * u1 + T_inv[i, 2] * u2
-            norm = np.sqrt(m_tilde[k, 0] ** 2 + m_tilde[k, 1] ** 2 + m_tilde[k, 2] ** 2)
-            for i in range(3):                                     # (63)
-                m[k, i] = m_tilde[k, i] / norm
-        J = cost(m_tilde)                                          # (65)
+            d0, d1, d2 = y0[k] - h[0], y1[k] - h[1], y2[k] - h[2]
+            u0[k] = T_inv[0, 0] * d0 + T_inv[0, 1] * d1 + T_inv[0, 2] * d2
+            u1[k] = T_inv[1, 0] * d0 + T_inv[1, 1] * d1 + T_inv[1, 2] * d2
+            u2[k] = T_inv[2, 0] * d0 + T_inv[2, 1] * d1 + T_inv[2, 2] * d2
+            norm = np.sqrt(u0[k] ** 2 + u1[k] ** 2 + u2[k] ** 2)
+            m0[k], m1[k], m2[k] = u0[k] / norm, u1[k] / norm, u2[k] / norm     # (63)
+        J = cost(m_tilde.T)                                        # (65)
         if J <= tol:
             return T, h, it, True, J
         if it > 1 and abs(previous - J) <= rtol * previous:
