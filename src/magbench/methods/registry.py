@@ -11,6 +11,7 @@ import inspect
 from collections.abc import Callable
 from dataclasses import dataclass
 
+from magbench.core.crb import MODEL_PARAMETERS
 from magbench.core.model import Calibration
 
 __all__ = ["DISPLAY_ORDER", "MODEL_PARAMETERS", "Method", "get_method", "methods", "register", "unregister"]
@@ -22,10 +23,6 @@ DISPLAY_ORDER = (
     "wu_shi_nm", "ellipsoid", "fang", "diagonal", "sphere", "twostep_hi",
     "vasconcelos_printed", "wu_shi_printed",
 )
-
-#: Free parameters of each model of ``y = T m + h`` (``T`` modulo a rotation for ``full``):
-#: what "simplest" means when ``calibrate`` chooses among methods that tie.
-MODEL_PARAMETERS = {"full": 9, "diagonal": 6, "sphere": 4, "bias": 3}
 
 
 @dataclass(frozen=True)
