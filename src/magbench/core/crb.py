@@ -38,8 +38,8 @@ from functools import cache
 
 import numpy as np
 
-__all__ = ["CRB", "crb_covariance", "crb_mse", "efficient_expected_J", "fisher_information",
-           "gauge_basis", "MODEL_PARAMETERS", "model_basis", "parameter_covariance"]
+__all__ = ["CRB", "MODEL_PARAMETERS", "crb_covariance", "crb_mse", "efficient_expected_J",
+           "fisher_information", "gauge_basis", "model_basis", "parameter_covariance"]
 
 #: Free parameters of each model of ``y = T m + h`` (``T`` modulo a rotation for ``full``):
 #: the columns of :func:`model_basis`.

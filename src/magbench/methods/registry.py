@@ -14,7 +14,8 @@ from dataclasses import dataclass
 from magbench.core.crb import MODEL_PARAMETERS
 from magbench.core.model import Calibration
 
-__all__ = ["DISPLAY_ORDER", "MODEL_PARAMETERS", "Method", "get_method", "methods", "register", "unregister"]
+__all__ = ["DISPLAY_ORDER", "MODEL_PARAMETERS", "Method", "get_method", "methods", "register",
+           "unregister"]
 
 #: Display order of the registered methods: the review's seven in its order of presentation,
 #: then the extra methods. Names not listed sort after these, alphabetically.

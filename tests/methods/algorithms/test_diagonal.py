@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+
 import magbench
 from magbench.core.geometry import fibonacci_sphere
 from magbench.methods.algorithms.diagonal import _algebraic_start, fit
