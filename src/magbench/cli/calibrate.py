@@ -241,7 +241,7 @@ def run_calibrate(cfg: DictConfig) -> int:
     written = ["calibration.json (m = A (y - b))", *_write_exports(Calibration(T, h), payload,
                                                                   out)]
     write_csv_atomic(result.ranked, out / "ranking.csv")
-    save_figure(_picture(result, payload), out / "calibration.png")
+    save_figure(_picture(result, payload), out / "calibration.png", dpi=PICTURE_DPI)
     print(f"choice: {result.how}")
     print(f"chosen: {payload['label']} ({payload['model']} model)")
     print("\n".join(_verdict_lines(payload)))
@@ -273,6 +273,8 @@ def _write_exports(cal: Calibration, payload: dict, out: Path) -> list[str]:
 
 #: Samples drawn in the picture: enough to show the shape, few enough to draw fast.
 PICTURE_SAMPLES = 1500
+#: Resolution of the picture (the sweeps' figures use 110; PNG encoding grows with its square).
+PICTURE_DPI = 90
 
 
 def _picture(result: CalibrationResult, payload: dict):

@@ -120,8 +120,11 @@ def calibration_picture(before: np.ndarray, after: np.ndarray, title: str = "", 
     uncovered cap (centre ``gap_centre``, radius ``gap_deg``) outlined.
     """
     rows = 3 if directions is not None else 2
-    fig = new_figure(11, 3.75 * rows)
-    grid = fig.add_gridspec(rows, 3)
+    # A fixed layout: the constrained one measures every tick label and took half the time
+    # of drawing this figure (calibrate's speed target includes the picture).
+    fig = new_figure(11, 3.6 * rows, layout=None)
+    grid = fig.add_gridspec(rows, 3, left=0.07, right=0.97, bottom=0.06, top=0.93,
+                            hspace=0.35, wspace=0.3)
     circle = np.linspace(0, 2 * np.pi, 361)
     pairs = [(0, 1, "x", "y"), (0, 2, "x", "z"), (1, 2, "y", "z")]
     good = np.ones(len(before), bool) if inliers is None else np.asarray(inliers, bool)
@@ -139,6 +142,8 @@ def calibration_picture(before: np.ndarray, after: np.ndarray, title: str = "", 
             ax.plot([0], [0], "+", color="black")
             ax.set_xlim(-lim, lim)
             ax.set_ylim(-lim, lim)
+            ax.set_xticks([-1, 0, 1])        # few tick labels: text is most of the drawing time
+            ax.set_yticks([-1, 0, 1])
             ax.set_aspect("equal")
             ax.set_xlabel(a)
             ax.set_ylabel(b)
@@ -161,8 +166,8 @@ def calibration_picture(before: np.ndarray, after: np.ndarray, title: str = "", 
             ax.plot([clon], [clat], "*", ms=10, color="crimson")
         ax.set_xlim(-180, 180)
         ax.set_ylim(-90, 90)
-        ax.set_xticks(range(-180, 181, 45))
-        ax.set_yticks(range(-90, 91, 30))
+        ax.set_xticks(range(-180, 181, 90))
+        ax.set_yticks(range(-90, 91, 45))
         ax.grid(alpha=0.3)
         ax.set_xlabel("longitude in the sensor's axes (deg, from +X toward +Y)")
         ax.set_ylabel("latitude (deg, toward +Z)")

@@ -70,8 +70,9 @@ def method_style(name: str) -> MethodStyle:
 
 
 def new_figure(width: float, height: float, **kwargs: object) -> Figure:
-    """A bare Figure with the constrained layout every magbench figure uses."""
-    return Figure(figsize=(width, height), layout="constrained", **kwargs)
+    """A bare Figure with the constrained layout every magbench figure uses (``layout=None``
+    for a figure that places its axes itself)."""
+    return Figure(figsize=(width, height), **{"layout": "constrained", **kwargs})
 
 
 def save_figure(fig: Figure, path: Path | str, dpi: int = DPI) -> Path:
