@@ -390,7 +390,7 @@ def calibrate_recording(rec: Recording, candidates: Sequence[str], *,
             f"{'45' if gap > THIN_GAP_DEG else '60'} deg); chosen model: {model} "
             f"({MODEL_PARAMETERS[model]} parameters); the result cannot be trusted beyond "
             "the directions recorded")
-    elif named and not allowed(name, gap):
+    elif named and model == "full" and not allowed(name, gap):
         result.warnings.append(f"{name} fits a {model} model, which the coverage sweep found "
                                f"unreliable with a {gap:.0f} deg gap in coverage")
     return result
