@@ -46,6 +46,7 @@ def spiky(seed: int, K: int = 1000, share: float = 0.05):
 def test_robust_sphere_fit_sets_aside_10x_spikes_and_nothing_else(seed):
     y, bad = spiky(seed)
     centre, radius, inliers = robust_sphere_fit(y)
+    assert radius > 0
     assert set(np.flatnonzero(~inliers)) == set(bad)
     np.testing.assert_allclose(centre, [2.0, -1.0, 0.5], atol=0.05)
 

@@ -190,3 +190,4 @@ def test_a_refused_fit_passes_the_choice_to_the_next_of_the_tie():
     assert second is not None and second["algorithm"] != first["algorithm"]
     note = ranked.set_index("algorithm").loc[first["algorithm"], "note"]
     assert note == "refused: test refusal"
+    assert f"chosen {second['algorithm']}" in how

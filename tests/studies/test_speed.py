@@ -55,3 +55,9 @@ def test_report_section_reads_the_csv_files(tmp_path):
     assert "| MAG.I.C.AL | 7.5e+03 | 150 | 0.6 |" in text
     assert "speed-up 1.82x" in text
     assert bench_report_section(tmp_path / "nothing") == ""
+
+
+def test_bench_calibrate_reads_the_commands_own_time_from_fresh_processes():
+    out = bench.bench_calibrate(K=300, repeats=1)
+    assert out[["K", "run"]].values.tolist() == [[300, 1]]
+    assert 0 < out["command_s"].iloc[0] < out["process_s"].iloc[0]

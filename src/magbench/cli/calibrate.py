@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import json
 import sys
+import time
 import warnings
 from pathlib import Path
 
@@ -177,6 +178,7 @@ def _table(ranked: pd.DataFrame) -> str:
 
 def run_calibrate(cfg: DictConfig) -> int:
     """The ``calibrate`` command; a bad file or value raises :class:`UsageError`."""
+    start = time.perf_counter()
     common = check_common(cfg)
     if not cfg.get("file"):
         raise UsageError("calibrate needs file=PATH, a CSV of magnetometer samples (columns "
@@ -247,7 +249,8 @@ def run_calibrate(cfg: DictConfig) -> int:
     print("\n".join(_verdict_lines(payload)))
     for warning in payload["warnings"]:
         print(f"magbench: warning: {warning}", file=sys.stderr)
-    print(f"wrote {out}/: {', '.join([*written, 'ranking.csv', 'calibration.png'])}")
+    print(f"wrote {out}/: {', '.join([*written, 'ranking.csv', 'calibration.png'])} "
+          f"(in {time.perf_counter() - start:.2f} s)")
     return 0
 
 
