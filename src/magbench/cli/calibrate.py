@@ -146,13 +146,14 @@ def _verdict_lines(payload: dict) -> list[str]:
                                                    for i in range(3))
                      + f", off-diagonal +- {max(Ah[0, 1], Ah[0, 2], Ah[1, 2]):.2g} at most")
     bs = payload["bootstrap"]
-    if bs and bs.get("ratio_A_median") is not None:
+    if bs:
+        a_part = (f"; A median {bs['ratio_A_median']:.2f} (range {bs['ratio_A_range'][0]:.2f}"
+                  f"-{bs['ratio_A_range'][1]:.2f})" if bs["ratio_A_median"] is not None else "")
         lines.append(f"bootstrap check ({bs['replicates']} refits on resampled samples): "
                      "bootstrap / Fisher half-widths, b " + ", ".join(
                          f"{r:.2f}" for r in bs["ratio_h"])
-                     + f"; A median {bs['ratio_A_median']:.2f} (range "
-                     f"{bs['ratio_A_range'][0]:.2f}-{bs['ratio_A_range'][1]:.2f}); well above 1 "
-                     "means the noise is not independent or the model misses something")
+                     + a_part + "; well above 1 means the noise is not independent or the "
+                     "model misses something")
     return lines
 
 
