@@ -29,8 +29,8 @@ from magbench.methods.registry import get_method, methods
 from magbench.sources.synthetic import Point, make_dataset
 from magbench.studies.review import ReviewStudy
 
-__all__ = ["SIZES", "bench_calibrate", "bench_calls", "bench_first_calls", "bench_parallel", "bench_peers",
-           "run_bench"]
+__all__ = ["SIZES", "bench_calibrate", "bench_calls", "bench_first_calls", "bench_parallel",
+           "bench_peers", "run_bench"]
 
 SIZES = (50, 150, 300, 1000, 3000, 10000)
 
