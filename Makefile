@@ -5,7 +5,7 @@ VENV ?= .venv
 MAGBENCH_DATA ?= $(if $(wildcard ../shared/data/real),$(abspath ../shared/data/real),)
 export MAGBENCH_DATA
 
-SWEEPS := baseline gamma beta K sigma coverage wushi gyro real
+SWEEPS := baseline gamma beta K sigma coverage p0 wushi gyro real
 
 SWEEP_TARGETS := $(addprefix sweep-,$(SWEEPS))
 

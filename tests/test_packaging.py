@@ -2,8 +2,14 @@
 
 from __future__ import annotations
 
+import os
+import shutil
+import subprocess
+import sys
 import tomllib
 from pathlib import Path
+
+import pytest
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -24,3 +30,37 @@ def test_the_configuration_is_package_data():
     for package in ("magbench.conf", "magbench.conf.sweep"):
         folder = REPO / package.replace("magbench.conf", "conf").replace(".", "/")
         assert data[package] == ["*.yaml"] and list(folder.glob("*.yaml"))
+
+
+def test_a_built_wheel_runs_a_sweep_from_another_folder(tmp_path):
+    """A non-editable install (the wheel, not src/) finds its configs from any folder."""
+    pip = [sys.executable, "-m", "pip"]
+    # Build from a copy: setuptools writes build/ and *.egg-info beside the sources.
+    source = tmp_path / "source"
+    skip = shutil.ignore_patterns("__pycache__", "*.egg-info", "build")
+    for part in ("src", "conf"):
+        shutil.copytree(REPO / part, source / part, ignore=skip)
+    for part in ("pyproject.toml", "README.md"):
+        shutil.copy(REPO / part, source / part)
+    built = subprocess.run([*pip, "wheel", "-q", "--no-deps", "-w", str(tmp_path / "w"),
+                            str(source)], capture_output=True, text=True, timeout=300)
+    if built.returncode != 0 and any(s in built.stderr.lower() for s in
+                                     ("connection", "could not find a version", "network")):
+        pytest.skip("building the wheel needs setuptools from the package index")
+    assert built.returncode == 0, built.stderr[-2000:]
+    wheel = next((tmp_path / "w").glob("magbench-*.whl"))
+    site = tmp_path / "site"
+    subprocess.run([*pip, "install", "-q", "--no-deps", "--target", str(site), str(wheel)],
+                   check=True, capture_output=True, timeout=300)
+    away = tmp_path / "elsewhere"
+    away.mkdir()
+    env = {**os.environ, "PYTHONPATH": str(site)}
+    probe = subprocess.run([sys.executable, "-c", "import magbench; print(magbench.__file__)"],
+                           cwd=away, env=env, capture_output=True, text=True, check=True)
+    assert Path(probe.stdout.strip()).is_relative_to(site)  # the wheel's copy, not src/
+    run = subprocess.run([sys.executable, "-m", "magbench", "sweep=baseline", "trials=2",
+                          "algorithms=[sphere]", "n_jobs=1", "progress=false",
+                          f"results_dir={tmp_path / 'r'}"],
+                         cwd=away, env=env, capture_output=True, text=True, timeout=300)
+    assert run.returncode == 0, run.stderr
+    assert (tmp_path / "r" / "baseline" / "trials.csv").is_file()

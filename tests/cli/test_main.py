@@ -70,11 +70,15 @@ def test_every_sweep_config_composes_and_runs(sweep, tmp_path):
     cfg = compose_config([f"sweep={sweep}"])
     if cfg.sweep.get("kind"):
         pytest.skip(f"sweep {sweep} is of kind {cfg.sweep.kind}, tested with its own module")
+    vary = str(cfg.sweep.get("vary"))
+    # an option axis (options.<method>.<option>) needs its method, which also runs at its default
+    method = vary.split(".")[1] if vary.startswith("options.") else "magical"
     assert run(f"sweep={sweep}", "trials=2", f"results_dir={tmp_path}", "progress=false",
-               "n_jobs=1", "algorithms=[magical]", "nominal.K=30") == 0
+               "n_jobs=1", f"algorithms=[{method}]", "nominal.K=30") == 0
     summary = pd.read_csv(tmp_path / sweep / "summary.csv")
     values = cfg.sweep.get("values") or cfg.sweep.get("points") or [None]
-    assert len(summary) == len(values) and (summary["n"] == 2).all()
+    extra = 1 if vary.startswith("options.") else 0
+    assert len(summary) == len(values) + extra and (summary["n"] == 2).all()
 
 
 def test_a_sweep_point_with_an_unknown_parameter_is_rejected(tmp_path, capsys):
@@ -91,3 +95,15 @@ def test_make_reproduce_runs_every_sweep_then_the_report():
     for sweep in SWEEPS:
         assert f"-m magbench sweep={sweep}" in dry, f"make reproduce skips sweep {sweep}"
     assert dry.rstrip().endswith("-m magbench report")
+
+
+@pytest.mark.parametrize(("vary", "message"), [
+    ("options.crassidis.nope", "crassidis has no option 'nope'; it accepts: theta0, P0"),
+    ("options.magical.max_iter", "names 'magical', which is not among the selected"),
+    ("options.crassidis", "an option axis is written options.<method>.<option>"),
+])
+def test_a_bad_option_axis_stops_with_one_line_and_status_2(vary, message, tmp_path, capsys):
+    assert run("sweep=p0", f"sweep.vary={vary}", f"results_dir={tmp_path}") == 2
+    err = capsys.readouterr().err
+    assert err.startswith("magbench: error: ") and message in err and err.count("\n") == 1
+    assert not (tmp_path / "p0").exists()

@@ -103,3 +103,23 @@ def test_methods_with_an_assumed_noise_level_get_the_true_one():
     finally:
         unregister("test_sigma")
     assert seen == [0.03, 0.1, 0.005]
+
+
+def test_an_option_axis_runs_the_method_per_value_on_the_same_dataset(tmp_path):
+    from magbench.studies.review import OptionAxis
+
+    axis = OptionAxis.parse("options.crassidis.P0", [1e-6, 1e-3])
+    study = ReviewStudy("p0", [Point()], 3, 5, ["crassidis", "sphere"], axis=axis)
+    run_study(study, tmp_path, n_jobs=1, progress=False)
+    summary = study.summarize(tmp_path)
+    trials = read_trials(tmp_path / "trials.csv")
+    assert list(trials.columns) == [*ROW_COLUMNS, "crassidis.P0"]
+    first = trials[trials["trial"] == 0]
+    # default run, the other method (no value), then one row per value, all on one dataset
+    assert list(first["algorithm"]) == ["crassidis", "sphere", "crassidis", "crassidis"]
+    assert first["crassidis.P0"].isna().tolist() == [True, True, False, False]
+    assert first["J0"].nunique() == 1
+    # a tighter P0 keeps the EKF closer to its start: a different estimate
+    assert first["T_00"].iloc[2] != first["T_00"].iloc[3]
+    assert len(summary) == 4 and summary["n"].eq(3).all()
+    assert summary["crassidis.P0"].isna().sum() == 2

@@ -17,6 +17,7 @@ from magbench.cli.config import study_for
 from magbench.core.files import write_csv_atomic, write_text_atomic
 from magbench.engine.sweep import run_study
 from magbench.figures.gyro import write_gyro_figure
+from magbench.figures.options import option_column, write_option_figure
 from magbench.figures.real import figure6
 from magbench.figures.speed import plot_scaling
 from magbench.figures.style import save_figure
@@ -70,9 +71,13 @@ def draw_sweep_figures(kind: str, name: str, out_dir: Path) -> list[Path]:
     """Draw the figures of one sweep from its CSV files; the paths written."""
     out_dir = Path(out_dir)
     if kind == "review":
-        if name not in FIGURES or not (out_dir / "summary.csv").exists():
+        if not (out_dir / "summary.csv").exists():
             return []
         summary = pd.read_csv(out_dir / "summary.csv")
+        if option_column(summary):       # a method-option sweep (vary: options.<m>.<option>)
+            return [write_option_figure(summary, out_dir, name)]
+        if name not in FIGURES:
+            return []
         if name == "coverage":
             summary = with_coverage_column(summary)
         return list(write_figure(summary, name, out_dir))[:1]
@@ -105,7 +110,8 @@ def _write_section(kind: str, out_dir: Path) -> None:
 
 #: Result folders and their sweep kinds, as ``make reproduce`` writes them.
 SWEEP_FOLDERS = {"gamma": "review", "beta": "review", "K": "review", "sigma": "review",
-                 "coverage": "review", "gyro": "gyro", "real": "real", "wushi": "wushi"}
+                 "coverage": "review", "p0": "review", "gyro": "gyro", "real": "real",
+                 "wushi": "wushi"}
 
 
 def draw_figures(results_dir: Path | str) -> list[Path]:

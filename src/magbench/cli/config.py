@@ -21,7 +21,7 @@ from magbench.sources.recordings import data_dir, list_recordings
 from magbench.sources.synthetic import Point
 from magbench.studies.gyro import DEFAULT_COVERAGES, GyroPoint, GyroStudy
 from magbench.studies.real import DEFAULT_MAX_SAMPLES, PREPROCESSING, RealStudy
-from magbench.studies.review import POINT_COLUMNS, ReviewStudy, point_with
+from magbench.studies.review import POINT_COLUMNS, OptionAxis, ReviewStudy, point_with
 from magbench.studies.wushi import ML, NM, WuShiStudy
 
 __all__ = ["KINDS", "UsageError", "check_common", "check_integer", "check_number",
@@ -222,12 +222,17 @@ def review_study(cfg: DictConfig) -> tuple[ReviewStudy, dict]:
     base = _nominal(cfg, min_k)
     sweep = cfg.sweep
     vary = sweep.get("vary")
-    if vary is not None and vary not in POINT_COLUMNS:
-        raise UsageError(f"sweep.vary must be one of {', '.join(POINT_COLUMNS)} or null, got "
-                         f"{vary!r}")
-    values = list(sweep.get("values") or [])
+    values = list(_plain(sweep.get("values")) or [])
     if vary and not values:
         raise UsageError(f"sweep {sweep.name!r} varies {vary} but lists no values")
+    axis = None
+    if isinstance(vary, str) and vary.startswith("options."):
+        # A method's option varied on the same datasets, at the nominal point.
+        axis = _option_axis(vary, values, algorithms)
+        vary = None
+    if vary is not None and vary not in POINT_COLUMNS:
+        raise UsageError(f"sweep.vary must be one of {', '.join(POINT_COLUMNS)}, "
+                         f"options.<method>.<option> or null, got {vary!r}")
     # A sweep either varies one parameter over `values`, or lists its points explicitly as
     # changes to the nominal point (`points: [{cap_deg: 90}, {band_deg: 10}]`).
     changes = ([{vary: v} for v in values] if vary else
@@ -242,8 +247,27 @@ def review_study(cfg: DictConfig) -> tuple[ReviewStudy, dict]:
     study = ReviewStudy(str(sweep.name), [point_with(base, c) for c in changes],
                         _trials(cfg, f"sweep {sweep.name}"), common["seed"], algorithms,
                         check_options(cfg, algorithms), common["delta"],
-                        common["call_timeout_s"], common["plugins"])
+                        common["call_timeout_s"], common["plugins"], axis)
     return study, common
+
+
+def _option_axis(vary: str, values: list, algorithms: Sequence[str]) -> OptionAxis:
+    """The :class:`OptionAxis` of ``sweep.vary=options.<method>.<option>``, checked."""
+    try:
+        axis = OptionAxis.parse(vary, values)
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
+    if axis.method not in algorithms:
+        raise UsageError(f"sweep.vary {vary} names {axis.method!r}, which is not among the "
+                         f"selected algorithms ({', '.join(algorithms)})")
+    accepted = get_method(axis.method).option_names()
+    if axis.option not in accepted:
+        raise UsageError(f"sweep.vary {vary}: {axis.method} has no option {axis.option!r}; it "
+                         f"accepts: {', '.join(accepted) or 'no options'}")
+    if any(v is None or isinstance(v, bool | dict) for v in values):
+        raise UsageError(f"sweep.values of {vary} must be numbers, strings or lists, got "
+                         f"{values!r}")
+    return axis
 
 
 def gyro_study(cfg: DictConfig) -> tuple[GyroStudy, dict]:

@@ -7,6 +7,7 @@ needs no ``+``).
 
 from __future__ import annotations
 
+import os
 import re
 import signal
 import sys
@@ -108,15 +109,20 @@ def methods_table() -> str:
 
     from magbench.methods.registry import get_method, methods
 
-    lines = [f"{'name':<20}{'label':<40}{'family':<9}{'gyro':<6}{'min K':<7}options (defaults)"]
-    for name in methods():
+    names = methods()
+    # Columns as wide as their longest entry: a label is never cut.
+    wn = max(len(n) for n in names) + 2
+    wl = max(len(get_method(n).label) for n in names) + 2
+    lines = [f"{'name':<{wn}}{'label':<{wl}}{'family':<9}{'gyro':<6}{'min K':<7}"
+             "options (defaults)"]
+    for name in names:
         spec = get_method(name)
         params = inspect.signature(spec.fit).parameters
         opts = ", ".join(f"{o}={params[o].default!r}" if params[o].default is not
                          inspect.Parameter.empty else o for o in spec.option_names()
                          if o not in ("angular_rate", "time"))
         ref = f" [Table 2: {spec.paper_key}]" if spec.paper_key else ""
-        lines.append(f"{name:<20}{spec.label[:38]:<40}{spec.family:<9}"
+        lines.append(f"{name:<{wn}}{spec.label:<{wl}}{spec.family:<9}"
                      f"{'yes' if spec.needs_gyro else 'no':<6}{spec.min_samples:<7}"
                      f"{opts or '-'}{ref}")
     return "\n".join(lines)
@@ -183,6 +189,16 @@ def _plain_keys(args: list[str]) -> list[str]:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of ``python -m magbench`` and the ``magbench`` script."""
+    try:
+        return _main(argv)
+    except BrokenPipeError:
+        # The reader went away (``magbench methods | head``): not an error worth a traceback.
+        # Point stdout at /dev/null so the interpreter's final flush cannot raise again.
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 128 + signal.SIGPIPE
+
+
+def _main(argv: Sequence[str] | None) -> int:
     from magbench.engine.sweep import FolderBusy, ResultsExist
 
     args = list(sys.argv[1:] if argv is None else argv)

@@ -93,7 +93,8 @@ def summarize(trials: pd.DataFrame, by: list[str]) -> pd.DataFrame:
         return pd.Series(row)
 
     columns = ["meaningful", "J", "time_s"] + (["sq_err", "crb", "crb_J"] if with_crb else [])
-    out = trials.groupby(by, sort=False)[columns].apply(one)
+    # dropna=False: an empty grouping value (an option axis's default run) is a group too.
+    out = trials.groupby(by, sort=False, dropna=False)[columns].apply(one)
     out = out.reset_index()
     out["n"] = out["n"].astype(int)
     out["n_meaningful"] = out["n_meaningful"].astype(int)

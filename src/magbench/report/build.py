@@ -20,6 +20,7 @@ from magbench.report.format import md_table as _md_table
 from magbench.report.gyro import gyro_report_section
 from magbench.report.real import real_report_section
 from magbench.report.speed import bench_report_section
+from magbench.report.variants import variants_report_section
 from magbench.report.wushi import wushi_report_section
 from magbench.studies.review import with_coverage_column
 
@@ -552,8 +553,8 @@ def build_report(results_dir: Path | str) -> str:
             "| figure | claim | evidence | verdict |", "|---|---|---|---|"]
     out += [f"| {c.figure} | {c.claim} | {c.evidence} | **{c.verdict}** |" for c in checks]
     out.append("")
-    for section_of in (real_report_section, wushi_report_section, gyro_report_section,
-                       bench_report_section):
+    for section_of in (variants_report_section, real_report_section, wushi_report_section,
+                       gyro_report_section, bench_report_section):
         section = section_of(results_dir)
         if section:
             out += [section.strip(), ""]

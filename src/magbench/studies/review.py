@@ -4,6 +4,11 @@ A work unit is one trial at one point: a dataset drawn from ``rng(seed, point.ke
 (keyed by the point's values, so the nominal point draws the same datasets in every sweep that
 contains it) on which every selected method runs, one row per method. ``meaningful`` is eq.
 (76), ``J < delta * J0``, wherever an estimate exists, a capped one included.
+
+A sweep may also vary one method's option instead of the data (:class:`OptionAxis`, e.g. the
+EKF's initial covariance, ``vary: options.crassidis.P0``): every trial's dataset is drawn once
+and the method runs on it at its default and at each value, the value in a column named
+``<method>.<option>`` (empty for the default run and for the other methods).
 """
 
 from __future__ import annotations
@@ -11,7 +16,6 @@ from __future__ import annotations
 from collections.abc import Iterable, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import ClassVar
 
 import numpy as np
 import pandas as pd
@@ -26,7 +30,8 @@ from magbench.methods.api import calibrate
 from magbench.methods.registry import get_method
 from magbench.sources.synthetic import Point, make_dataset
 
-__all__ = ["POINT_COLUMNS", "ROW_COLUMNS", "TRUTH_COLUMNS", "ReviewStudy", "coverage_label",
+__all__ = ["POINT_COLUMNS", "ROW_COLUMNS", "TRUTH_COLUMNS", "OptionAxis", "ReviewStudy",
+           "coverage_label",
            "point_with", "points_for", "read_trials", "summarize_review", "trial_rows",
            "with_coverage_column"]
 
@@ -44,6 +49,36 @@ def truth_columns(T: np.ndarray, h: np.ndarray) -> dict:
     """``h_true_*`` and ``T_true_*`` of a dataset."""
     return {**dict(zip(TRUTH_COLUMNS[:3], np.asarray(h).tolist(), strict=True)),
             **dict(zip(TRUTH_COLUMNS[3:], np.asarray(T).ravel().tolist(), strict=True))}
+
+
+@dataclass(frozen=True)
+class OptionAxis:
+    """One method's option swept over values on the same datasets.
+
+    Attributes
+    ----------
+    method, option : str
+        A registered method and one of its keyword options.
+    values : tuple
+        The option's values; the method also runs once at its default (column empty).
+    """
+
+    method: str
+    option: str
+    values: tuple
+
+    @property
+    def column(self) -> str:
+        """The rows' column holding the value: ``<method>.<option>``."""
+        return f"{self.method}.{self.option}"
+
+    @classmethod
+    def parse(cls, vary: str, values: Sequence) -> OptionAxis:
+        """The axis of ``vary = "options.<method>.<option>"``; ValueError for another form."""
+        parts = vary.split(".")
+        if len(parts) != 3 or parts[0] != "options" or not all(parts):
+            raise ValueError(f"an option axis is written options.<method>.<option>, got {vary!r}")
+        return cls(parts[1], parts[2], tuple(values))
 
 
 @dataclass(frozen=True)
@@ -68,6 +103,8 @@ class ReviewStudy(Study):
         Time limit of one calibration call.
     plugins : sequence of str
         Modules imported in every worker before it runs (they register extra methods).
+    axis : OptionAxis or None
+        A method option swept on the same datasets (one extra column), or None.
     """
 
     name: str
@@ -79,8 +116,12 @@ class ReviewStudy(Study):
     delta: float = 0.5
     call_timeout_s: float | None = None
     plugins: Sequence[str] = ()
+    axis: OptionAxis | None = None
 
-    tables: ClassVar[dict] = {"trials": ("trials.csv", ROW_COLUMNS)}
+    @property
+    def tables(self) -> dict:
+        columns = ROW_COLUMNS if self.axis is None else [*ROW_COLUMNS, self.axis.column]
+        return {"trials": ("trials.csv", columns)}
 
     def units(self) -> list[tuple[int, int]]:
         return [(i, t) for i in range(len(self.points)) for t in range(self.trials)]
@@ -89,7 +130,7 @@ class ReviewStudy(Study):
         point_index, trial = unit
         return {"trials": trial_rows(self.points[point_index], trial, self.seed,
                                      self.algorithms, self.options, self.delta,
-                                     self.call_timeout_s)}
+                                     self.call_timeout_s, self.axis)}
 
     def describe(self) -> dict:
         out = super().describe()
@@ -99,15 +140,20 @@ class ReviewStudy(Study):
     def summarize(self, out_dir: Path | str) -> pd.DataFrame:
         """Write and return ``summary.csv`` from ``trials.csv``."""
         trials = read_trials(Path(out_dir) / "trials.csv")
-        summary = summarize_review(trials)
+        summary = summarize_review(trials, [] if self.axis is None else [self.axis.column])
         write_csv_atomic(summary, Path(out_dir) / "summary.csv")
         return summary
 
 
 def trial_rows(point: Point, trial: int, seed: int, algorithms: Sequence[str],
                options: dict | None = None, delta: float = 0.5,
-               call_timeout_s: float | None = None) -> list[dict]:
-    """Every method on the trial's dataset; one row per method, failures included."""
+               call_timeout_s: float | None = None, axis: OptionAxis | None = None
+               ) -> list[dict]:
+    """Every method on the trial's dataset; one row per method, failures included.
+
+    With an ``axis``, its method runs at its default and then once per value (one row each,
+    the value in ``axis.column``, empty for the default).
+    """
     options = options or {}
     data = make_dataset(rng(seed, point.key, trial), point)
     J0 = trivial_cost(data.T, data.h)
@@ -117,9 +163,14 @@ def trial_rows(point: Point, trial: int, seed: int, algorithms: Sequence[str],
     base = {**{c: getattr(point, c) for c in POINT_COLUMNS},
             "trial": int(trial), "seed": int(seed)}
     truth = truth_columns(data.T, data.h)
+    runs = [(name, None) for name in algorithms]
+    if axis is not None:
+        runs += [(axis.method, v) for v in axis.values if axis.method in algorithms]
     rows = []
-    for name in algorithms:
+    for name, value in runs:
         opts = dict(options.get(name) or {})
+        if value is not None:
+            opts[axis.option] = value
         if "sigma" in get_method(name).option_names() and "sigma" not in opts \
                 and point.sigma > 0:
             # Methods that weight by an assumed noise level (TWOSTEP's and the EKF's eq. 5)
@@ -134,7 +185,8 @@ def trial_rows(point: Point, trial: int, seed: int, algorithms: Sequence[str],
                      "time_s": out.time_s, "n_iter": out.n_iter, "J": J, "J_h": J_h,
                      "J_T": J_T, "J0": J0, "meaningful": bool(np.isfinite(J) and J < delta * J0),
                      "sq_err": J_h ** 2 + J_T ** 2, **bound,
-                     **truth, **estimate_columns(out.T, out.h)})
+                     **truth, **estimate_columns(out.T, out.h),
+                     **({} if axis is None else {axis.column: value})})
     return rows
 
 
@@ -144,9 +196,10 @@ def read_trials(path: Path | str) -> pd.DataFrame:
     return frame.assign(error=frame["error"].fillna(""))
 
 
-def summarize_review(trials: pd.DataFrame) -> pd.DataFrame:
-    """RB %, rho, tau (eqs. 77-79) and the Cramer-Rao columns per point and method."""
-    return summarize(trials, POINT_COLUMNS + ["algorithm"])
+def summarize_review(trials: pd.DataFrame, extra: Sequence[str] = ()) -> pd.DataFrame:
+    """RB %, rho, tau (eqs. 77-79) and the Cramer-Rao columns per point and method (and per
+    value of the ``extra`` columns, such as an option axis's)."""
+    return summarize(trials, POINT_COLUMNS + list(extra) + ["algorithm"])
 
 
 def coverage_label(cap_deg: float, band_deg: float) -> str:

@@ -71,7 +71,7 @@ def test_degenerate_zero_residual_solution_is_a_fixed_point():
 
 def test_processing_in_two_chunks_equals_one_pass(nominal):
     # The online form: the state (theta, P) after the first half is all the second half needs.
-    P0 = crassidis.initial_covariance(None)
+    P0 = crassidis.initial_covariance("prior")
     full, P_full = crassidis.run_filter(nominal.y, np.zeros(9), P0.copy(), 0.005, "5b", 1)
     half, P_half = crassidis.run_filter(nominal.y[:150], np.zeros(9), P0.copy(), 0.005, "5b", 1)
     both, P_both = crassidis.run_filter(nominal.y[150:], half, P_half, 0.005, "5b", 1)
@@ -100,13 +100,47 @@ def test_initial_covariance_forms():
     np.testing.assert_array_equal(crassidis.initial_covariance(0.5), 0.5 * np.eye(9))
     np.testing.assert_array_equal(crassidis.initial_covariance(np.arange(1.0, 10.0)),
                                   np.diag(np.arange(1.0, 10.0)))
-    np.testing.assert_array_equal(crassidis.initial_covariance(None),
+    np.testing.assert_array_equal(crassidis.initial_covariance("prior"),
                                   np.diag(crassidis.DEFAULT_P0_STD**2))
+
+
+def test_data_prior_is_the_sphere_fit_on_known_data():
+    # Samples on a sphere of radius r = 2 about c: the sphere fit is exact and e = 0, so the
+    # start is b = c / r, D = (1/r - 1) I and the covariance vanishes; an ellipsoid's relative
+    # spread of radii gives e^2 on D and e^2 (1 + |b|^2) on b.
+    m = fibonacci_sphere(200)
+    c = np.array([0.3, -0.6, 0.9])
+    theta0, P = crassidis.data_prior(2.0 * m + c)
+    np.testing.assert_allclose(theta0, np.r_[c / 2.0, np.full(3, -0.5), np.zeros(3)],
+                               atol=1e-12)
+    np.testing.assert_allclose(P, 0.0, atol=1e-12)
+    theta0, P = crassidis.data_prior(m * [1.1, 1.0, 0.9] + c)
+    e2 = P[8, 8]
+    assert 1e-3 < e2 < 1e-2                                  # ~ (0.1)^2 / 1.2 relative spread
+    np.testing.assert_allclose(np.diag(P), np.r_[np.full(3, e2 * (1 + theta0[:3] @ theta0[:3])),
+                                                 np.full(6, e2)])
+    np.testing.assert_array_equal(P, np.diag(np.diag(P)))
+    np.testing.assert_array_equal(crassidis.initial_covariance("data", 2.0 * m),
+                                  crassidis.data_prior(2.0 * m)[1])
+
+
+def test_default_P0_is_the_data_prior_and_prior_is_the_variant(nominal):
+    default = magbench.calibrate(nominal.y, "crassidis")
+    theta0, P0 = crassidis.data_prior(nominal.y)
+    data = magbench.calibrate(nominal.y, "crassidis", theta0=theta0, P0=P0)
+    prior = magbench.calibrate(nominal.y, "crassidis_prior")
+    explicit = magbench.calibrate(nominal.y, "crassidis", P0="prior", theta0=np.zeros(9))
+    np.testing.assert_array_equal(default.T, data.T)
+    np.testing.assert_array_equal(prior.T, explicit.T)
+    assert not np.array_equal(default.T, prior.T)
+    assert magbench.get_method("crassidis_prior").family == "variant"
 
 
 @pytest.mark.parametrize(("option", "value", "match"), [
     ("P0", -np.eye(9), "positive definite"),
     ("P0", np.eye(3), "P0 must be"),
+    ("P0", "truth", r"P0 must be one of \('data', 'prior'\)"),
+    ("P0", [1.0, np.nan] * 4 + [1.0], "P0 must be"),
     ("theta0", np.zeros(3), "theta0"),
     ("variance", "other", "variance"),
     ("passes", 0, "passes"),

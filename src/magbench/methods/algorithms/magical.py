@@ -26,7 +26,7 @@ def cost(m_tilde: np.ndarray) -> float:
 
 
 @njit(cache=True, error_model="numpy")
-def iterate(y: np.ndarray, max_iter: int, tol: float, rtol: float
+def iterate(y: np.ndarray, max_iter: int, tol: float, rtol: float, xtol: float = 0.0
             ) -> tuple[np.ndarray, np.ndarray, int, bool, float]:
     """Algorithm 7's loop (59)-(65), compiled.
 
@@ -34,7 +34,7 @@ def iterate(y: np.ndarray, max_iter: int, tol: float, rtol: float
     ----------
     y : ndarray, shape (K, 3)
         Measurements.
-    max_iter, tol, rtol : int, float, float
+    max_iter, tol, rtol, xtol : int, float, float, float
         See :func:`fit`.
 
     Returns
@@ -58,6 +58,7 @@ def iterate(y: np.ndarray, max_iter: int, tol: float, rtol: float
     previous = np.inf
     T, h, J = np.eye(3), np.zeros(3), np.inf
     for it in range(1, max_iter + 1):
+        T_previous, h_previous = T, h
         T, h = fit_affine(m, y)                                    # (62), (61b)
         # (64) for all k at once; one 3x3 inverse and a product beat a K-right-hand-side solve
         # (profiled: the solve was 40 % of the run time) and T is well conditioned here.
@@ -70,15 +71,20 @@ def iterate(y: np.ndarray, max_iter: int, tol: float, rtol: float
             for i in range(3):                                     # (63)
                 m[k, i] = m_tilde[k, i] / norm
         J = cost(m_tilde)                                          # (65)
-        if J <= tol or (it > 1 and abs(previous - J) <= rtol * previous):
+        if J <= tol:
             return T, h, it, True, J
+        if it > 1 and abs(previous - J) <= rtol * previous:
+            # The tight rule also asks that [T h] itself has stopped moving.
+            step = max(np.max(np.abs(T - T_previous)), np.max(np.abs(h - h_previous)))
+            if step <= xtol * max(1.0, np.max(np.abs(T))):
+                return T, h, it, True, J
         previous = J
     return T, h, max_iter, False, J
 
 
 @register("magical", label="MAG.I.C.AL", min_samples=4, paper_key="MAGICAL")
 def fit(samples: np.ndarray, *, max_iter: int = 2000, tol: float = 1e-24,
-        rtol: float = 1e-12) -> Calibration:
+        rtol: float = 1e-12, xtol: float = np.inf) -> Calibration:
     """Calibrate with MAG.I.C.AL. (Algorithm 7).
 
     Parameters
@@ -93,14 +99,28 @@ def fit(samples: np.ndarray, *, max_iter: int = 2000, tol: float = 1e-24,
         Stop when the cost (65) changes by less than ``rtol`` times its value between two
         iterations. The paper's rule, "until J is sufficiently small", never triggers on noisy
         data, whose cost settles at a positive floor; this relative rule is what ends those runs.
+    xtol : float
+        The tighter rule (an option; ``inf``, the default, turns it off and keeps the relative
+        rule alone): stop only when, besides the relative cost change, the largest change of
+        an element of ``T`` or ``h`` over the last iteration is at most ``xtol`` times
+        ``max(1, max|T_ij|)``. Block-coordinate descent converges linearly, so a small change of
+        the cost does not by itself prove the parameters have settled; ``xtol=1e-12`` with
+        ``rtol=0`` runs until both are at rounding level. Measured (issue 14, 100 datasets at
+        beta = 1, the 97 where Wu-Shi also succeeds): median J / (Cramer-Rao E[J]) is 1.286
+        with the default rule (56 iterations) and 1.286 with ``rtol=0, xtol=1e-12`` (95
+        iterations), against Wu-Shi's 1.007. The relative rule does not end before the fixed
+        point: MAG.I.C.AL's gap to the floor is its estimator (the alternation (62)-(64)),
+        not its stopping rule. The figures use the default, the faithful rule.
 
     Returns
     -------
     Calibration
         ``converged`` is False when ``max_iter`` was reached.
     """
+    if not xtol >= 0:
+        raise ValueError(f"xtol must be >= 0 (inf turns the tight rule off), got {xtol}")
     T, h, n_iter, converged, J = iterate(np.ascontiguousarray(samples, dtype=np.float64),
-                                         int(max_iter), float(tol), float(rtol))
+                                         int(max_iter), float(tol), float(rtol), float(xtol))
     if converged:
         return Calibration(T, h, n_iter, True, f"cost (65) {J:.3g} after {n_iter} iterations")
     return Calibration(T, h, max_iter, False,
