@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import json
+import os
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -12,6 +14,8 @@ from magbench.cli import main
 from magbench.core.exports import GAUGE
 from magbench.core.geometry import fibonacci_sphere
 from magbench.core.model import Calibration
+from magbench.methods.registry import get_method
+from magbench.sources.recordings import DATA_ENV
 
 T_TRUE = np.array([[520.0, 20.0, -8.0], [0.0, 470.0, 15.0], [0.0, 0.0, 610.0]])
 H_TRUE = np.array([900.0, -350.0, 120.0])          # counts; offset larger than the radius
@@ -114,19 +118,32 @@ def test_a_60_degree_cap_warns_and_names_the_gap(tmp_path, capsys):
     assert np.array(data["coverage"]["gap_centre"])[2] < -0.8        # the uncovered -Z side
 
 
-def test_all_methods_are_ranked_and_the_best_is_chosen(tmp_path, capsys):
+def test_all_methods_are_ranked_and_the_simplest_of_the_tie_is_chosen(tmp_path, capsys):
     path = save(tmp_path / "rec.csv", recording())
     assert calibrate(f"file={path}", f"out={tmp_path / 'o'}") == 0
     ranking = pd.read_csv(tmp_path / "o" / "ranking.csv")
-    assert ranking["rank"].tolist() == list(range(1, len(ranking) + 1))
     names = set(ranking["algorithm"])
     assert "magical" in names and "sar_ls" not in names                  # no gyro in the file
     assert not names & {"vasconcelos_printed", "wu_shi_printed"}       # benchmark-only variants
-    good = ranking[ranking["meaningful"]]
-    assert good["J_r_out"].is_monotonic_increasing           # ranked by held-out J_r
-    assert not ranking["meaningful"].iloc[len(good):].any()  # meaningful ones first
-    chosen = json.loads((tmp_path / "o" / "calibration.json").read_text())["method"]
-    assert chosen == good["algorithm"].iloc[0]
+    ranked = ranking[ranking["rank"].notna()]
+    assert ranked["rank"].tolist() == list(range(1, len(ranked) + 1))
+    assert ranked.index.tolist() == list(range(len(ranked)))           # ranked ones first
+    assert np.isfinite(ranked["J_r_out"]).all() and ranked["meaningful"].all()
+    admissible = ranked[~ranked["note"].fillna("").str.startswith("held-out worst case")]
+    assert admissible["J_r_out"].is_monotonic_increasing               # by held-out J_r
+    assert admissible.index.max() < len(admissible)      # worst-case outliers ranked after
+    data = json.loads((tmp_path / "o" / "calibration.json").read_text())
+    tie = ranking[ranking["tie"]]
+    assert data["tie"] == tie["algorithm"].tolist() and data["method"] in data["tie"]
+    assert tie["algorithm"].iloc[0] == ranked["algorithm"].iloc[0]        # the best is in it
+    chosen = tie[tie["algorithm"] == data["method"]].iloc[0]
+    # the simplest of the tie: no member with fewer parameters, nor a closed-form one when
+    # the chosen is iterative
+    params = {"full": 9, "diagonal": 6, "sphere": 4, "bias": 3}
+    assert params[chosen["model"]] == min(params[m] for m in tie["model"])
+    assert chosen["n_iter"] == 0 or (tie["n_iter"] > 0).all()
+    assert "any of" in data["choice"] or len(tie) == 1
+    assert f"chosen {data['method']}: the simplest of the tie" in capsys.readouterr().out
 
 
 def test_a_printed_variant_still_runs_when_named(tmp_path):
@@ -223,3 +240,67 @@ def test_ardupilot_params_are_skipped_with_one_line_when_out_of_range(tmp_path, 
     assert out.count("not writing ardupilot.param: field strength 0.53") == 1
     assert (tmp_path / "o" / "calibration.h").exists()
     assert not (tmp_path / "o" / "ardupilot.param").exists()
+
+
+def test_default_folder_is_named_after_the_folder_of_a_data_csv(tmp_path, monkeypatch):
+    (tmp_path / "my_drone").mkdir()
+    save(tmp_path / "my_drone" / "data.csv", recording())
+    save(tmp_path / "flight7.csv", recording())
+    monkeypatch.chdir(tmp_path)
+    assert calibrate("file=my_drone/data.csv", "method=ellipsoid", "bootstrap=0") == 0
+    assert calibrate("file=flight7.csv", "method=ellipsoid", "bootstrap=0") == 0
+    assert (tmp_path / "my_drone-calibration" / "calibration.json").exists()
+    assert (tmp_path / "flight7-calibration" / "calibration.json").exists()
+    assert not (tmp_path / "data-calibration").exists()
+
+
+@pytest.mark.parametrize("option", ["+options.magical.foo=1", "options.magical.foo=1"])
+def test_an_unknown_option_exits_2_naming_it_before_the_file_is_judged(option, tmp_path,
+                                                                        capsys):
+    phi = np.linspace(0, 2 * np.pi, 100)
+    flat = save(tmp_path / "flat.csv", 500 * np.column_stack([np.cos(phi), np.sin(phi),
+                                                              0 * phi]) + H_TRUE)
+    assert calibrate(f"file={flat}", option, f"out={tmp_path / 'o'}") == 2
+    err = capsys.readouterr().err
+    accepted = ", ".join(get_method("magical").option_names())
+    assert err == f"magbench: error: unknown option(s) foo for magical; it accepts: {accepted}\n"
+
+
+def test_spikes_are_reported_and_the_intervals_printed(tmp_path, capsys):
+    y = np.random.default_rng(4).permutation(recording(600))
+    y[::20] *= 10.0                                        # 5 % spikes, 10x
+    assert calibrate(f"file={save(tmp_path / 'rec.csv', y)}", "method=fang", "bootstrap=20",
+                     f"out={tmp_path / 'o'}") == 0
+    out = capsys.readouterr().out
+    assert "outliers: 30 of 600 samples set aside" in out
+    assert "95 % intervals (model-based: Fisher information of the full model" in out
+    assert "bootstrap check (20 refits" in out
+    data = json.loads((tmp_path / "o" / "calibration.json").read_text())
+    assert data["outliers"]["set_aside"] == 30
+    iv = data["intervals"]
+    assert np.all(np.abs(np.array(iv["h"]) - H_TRUE) <= 2 * np.array(iv["h_half_width"]))
+
+
+SHARED = Path(os.environ.get(DATA_ENV) or Path(__file__).resolve().parents[3] / "shared" /
+              "data" / "real")
+
+
+@pytest.mark.skipif(not (SHARED / "hmc5883l_sphere" / "data.csv").exists(),
+                    reason=f"real recordings not found ({DATA_ENV} unset, {SHARED} absent)")
+def test_a_60_degree_cap_of_a_real_recording_warns_and_names_the_rotation(tmp_path, capsys):
+    from magbench.core.robust import robust_sphere_fit
+
+    frame = pd.read_csv(SHARED / "hmc5883l_sphere" / "data.csv")
+    y = frame[["mx", "my", "mz"]].to_numpy()
+    centre, _, _ = robust_sphere_fit(y)
+    u = (y - centre) / np.linalg.norm(y - centre, axis=1)[:, None]
+    frame[u[:, 2] >= 0.5].to_csv(tmp_path / "cap.csv", index=False)   # 60 deg about +Z
+    args = ["max_samples=800", "bootstrap=0"]
+    assert calibrate(f"file={tmp_path / 'cap.csv'}", *args, f"out={tmp_path / 'c'}") == 0
+    err = capsys.readouterr().err
+    assert "magbench: warning: coverage is insufficient" in err
+    assert "rotate it about its" in err and "axis, turning its" in err
+    assert "the choice was limited to" in err
+    assert calibrate(f"file={SHARED / 'hmc5883l_sphere' / 'data.csv'}", *args,
+                     f"out={tmp_path / 'f'}") == 0
+    assert "coverage is insufficient" not in capsys.readouterr().err

@@ -88,3 +88,9 @@ def test_install_size_of_a_missing_peer_is_recorded_as_unknown(monkeypatch):
     monkeypatch.setattr(bench, "PEER_PACKAGES", ("no-such-peer-package",))
     row = bench.peer_install_size().iloc[0]
     assert row["package"] == "no-such-peer-package" and np.isnan(row["added_mb"])
+
+
+def test_bench_calibrate_reads_the_commands_own_time_from_fresh_processes():
+    out = bench.bench_calibrate(K=300, repeats=1)
+    assert out[["K", "run"]].values.tolist() == [[300, 1]]
+    assert 0 < out["command_s"].iloc[0] < out["process_s"].iloc[0]

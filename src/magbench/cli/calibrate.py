@@ -1,32 +1,33 @@
 """``python -m magbench calibrate file=PATH [method=NAME] [columns=[mx,my,mz]] [out=DIR]``.
 
-Calibrates a user's own recording: every candidate method (or the one named) is fitted on all
-samples (J_r in sample, eq. 81) and on each half in time with J_r on the other half (out of
-sample), as in the real-data sweep (:mod:`magbench.studies.real`). The candidates are the
-registered methods except the review's printed variants (family ``variant``: benchmark-only,
-wrong as printed) and, without gyro data, the gyro-aided ones; ``method=NAME`` runs any one.
-The methods are ranked, meaningful fits first (:func:`magbench.studies.real.is_meaningful`),
-then by J_r out of sample (in sample where a recording is too short to split).
+Calibrates a user's own recording. The work is :func:`magbench.studies.calibration.\
+calibrate_recording` (outlier screen, coverage and the models it allows, every candidate fitted
+on all samples and on each half in time, the honest choice with ties, trimming around the
+chosen fit, refusal of collapsed fits, verdict and intervals; its module notes say how each is
+decided); this command reads the file, prints the ranked table and the verdict, and writes.
+The candidates are the registered methods except the review's printed variants (family
+``variant``: benchmark-only, wrong as printed) and, without gyro data, the gyro-aided ones;
+``method=NAME`` runs any one.
 
-The best (or the named) calibration is written in the safe gauge of :mod:`magbench.core.gauge`:
-the correction a firmware applies is ``m = A (y - b)`` with ``A = (T T^T)^(-1/2)`` symmetric
-positive definite and ``b = h``, in the recording's units (never rotated, never a mirror image;
-the rotation removed from the method's own ``T^-1`` is reported). Beside ``calibration.json``
-(:func:`magbench.core.exports.to_json_dict`) go ``calibration.h`` and ``ardupilot.param`` (the
-latter only where ArduPilot accepts the values, see :mod:`magbench.core.exports`). The verdict
-(:mod:`magbench.core.verdict`) is the corrected field magnitude's error in percent on the half
-in time each half-fit was not fitted on (in sample when there are no usable half-fits) and the
-heading error it implies; a warning is printed and stored when the field directions cover too
-little of the sphere. A picture shows the data before and after.
-The preprocessing is ``centre`` (remove the sphere-fit centre and radius
-first), which the real-data sweep found necessary for MAG.I.C.AL and Dorveaux when the offset
-exceeds the field radius; ``preprocess=scale`` selects the review's.
+The chosen (or the named) calibration is written in the safe gauge of
+:mod:`magbench.core.gauge`: the correction a firmware applies is ``m = A (y - b)`` with
+``A = (T T^T)^(-1/2)`` symmetric positive definite and ``b = h``, in the recording's units
+(never rotated, never a mirror image; the rotation removed from the method's own ``T^-1`` is
+reported). Beside ``calibration.json`` (:func:`magbench.core.exports.to_json_dict`) go
+``calibration.h`` and ``ardupilot.param`` (the latter only where ArduPilot accepts the values,
+see :mod:`magbench.core.exports`), ``ranking.csv`` and ``calibration.png`` (the data before and
+after, and the field directions covered). The default folder is ``<name>-calibration`` with
+``name`` the file's stem, or its folder's name for a file called ``data.csv``.
+The preprocessing is ``centre`` (remove the sphere-fit centre and radius first), which the
+real-data sweep found necessary for MAG.I.C.AL and Dorveaux when the offset exceeds the field
+radius; ``preprocess=scale`` selects the review's.
 """
 
 from __future__ import annotations
 
 import json
 import sys
+import time
 import warnings
 from pathlib import Path
 
@@ -39,20 +40,19 @@ from magbench.core.exports import ardupilot_param_file, ardupilot_params, c_head
 from magbench.core.files import write_csv_atomic, write_text_atomic
 from magbench.core.gauge import safe_gauge
 from magbench.core.model import Calibration
-from magbench.core.verdict import coverage_report, magnitude_verdict
 from magbench.figures.real import calibration_picture
 from magbench.figures.style import save_figure
 from magbench.methods.registry import get_method, methods
 from magbench.sources.recordings import Recording, read_samples
-from magbench.studies.real import (
-    DEFAULT_MAX_SAMPLES,
-    PREPROCESSING,
-    applicability,
-    evaluate_recording,
-    recording_summary,
-)
+from magbench.studies.calibration import CalibrationResult, calibrate_recording, estimate
+from magbench.studies.real import DEFAULT_MAX_SAMPLES, PREPROCESSING, applicability
 
-__all__ = ["calibration_json", "rank", "run_calibrate"]
+__all__ = ["MIN_COVERAGE", "calibration_json", "default_out", "run_calibrate"]
+
+#: Coverage below which a recording is refused: lower than the sweeps' 0.3, because thin
+#: coverage now falls back to the sphere model instead of a full fit (a hemisphere of real
+#: data can measure 0.28).
+MIN_COVERAGE = 0.2
 
 
 def _columns(cfg: DictConfig) -> list | None:
@@ -68,94 +68,58 @@ def _columns(cfg: DictConfig) -> list | None:
 def _candidates(cfg: DictConfig, rec_has_gyro: bool) -> list[str]:
     name = cfg.get("method")
     if name is not None:
-        if str(name) not in methods():
-            raise UsageError(f"unknown method {name!r}; expected one of: "
-                             f"{', '.join(methods())}")
         return [str(name)]
     # The printed variants reproduce the review's misprints: benchmark rows, never a user's fit.
     return [m for m in methods() if get_method(m).family != "variant"
             and (rec_has_gyro or not get_method(m).needs_gyro)]
 
 
-def rank(summary: pd.DataFrame) -> pd.DataFrame:
-    """Rows of :func:`magbench.studies.real.recording_summary` in ranked order, with a
-    ``rank`` column.
-
-    Meaningful fits first, by J_r out of sample (in sample if there is none), then fits that
-    ran but are not meaningful, then failures and skipped methods.
-    """
-    key = summary["J_r_out"].where(np.isfinite(summary["J_r_out"]), summary["J_r_in"])
-    group = np.where(summary["meaningful"], 0, np.where(summary["ok"], 1, 2))
-    out = summary.assign(_group=group, _key=key.fillna(np.inf))
-    out = out.sort_values(["_group", "_key"], kind="stable").drop(columns=["_group", "_key"])
-    out.insert(0, "rank", range(1, len(out) + 1))
-    return out.reset_index(drop=True)
+def default_out(path: Path) -> Path:
+    """``<stem>-calibration``, or ``<folder>-calibration`` for a file called ``data.csv``
+    (every recording of the real-data layout has that name)."""
+    stem = path.resolve().parent.name if path.name.lower() == "data.csv" else path.stem
+    return Path(f"{stem or 'recording'}-calibration")
 
 
-def _estimate(row: pd.Series) -> tuple[np.ndarray, np.ndarray]:
-    """``T`` and ``h`` of a row of the real-data tables."""
-    T = np.array([[row[f"T_{i}{j}"] for j in range(3)] for i in range(3)], dtype=float)
-    return T, np.array([row[f"h_{i}"] for i in range(3)], dtype=float)
-
-
-def calibration_json(row: pd.Series, *, file: str, columns: list, n_file: int,
-                     preprocess: str, verdict: dict | None = None,
-                     coverage: dict | None = None) -> dict:
+def calibration_json(result: CalibrationResult, *, file: str, columns: list, n_file: int,
+                     preprocess: str) -> dict:
     """The chosen calibration as a JSON-ready dict: the correction in the safe gauge.
 
     The schema of :func:`magbench.core.exports.to_json_dict` (``A``, ``b`` of ``m = A (y - b)``,
-    ``T = A^-1``, ``h = b``), plus the method, verdict and coverage; ``removed`` records the
-    rotation angle taken out of the method's own ``T^-1``, whether it was a mirror image, and
-    the method's ``T`` itself.
+    ``T = A^-1``, ``h = b``), plus the method, the choice, verdict, intervals, outliers and
+    coverage; ``removed`` records the rotation angle taken out of the method's own ``T^-1``,
+    whether it was a mirror image, and the method's ``T`` itself.
 
     Raises
     ------
     ValueError
-        If the row's ``T`` is singular or not finite (such a fit is never written).
+        If the chosen ``T`` is singular or not finite (such a fit is never written).
     """
-    T, h = _estimate(row)
+    row = result.chosen
+    T, h = estimate(row)
     gauge = safe_gauge(T, h)
-    warnings_ = [coverage["warning"]] if coverage and coverage.get("warning") else []
     return {
         **to_json_dict(Calibration(T, h), units="as recorded in the file", columns=columns),
         "file": file, "method": row["algorithm"], "label": get_method(row["algorithm"]).label,
+        "model": get_method(row["algorithm"]).model, "choice": result.how, "tie": result.tie,
         "removed": {"rotation_deg": gauge.rotation_deg, "mirrored": gauge.mirrored,
                     "method_T": T.tolist()},
         "field_strength": float(np.cbrt(abs(np.linalg.det(T)))),
-        "verdict": verdict, "coverage": coverage, "warnings": warnings_,
+        "verdict": result.verdict,
+        "intervals": result.intervals.to_dict() if result.intervals else None,
+        "bootstrap": result.bootstrap,
+        "outliers": {"set_aside": result.outliers, "by_sphere_screen": result.screened,
+                     "by_chosen_fit": result.trimmed,
+                     "rule": "norm residual more than 5 robust sigmas (1.4826 MAD) from the "
+                             "median"},
+        "coverage": result.coverage, "warnings": list(result.warnings),
         "J_r_in": float(row["J_r_in"]), "J_r_out": _finite(row["J_r_out"]),
+        "worst_out_pct": _finite(row["worst_out_pct"]),
         "J_r_sphere_fit": float(row["J_r_sphere_in"]), "meaningful": bool(row["meaningful"]),
         "converged": bool(row["ok"]), "n_iter": int(row["n_iter"]),
         "preprocess": preprocess, "samples_used": int(row["K"]), "samples_in_file": n_file,
-        "stride": int(row["stride"]),
+        "stride": int(result.rec.stride),
     }
-
-
-def held_out_corrected(trials: pd.DataFrame, rec: Recording, method: str,
-                       preprocess: str) -> np.ndarray | None:
-    """Each half in time corrected by the fit on the other half, stacked; None unless both
-    half-fits gave a usable estimate (the recording is too short or a half-fit failed)."""
-    rows = trials[(trials["algorithm"] == method) & (trials["preprocess"] == preprocess)
-                  & (trials["fit_on"] != "all")]
-    if len(rows) != 2 or not rows["usable"].astype(bool).all():
-        return None
-    halves = dict(zip(("first_half", "second_half"), rec.halves(), strict=True))
-    out = []
-    for _, row in rows.iterrows():
-        T, h = _estimate(row)
-        out.append(np.linalg.solve(T, (halves[row["test_on"]].y - h).T).T)
-    return np.vstack(out)
-
-
-def chosen_verdict(trials: pd.DataFrame, rec: Recording, best: pd.Series,
-                   preprocess: str) -> dict:
-    """:func:`magbench.core.verdict.magnitude_verdict` of the chosen method, held out when
-    both half-fits are usable, else in sample on ``rec``."""
-    corrected = held_out_corrected(trials, rec, best["algorithm"], preprocess)
-    if corrected is not None:
-        return magnitude_verdict(corrected, held_out=True)
-    T, h = _estimate(best)
-    return magnitude_verdict(np.linalg.solve(T, (rec.y - h).T).T, held_out=False)
 
 
 def _verdict_lines(payload: dict) -> list[str]:
@@ -163,44 +127,59 @@ def _verdict_lines(payload: dict) -> list[str]:
     f, hd = v["field_error_pct"], v["heading_error_deg"]
     where = ("held out: each half in time corrected by the fit on the other half" if
              v["held_out"] else "in sample: no usable half-fits, so this flatters the fit")
-    return [f"verdict ({where}; {v['samples']} samples): field magnitude error {f['p95']:.2f} % "
-            f"(95th percentile), {f['max']:.2f} % (max); heading error of a level compass about "
-            f"{hd['p95']:.2f} deg (95 %), {hd['max']:.2f} deg (max) in a horizontal field, "
-            "about twice at 60 deg inclination",
-            f"field strength {payload['field_strength']:.4g} (file units); the method's own "
-            f"correction held a {g['rotation_deg']:.1f} deg rotation"
-            f"{' and a mirror image' if g['mirrored'] else ''}, removed (m = A (y - b), A "
-            "symmetric positive definite)"]
+    lines = [f"verdict ({where}; {v['samples']} samples): field magnitude error {f['p95']:.2f} % "
+             f"(95th percentile), {f['max']:.2f} % (max); heading error of a level compass "
+             f"about {hd['p95']:.2f} deg (95 %), {hd['max']:.2f} deg (worst case) in a "
+             "horizontal field, about twice at 60 deg inclination",
+             f"field strength {payload['field_strength']:.4g} (file units); the method's own "
+             f"correction held a {g['rotation_deg']:.1f} deg rotation"
+             f"{' and a mirror image' if g['mirrored'] else ''}, removed (m = A (y - b), A "
+             "symmetric positive definite)"]
+    iv = payload["intervals"]
+    if iv:
+        h, hh = np.array(iv["h"]), np.array(iv["h_half_width"])
+        A, Ah = np.array(iv["A"]), np.array(iv["A_half_width"])
+        lines.append("95 % intervals (model-based: Fisher information of the "
+                     f"{iv['model']} model at the estimate, noise sigma {iv['sigma']:.3g}): b = "
+                     + ", ".join(f"{x:.4g} +- {e:.2g}" for x, e in zip(h, hh, strict=True))
+                     + "; A diagonal " + ", ".join(f"{A[i, i]:.4g} +- {Ah[i, i]:.2g}"
+                                                   for i in range(3))
+                     + f", off-diagonal +- {max(Ah[0, 1], Ah[0, 2], Ah[1, 2]):.2g} at most")
+    bs = payload["bootstrap"]
+    if bs:
+        a_part = (f"; A median {bs['ratio_A_median']:.2f} (range {bs['ratio_A_range'][0]:.2f}"
+                  f"-{bs['ratio_A_range'][1]:.2f})" if bs["ratio_A_median"] is not None else "")
+        lines.append(f"bootstrap check ({bs['replicates']} refits on resampled samples): "
+                     "bootstrap / Fisher half-widths, b " + ", ".join(
+                         f"{r:.2f}" for r in bs["ratio_h"])
+                     + a_part + "; well above 1 means the noise is not independent or the "
+                     "model misses something")
+    return lines
 
 
 def _finite(x: float) -> float | None:
-    return float(x) if np.isfinite(x) else None
+    return float(x) if x is not None and np.isfinite(x) else None
 
 
-def _fmt(x: float) -> str:
-    return f"{x:11.3g}" if np.isfinite(x) else f"{'-':>11}"
-
-
-def _why_not(r) -> str:
-    if isinstance(r.error, str) and r.error:
-        return r.error
-    if not r.coverage >= 0.5 * r.coverage_sphere:
-        return (f"degenerate: calibrated directions cover {r.coverage:.2f} of the sphere, the "
-                f"sphere fit's {r.coverage_sphere:.2f}")
-    return f"J_r above twice the sphere fit's ({r.J_r_sphere_in:.3g})"
+def _fmt(x: float, width: int = 11, spec: str = ".3g") -> str:
+    return f"{x:{width}{spec}}" if np.isfinite(x) else f"{'-':>{width}}"
 
 
 def _table(ranked: pd.DataFrame) -> str:
-    lines = [f"{'rank':>4}  {'method':<16}{'J_r in':>11}{'J_r out':>11}{'time ms':>9}  note"]
+    lines = [f"{'rank':>4}  {'method':<13}{'model':<9}{'J_r in':>10}{'J_r out':>10}"
+             f"{'worst %':>9}{'time ms':>9}  note"]
     for r in ranked.itertuples(index=False):
-        note = "" if r.meaningful else _why_not(r)
-        lines.append(f"{r.rank:>4}  {r.algorithm:<16}{_fmt(r.J_r_in)}{_fmt(r.J_r_out)}"
-                     f"{1e3 * r.time_s:9.2f}  {note[:70]}")
+        rank = "-" if pd.isna(r.rank) else str(r.rank)
+        note = ("tie; " if r.tie else "") + (r.note or "")
+        lines.append(f"{rank:>4}  {r.algorithm:<13}{r.model:<9}{_fmt(r.J_r_in, 10)}"
+                     f"{_fmt(r.J_r_out, 10)}{_fmt(r.worst_out_pct, 9, '.2f')}"
+                     f"{1e3 * r.time_s:9.2f}  {note.rstrip('; ')[:70]}")
     return "\n".join(lines)
 
 
 def run_calibrate(cfg: DictConfig) -> int:
     """The ``calibrate`` command; a bad file or value raises :class:`UsageError`."""
+    start = time.perf_counter()
     common = check_common(cfg)
     if not cfg.get("file"):
         raise UsageError("calibrate needs file=PATH, a CSV of magnetometer samples (columns "
@@ -211,14 +190,19 @@ def run_calibrate(cfg: DictConfig) -> int:
         raise UsageError(f"preprocess must be one of {', '.join(PREPROCESSING)}, got "
                          f"{preprocess!r}")
     max_samples = check_integer(cfg.get("max_samples", DEFAULT_MAX_SAMPLES), "max_samples", 8)
+    n_boot = check_integer(cfg.get("bootstrap", 50), "bootstrap", 0, 10_000)
     columns = _columns(cfg)
     name = cfg.get("method")
-    need = get_method(str(name)).min_samples if name and str(name) in methods() else min(
+    if name is not None and str(name) not in methods():
+        raise UsageError(f"unknown method {name!r}; expected one of: {', '.join(methods())}")
+    # Options are checked before the file is read, so a misspelt option is named as such.
+    check_options(cfg, [str(name)] if name is not None else methods())
+    need = get_method(str(name)).min_samples if name else min(
         get_method(m).min_samples for m in methods())
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         try:
-            rec = read_samples(path, columns, min_samples=need)
+            rec = read_samples(path, columns, min_samples=need, min_coverage=MIN_COVERAGE)
         except ValueError as exc:
             raise UsageError(str(exc)) from None
     for w in caught:
@@ -233,39 +217,41 @@ def run_calibrate(cfg: DictConfig) -> int:
     if thinned.stride > 1:
         print(f"using 1 sample in {thinned.stride}: {thinned.K} of {rec.K} "
               f"(max_samples={max_samples})")
-    rows = evaluate_recording(thinned, candidates, [preprocess], options=options,
-                              seed=common["seed"], call_timeout_s=common["call_timeout_s"])
-    ranked = rank(recording_summary(pd.DataFrame(rows)))
+    result = calibrate_recording(thinned, candidates, preprocess=preprocess, options=options,
+                                 seed=common["seed"], call_timeout_s=common["call_timeout_s"],
+                                 bootstrap=n_boot)
+    cover = result.coverage
     print(f"{path.name}: {rec.K} samples, preprocessing '{preprocess}'; J_r (eq. 81) in sample "
-          "and out of sample (fit on one half in time, tested on the other)")
-    print(_table(ranked))
-    usable = ranked[ranked["meaningful"]]
-    if usable.empty:
-        raise UsageError("no method produced a meaningful calibration of this recording (see "
-                         "the table); check that the sensor was turned through many "
-                         "orientations in a steady field")
-    trials = pd.DataFrame(rows)
-    best = next((r for _, r in usable.iterrows() if _writable(r)), None)
-    if best is None:
-        raise UsageError("every meaningful fit has a singular or non-finite T; no correction "
-                         "can be written")
-    out = Path(str(cfg.out)) if cfg.get("out") else Path(f"{rec.name}-calibration")
-    T, h = _estimate(best)
-    cover = coverage_report((thinned.y - h) @ safe_gauge(T, h).A.T)
-    payload = calibration_json(best, file=str(path), columns=list(rec.columns),
-                               n_file=rec.K, preprocess=preprocess,
-                               verdict=chosen_verdict(trials, thinned, best, preprocess),
-                               coverage=cover)
+          "and out of sample (fit on one half in time, tested on the other), held-out worst "
+          "field error in %")
+    print(f"outliers: {result.outliers} of {thinned.K} samples set aside (norm residual more "
+          f"than 5 robust sigmas from the median: spikes or disturbances)")
+    gap_at = ", ".join(f"{c:+.2f}" for c in cover["gap_centre"])
+    print(f"coverage: {cover['coverage']:.2f} of the sphere; largest uncovered region "
+          f"{cover['largest_gap_deg']:.0f} deg around ({gap_at})")
+    print(_table(result.ranked))
+    if result.chosen is None:
+        raise UsageError("no method produced a calibration that can be written ("
+                         + ("no out-of-sample score: name one with method=NAME, or record "
+                            "longer" if not name else "see the table")
+                         + "); check that the sensor was turned through many orientations "
+                         "in a steady field")
+    out = Path(str(cfg.out)) if cfg.get("out") else default_out(path)
+    payload = calibration_json(result, file=str(path), columns=list(rec.columns),
+                               n_file=rec.K, preprocess=preprocess)
+    T, h = estimate(result.chosen)
     write_text_atomic(json.dumps(payload, indent=2) + "\n", out / "calibration.json")
     written = ["calibration.json (m = A (y - b))", *_write_exports(Calibration(T, h), payload,
                                                                   out)]
-    write_csv_atomic(ranked, out / "ranking.csv")
-    save_figure(_picture(rec, payload, calibration_picture), out / "calibration.png")
-    print(f"chosen: {payload['label']} (J_r in {payload['J_r_in']:.3g})")
+    write_csv_atomic(result.ranked, out / "ranking.csv")
+    save_figure(_picture(result, payload), out / "calibration.png", dpi=PICTURE_DPI)
+    print(f"choice: {result.how}")
+    print(f"chosen: {payload['label']} ({payload['model']} model)")
     print("\n".join(_verdict_lines(payload)))
     for warning in payload["warnings"]:
         print(f"magbench: warning: {warning}", file=sys.stderr)
-    print(f"wrote {out}/: {', '.join([*written, 'ranking.csv', 'calibration.png'])}")
+    print(f"wrote {out}/: {', '.join([*written, 'ranking.csv', 'calibration.png'])} "
+          f"(in {time.perf_counter() - start:.2f} s)")
     return 0
 
 
@@ -289,20 +275,25 @@ def _write_exports(cal: Calibration, payload: dict, out: Path) -> list[str]:
     return ["calibration.h", "ardupilot.param"]
 
 
-def _writable(row: pd.Series) -> bool:
-    try:
-        safe_gauge(*_estimate(row))
-    except ValueError:
-        return False
-    return True
+#: Samples drawn in the picture: enough to show the shape, few enough to draw fast.
+PICTURE_SAMPLES = 1500
+#: Resolution of the picture (the sweeps' figures use 110; PNG encoding grows with its square).
+PICTURE_DPI = 90
 
 
-def _picture(rec: Recording, payload: dict, draw):
+def _picture(result: CalibrationResult, payload: dict):
     A = np.array(payload["A"])
     b = np.array(payload["b"])
-    y = rec.thinned(5000).y
+    rec: Recording = result.rec
+    step = max(1, rec.K // PICTURE_SAMPLES)
+    y = rec.y[::step]
+    keep = result.inliers[::step]
     before = y / float(np.mean(np.linalg.norm(y, axis=1)))
     after = (y - b) @ A.T
     where = Path(payload["file"])
-    return draw(before, after, f"{where.parent.name}/{where.name}: {payload['label']}, "
-                               f"J_r = {payload['J_r_in']:.3g}")
+    return calibration_picture(
+        before, after, f"{where.parent.name}/{where.name}: {payload['label']} "
+                       f"({payload['model']} model)",
+        inliers=keep, directions=(rec.y[result.inliers] - b) @ A.T,
+        gap_centre=np.array(result.coverage["gap_centre"]),
+        gap_deg=result.coverage["largest_gap_deg"])

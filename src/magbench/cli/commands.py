@@ -146,7 +146,7 @@ def bench(cfg: DictConfig) -> int:
     plot_scaling(pd.read_csv(folder / "calls.csv"), folder / "scaling.png")
     write_text_atomic(bench_report_section(common["results_dir"]), folder / "bench.md")
     print(f"benchmark written to {folder}/ (calls.csv, first_calls.csv, scaling.png, peers.csv, "
-          "parallel.csv, bench.md)")
+          "calibrate.csv, parallel.csv, bench.md)")
     return 0
 
 

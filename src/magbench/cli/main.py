@@ -75,7 +75,8 @@ COMMANDS: dict[str, tuple[Callable[..., int], str, str, tuple[str, ...]]] = {
              "scheduler_address", "nominal", "data_dir")),
     "calibrate": (_calibrate, "calibrate your own recording and write the correction",
                   "python -m magbench calibrate file=data.csv",
-                  ("file", "method", "columns", "out", "preprocess", "max_samples", "seed",
+                  ("file", "method", "columns", "out", "preprocess", "max_samples", "bootstrap",
+                   "seed",
                    "options", "call_timeout_s", "plugins")),
     "apply": (_apply, "correct a recording with a saved calibration.json (m = A (y - b))",
               "python -m magbench apply calibration=cal/calibration.json file=flight.csv "

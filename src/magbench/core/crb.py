@@ -38,8 +38,12 @@ from functools import cache
 
 import numpy as np
 
-__all__ = ["CRB", "crb_covariance", "crb_mse", "efficient_expected_J", "fisher_information",
-           "gauge_basis"]
+__all__ = ["CRB", "MODEL_PARAMETERS", "crb_covariance", "crb_mse", "efficient_expected_J",
+           "fisher_information", "gauge_basis", "model_basis", "parameter_covariance"]
+
+#: Free parameters of each model of ``y = T m + h`` (``T`` modulo a rotation for ``full``):
+#: the columns of :func:`model_basis`.
+MODEL_PARAMETERS = {"full": 9, "diagonal": 6, "sphere": 4, "bias": 3}
 
 #: Standard normal draws (fixed seed) for the expected J of an efficient estimator: the same
 #: draws for every dataset, so the number is a deterministic function of the dataset.
@@ -101,22 +105,57 @@ def gauge_basis(T: np.ndarray) -> np.ndarray:
     return np.linalg.qr(G)[0]
 
 
-def crb_covariance(T: np.ndarray, m: np.ndarray, sigma: float) -> np.ndarray:
-    """Bound on the covariance of the aligned error of ``(vec T, h)``, shape (12, 12).
+def model_basis(T: np.ndarray, model: str = "full") -> np.ndarray:
+    """Orthonormal basis (12, p) of the directions of ``(vec T, h)`` a model lets vary.
 
-    The information restricted to the orthogonal complement of :func:`gauge_basis` and
-    inverted there (the pseudo-inverse, since the gauge is the information's null space).
-    ``inf`` on the diagonal when the directions do not determine the parameters (e.g. all
-    samples on one great circle); zeros when ``sigma == 0``.
+    ``full``: the complement of :func:`gauge_basis` (p = 9; the rotation is not estimable);
+    ``diagonal``: ``T_00, T_11, T_22`` and h (p = 6); ``sphere``: ``vec(I) / sqrt(3)`` and h
+    (p = 4); ``bias``: h alone (p = 3). The restricted models have no rotation gauge.
+    """
+    if model == "full":
+        return np.linalg.qr(gauge_basis(T), mode="complete")[0][:, 3:]
+    cols = {"diagonal": [0, 4, 8], "sphere": [], "bias": []}
+    if model not in cols:
+        raise ValueError(f"model must be full, diagonal, sphere or bias, got {model!r}")
+    Q = np.zeros((12, len(cols[model]) + 3 + (model == "sphere")))
+    for k, i in enumerate(cols[model]):
+        Q[i, k] = 1.0
+    if model == "sphere":
+        Q[[0, 4, 8], 0] = 1.0 / np.sqrt(3.0)
+    Q[9:, -3:] = np.eye(3)
+    return Q
+
+
+def parameter_covariance(T: np.ndarray, m: np.ndarray, sigma: float,
+                         model: str = "full") -> np.ndarray:
+    """Inverse Fisher information of ``(vec T, h)`` within a model, shape (12, 12).
+
+    The information of :func:`fisher_information` restricted to :func:`model_basis` and
+    inverted there: ``sigma^2 Q (Q^T F Q)^-1 Q^T``. For ``full`` this is the Cramer-Rao bound on
+    the aligned error (the pseudo-inverse; the gauge is the information's null space). ``inf``
+    on the diagonal when the directions do not determine the parameters (e.g. all samples on
+    one great circle); zeros when ``sigma == 0``.
     """
     if sigma == 0:
         return np.zeros((12, 12))
-    Q = np.linalg.qr(gauge_basis(T), mode="complete")[0][:, 3:]   # (12, 9) complement
+    Q = model_basis(T, model)
     F = Q.T @ fisher_information(T, m, 1.0) @ Q
     eig = np.linalg.eigvalsh(F)
     if eig[0] <= 1e-12 * eig[-1]:
         return np.diag(np.full(12, np.inf))
     return sigma ** 2 * (Q @ np.linalg.solve(F, Q.T))
+
+
+def crb_covariance(T: np.ndarray, m: np.ndarray, sigma: float) -> np.ndarray:
+    """Bound on the covariance of the aligned error of ``(vec T, h)``, shape (12, 12).
+
+    The information restricted to the orthogonal complement of :func:`gauge_basis` and
+    inverted there (the pseudo-inverse, since the gauge is the information's null space):
+    :func:`parameter_covariance` of the full model.
+    ``inf`` on the diagonal when the directions do not determine the parameters (e.g. all
+    samples on one great circle); zeros when ``sigma == 0``.
+    """
+    return parameter_covariance(T, m, sigma, "full")
 
 
 def crb_mse(T_true: np.ndarray, h_true: np.ndarray, m: np.ndarray, sigma: float) -> CRB:

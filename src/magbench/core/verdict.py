@@ -28,7 +28,7 @@ import numpy as np
 from magbench.core.geometry import coverage, largest_gap
 
 __all__ = ["MAX_GAP_DEG", "coverage_report", "field_error_pct", "heading_error_deg",
-           "magnitude_verdict"]
+           "magnitude_verdict", "turn_advice"]
 
 MAX_GAP_DEG = 100.0
 
@@ -74,22 +74,50 @@ def magnitude_verdict(corrected: np.ndarray, *, held_out: bool) -> dict:
 
 
 def _rotation_hint(directions: np.ndarray, centre: np.ndarray) -> np.ndarray:
-    """Axis (unit, sensor frame) of the rotation that carries the recorded field directions
-    toward the uncovered ``centre``: the sensor should be turned about it."""
+    """Axis (unit, sensor frame) to turn the sensor about, right-handed, so that the field
+    directions move toward the uncovered ``centre``.
+
+    The field seen by the sensor turns opposite to the sensor: turning the sensor by ``Q``
+    takes a field direction ``b`` to ``Q^T b``. The mean direction reaches ``centre`` by a
+    rotation about ``a = mean x centre``, so the sensor turns about ``-a``.
+    """
     mean = np.mean(directions / np.linalg.norm(directions, axis=1)[:, None], axis=0)
     axis = np.cross(mean, centre)
     n = float(np.linalg.norm(axis))
     if n < 1e-6:                       # mean and gap aligned or opposite: any perpendicular
         axis = np.cross(centre, np.eye(3)[int(np.argmin(np.abs(centre)))])
         n = float(np.linalg.norm(axis))
-    return axis / n
+    return -axis / n
 
 
-def _axis_name(v: np.ndarray) -> str:
-    """``X``, ``Y`` or ``Z`` when the axis lies within about 35 deg of one, else its vector."""
+#: Per sensor axis and sense of turn: the words for a vehicle with X forward, Y right and Z
+#: down (the aerospace body frame).
+_VEHICLE = {(0, "+"): "roll right, right side down", (0, "-"): "roll left, left side down",
+            (1, "+"): "nose up", (1, "-"): "nose down",
+            (2, "+"): "yaw right, nose right", (2, "-"): "yaw left, nose left"}
+
+
+def turn_advice(axis: np.ndarray) -> str:
+    """How to turn the sensor about ``axis`` (right-handed), in the sensor's own axes.
+
+    E.g. ``"rotate it about its Y axis, turning its +X end toward -Z (nose up if X points
+    forward, Y right and Z down)"`` when the axis lies within about 35 deg of a sensor axis,
+    else the axis as a vector.
+    """
+    v = np.asarray(axis, dtype=float)
     i = int(np.argmax(np.abs(v)))
-    text = f"({v[0]:+.2f}, {v[1]:+.2f}, {v[2]:+.2f})"
-    return f"{'XYZ'[i]} axis {text}" if abs(v[i]) > 0.8 else f"axis {text}"
+    if abs(v[i]) <= 0.8:
+        return f"rotate it about the axis ({v[0]:+.2f}, {v[1]:+.2f}, {v[2]:+.2f}) of its frame"
+    sign = "+" if v[i] > 0 else "-"
+    # A right-handed turn about +e_i takes +e_(i+1) toward +e_(i+2) (X->Y, Y->Z, Z->X); about
+    # -e_i toward -e_(i+2). About Y that is +Z toward +X, i.e. +X toward -Z.
+    a, b = "XYZ"[(i + 1) % 3], "XYZ"[(i + 2) % 3]
+    if i == 1:
+        moving, toward = "X", ("-" if sign == "+" else "+") + "Z"
+    else:
+        moving, toward = a, sign + b
+    return (f"rotate it about its {'XYZ'[i]} axis, turning its +{moving} end toward {toward} "
+            f"({_VEHICLE[(i, sign)]} if X points forward, Y right and Z down)")
 
 
 def coverage_report(directions: np.ndarray, *, max_gap_deg: float = MAX_GAP_DEG) -> dict:
@@ -106,18 +134,21 @@ def coverage_report(directions: np.ndarray, *, max_gap_deg: float = MAX_GAP_DEG)
     -------
     dict
         ``coverage`` (fraction, :func:`magbench.core.geometry.coverage`), ``largest_gap_deg``
-        and ``gap_centre`` (unit vector), ``rotate_about`` (unit axis) and ``warning`` (a
-        sentence, or None when the coverage is sufficient).
+        and ``gap_centre`` (unit vector), ``rotate_about`` (unit axis, right-handed, to turn
+        the sensor about), ``advice`` (:func:`turn_advice`) and ``warning`` (a sentence, or
+        None when the coverage is sufficient).
     """
     d = np.asarray(directions, dtype=float)
     gap, centre = largest_gap(d)
     axis = _rotation_hint(d, centre)
+    advice = turn_advice(axis)
     warning = None
     if gap > max_gap_deg:
         warning = (f"coverage is insufficient: no field direction within {gap:.0f} deg of "
                    f"({centre[0]:+.2f}, {centre[1]:+.2f}, {centre[2]:+.2f}) in the sensor's "
                    f"axes (the samples fill a cap of about {180 - gap:.0f} deg; the coverage "
-                   f"sweep shows most full-model fits fail below about 90); turn the sensor "
-                   f"about its {_axis_name(axis)} as well and record again")
+                   f"sweep shows most full-model fits fail below about 90); record again and "
+                   f"also {advice}, until the field has pointed that way")
     return {"coverage": coverage(d), "largest_gap_deg": float(gap),
-            "gap_centre": centre.tolist(), "rotate_about": axis.tolist(), "warning": warning}
+            "gap_centre": centre.tolist(), "rotate_about": axis.tolist(), "advice": advice,
+            "warning": warning}

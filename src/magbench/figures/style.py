@@ -36,6 +36,7 @@ METHOD_STYLE: dict[str, tuple[str, str]] = {
     "sar_ls": ("#CC6677", "H"), "sar_kf": ("#44AA99", "o"), "sar_aid": ("#EE8866", "s"),
     "magyc_ls": ("#77AADD", "^"), "magyc_nls": ("#BBCC33", "D"), "magyc_bfg": ("#FFAABB", "v"),
     "magyc_ifg": ("#99DDFF", "P"), "magfactor3": ("#AAAA00", "X"),
+    "diagonal": ("#44BB99", "8"),
 }
 #: Line style and width by family: the review's methods solid and heavier.
 FAMILY_LINE = {"review": ("-", 1.8), "extra": ("--", 1.2), "variant": ("-.", 1.2),
@@ -71,8 +72,9 @@ def method_style(name: str) -> MethodStyle:
 
 
 def new_figure(width: float, height: float, **kwargs: object) -> Figure:
-    """A bare Figure with the constrained layout every magbench figure uses."""
-    return Figure(figsize=(width, height), layout="constrained", **kwargs)
+    """A bare Figure with the constrained layout every magbench figure uses (``layout=None``
+    for a figure that places its axes itself)."""
+    return Figure(figsize=(width, height), **{"layout": "constrained", **kwargs})
 
 
 def save_figure(fig: Figure, path: Path | str, dpi: int = DPI) -> Path:

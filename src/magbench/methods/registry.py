@@ -11,15 +11,17 @@ import inspect
 from collections.abc import Callable
 from dataclasses import dataclass
 
+from magbench.core.crb import MODEL_PARAMETERS
 from magbench.core.model import Calibration
 
-__all__ = ["DISPLAY_ORDER", "Method", "get_method", "methods", "register", "unregister"]
+__all__ = ["DISPLAY_ORDER", "MODEL_PARAMETERS", "Method", "get_method", "methods", "register",
+           "unregister"]
 
 #: Display order of the registered methods: the review's seven in its order of presentation,
 #: then the extra methods. Names not listed sort after these, alphabetically.
 DISPLAY_ORDER = (
     "twostep", "crassidis", "dorveaux", "vasconcelos", "ali", "wu_shi", "magical",
-    "wu_shi_nm", "ellipsoid", "fang", "sphere", "twostep_hi",
+    "wu_shi_nm", "ellipsoid", "fang", "diagonal", "sphere", "twostep_hi",
     "vasconcelos_printed", "wu_shi_printed", "twostep_no_svd", "crassidis_prior",
 )
 
@@ -72,12 +74,13 @@ def register(name: str, *, label: str, min_samples: int, family: str = "review",
     paper_key : str, optional
         The method's key in the review's Table 2 (reference data), if it is there.
     model : str
-        What the method estimates: ``"full"`` (any T and h), ``"sphere"`` (``T = r I``, hard
-        iron and one scale) or ``"bias"`` (``T = I``, hard iron only). The contract tests check
+        What the method estimates: ``"full"`` (any T and h), ``"diagonal"`` (``T`` diagonal:
+        hard iron and one scale per axis), ``"sphere"`` (``T = r I``, hard iron and one scale)
+        or ``"bias"`` (``T = I``, hard iron only). The contract tests check
         recovery on data the method's model can represent.
     """
-    if model not in ("full", "sphere", "bias"):
-        raise ValueError(f"model must be 'full', 'sphere' or 'bias', got {model!r}")
+    if model not in MODEL_PARAMETERS:
+        raise ValueError(f"model must be one of {', '.join(MODEL_PARAMETERS)}, got {model!r}")
 
     def decorator(fit: Callable[..., Calibration]) -> Callable[..., Calibration]:
         if name in _REGISTRY:

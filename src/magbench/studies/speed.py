@@ -31,8 +31,9 @@ from magbench.sources.synthetic import Point, make_dataset
 from magbench.studies.real import DEFAULT_MAX_SAMPLES
 from magbench.studies.review import ReviewStudy
 
-__all__ = ["SIZES", "bench_calls", "bench_first_calls", "bench_parallel", "bench_peers",
-           "format_reproduce_times", "peer_install_size", "reproduce_times", "run_bench"]
+__all__ = ["SIZES", "bench_calibrate", "bench_calls", "bench_first_calls", "bench_parallel",
+           "bench_peers", "format_reproduce_times", "peer_install_size", "reproduce_times",
+           "run_bench"]
 
 SIZES = (50, 150, 300, 1000, 3000, 10000)
 
@@ -337,11 +338,42 @@ def bench_parallel(trials: int = 250, algorithms: Sequence[str] | None = None,
     return out
 
 
+def bench_calibrate(K: int = 10_000, repeats: int = 3, seed: int = 0) -> pd.DataFrame:
+    """Wall time of ``python -m magbench calibrate`` with the default settings (picture
+    included) on a ``K``-sample synthetic recording with a counts-sized offset.
+
+    Each run is a fresh interpreter after one warm-up run (which fills the numba cache):
+    ``process_s`` is the whole process (interpreter, imports, Hydra's config), ``command_s``
+    what the command itself reports (reading, fitting, choosing, writing and drawing).
+    """
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(p for p in sys.path if p)}
+    rng = np.random.default_rng(seed)
+    m = rng.standard_normal((K, 3))
+    m /= np.linalg.norm(m, axis=1)[:, None]
+    y = m @ np.array([[520.0, 20.0, -8.0], [0.0, 470.0, 15.0], [0.0, 0.0, 610.0]]).T
+    y += np.array([900.0, -350.0, 120.0]) + 3.0 * rng.standard_normal((K, 3))
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "synthetic.csv"
+        pd.DataFrame(y, columns=["mx", "my", "mz"]).assign(t=np.arange(K) * 0.01).to_csv(
+            path, index=False)
+        command = [sys.executable, "-m", "magbench", "calibrate", f"file={path}",
+                   f"out={Path(tmp) / 'out'}", "progress=false"]
+        for run in range(repeats + 1):
+            start = time.perf_counter()
+            out = subprocess.run(command, env=env, capture_output=True, text=True, check=True)
+            wall = time.perf_counter() - start
+            if run:     # the first run is the warm-up
+                reported = float(out.stdout.rsplit("(in ", 1)[1].split(" s)")[0])
+                rows.append({"K": K, "run": run, "process_s": wall, "command_s": reported})
+    return pd.DataFrame(rows)
+
+
 def run_bench(results_dir: Path | str, names: Sequence[str] | None = None,
               sizes: Sequence[int] = SIZES, parallel_trials: int = 250,
               progress: Callable[[str], None] | None = print) -> Path:
     """Run every benchmark and write ``calls.csv``, ``first_calls.csv``, ``peers.csv``,
-    ``peer_install.csv`` and ``parallel.csv`` under ``<results_dir>/bench``."""
+    ``peer_install.csv``, ``calibrate.csv`` and ``parallel.csv`` under ``<results_dir>/bench``."""
     folder = Path(results_dir) / "bench"
     folder.mkdir(parents=True, exist_ok=True)
     names = list(names or [m for m in methods() if not get_method(m).needs_gyro])
@@ -358,6 +390,11 @@ def run_bench(results_dir: Path | str, names: Sequence[str] | None = None,
     write_csv_atomic(calls, folder / "calls.csv")
     write_csv_atomic(bench_peers(), folder / "peers.csv")
     write_csv_atomic(peer_install_size(), folder / "peer_install.csv")
+    write_csv_atomic(cal := bench_calibrate(), folder / "calibrate.csv")
+    if progress:
+        progress(f"calibrate on {cal['K'].iloc[0]} samples (default settings, picture "
+                 f"included): median {cal['command_s'].median():.2f} s in the command, "
+                 f"{cal['process_s'].median():.2f} s for the whole process")
     if parallel_trials:
         write_csv_atomic(bench_parallel(parallel_trials, names), folder / "parallel.csv")
     return folder

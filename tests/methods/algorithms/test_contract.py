@@ -48,7 +48,7 @@ def bound(name: str) -> float:
 def model_point(name: str, point: Point) -> Point:
     """The point with the distortions the method's model can represent (T = r I, or T = I)."""
     model = magbench.get_method(name).model
-    if model == "sphere":
+    if model in ("sphere", "diagonal"):
         return Point(point.K, point.sigma, 0.0, point.gamma, point.alpha_low, point.alpha_high)
     if model == "bias":
         return Point(point.K, point.sigma, 0.0, point.gamma, 1.0, 1.0)

@@ -1,0 +1,136 @@
+"""Outliers and collapsed fits: what ``calibrate`` sets aside and what it refuses to write.
+
+*Outliers.* A calibration maps every good sample onto the unit sphere, so the norm residual
+``r_k = ||A (y_k - b)|| - 1`` (the quantity squared in J_r, eq. 81) is small for all of them;
+a spike (a bad read, a bit flip) or a magnetic disturbance (a magnet or a motor near the
+sensor) gives a large one. :func:`outliers` flags residuals more than :data:`CUTOFF` robust
+standard deviations (1.4826 median absolute deviations, consistent with a Gaussian's sigma)
+from their median, and never a deviation below :data:`FLOOR` (0.1 % of the field), so that
+noise-free or very quiet data are not trimmed by round-off. The statistics come from the
+current inliers and the limit is applied to every sample, so a sample set aside early can come
+back once the fit improves (iterative trimming, a few rounds until the set stops changing).
+
+*A first robust fit* (:func:`robust_sphere_fit`). Spikes ten times the field drag a least-squares
+fit of any model, so the first round does not fit at all: it measures the distance of every
+sample from the coordinate-wise median of the samples against the median distance. Later
+rounds use the linear least-squares sphere fit of the inliers
+(:func:`magbench.core.geometry.sphere_fit`). The sphere fit cannot represent soft iron, so its
+residuals are wider than a full model's; that only makes this first screen lenient, and the
+chosen method's own residuals are trimmed afterwards (:mod:`magbench.studies.calibration`).
+
+*Collapsed fits* (:func:`refusal_reason`). J_r has a degenerate minimiser: with ``h`` far
+away and a large ``T``, every corrected sample lands near one point of the unit sphere and
+J_r tends to 0 (see :mod:`magbench.studies.real`). Such a fit, a near-singular ``A`` or a
+non-finite answer is refused, never written.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from magbench.core.geometry import sphere_fit, unit_rows
+
+__all__ = ["COLLAPSE_RATIO", "CUTOFF", "FLOOR", "MAD_SCALE", "MAX_CONDITION", "outliers",
+           "refusal_reason", "resultant_length", "robust_sphere_fit"]
+
+MAD_SCALE = 1.4826
+#: Robust standard deviations from the median beyond which a norm residual is an outlier.
+CUTOFF = 5.0
+#: Relative deviations from the field magnitude that are never called outliers (0.1 %).
+FLOOR = 1e-3
+#: Largest accepted condition number of ``T``: a magnetometer's scale factors differ by tens
+#: of percent, never by a factor of 100.
+MAX_CONDITION = 100.0
+#: A fit is collapsed when ``1 - R`` of its corrected directions (R the length of the mean unit
+#: vector; 0 for a full sphere, 1 for one direction) is below this share of the sphere fit's.
+COLLAPSE_RATIO = 0.25
+
+
+def outliers(residuals: np.ndarray, reference: np.ndarray | None = None, *,
+             cutoff: float = CUTOFF, floor: float = FLOOR) -> np.ndarray:
+    """Mask of the residuals farther than ``cutoff`` robust sigmas from the median.
+
+    Parameters
+    ----------
+    residuals : ndarray, shape (K,)
+        Relative norm residuals ``||m_k|| - 1``.
+    reference : ndarray, optional
+        The residuals the median and MAD are taken from (the current inliers); by default
+        ``residuals`` itself.
+    cutoff : float
+        Limit in robust standard deviations (``1.4826 MAD``).
+    floor : float
+        Smallest limit: deviations below it are never outliers.
+
+    Returns
+    -------
+    ndarray of bool, shape (K,)
+        True for an outlier.
+    """
+    r = np.asarray(residuals, dtype=float)
+    ref = r if reference is None else np.asarray(reference, dtype=float)
+    med = float(np.median(ref))
+    spread = MAD_SCALE * float(np.median(np.abs(ref - med)))
+    return ~(np.abs(r - med) <= max(cutoff * spread, floor))
+
+
+def robust_sphere_fit(y: np.ndarray, *, rounds: int = 5, cutoff: float = CUTOFF,
+                      ) -> tuple[np.ndarray, float, np.ndarray]:
+    """Sphere fit with iterative trimming of the norm residuals (see the module notes).
+
+    Returns
+    -------
+    centre : ndarray, shape (3,)
+    radius : float
+    inliers : ndarray of bool, shape (K,)
+        False for the samples set aside.
+    """
+    y = np.asarray(y, dtype=float)
+    centre = np.median(y, axis=0)
+    d = np.linalg.norm(y - centre, axis=1)
+    radius = float(np.median(d))
+    inliers = ~outliers(d / radius - 1.0, cutoff=cutoff)
+    for _ in range(rounds):
+        if inliers.sum() < 4:
+            break
+        centre, radius = sphere_fit(y[inliers])
+        r = np.linalg.norm(y - centre, axis=1) / radius - 1.0
+        new = ~outliers(r, r[inliers], cutoff=cutoff)
+        if np.array_equal(new, inliers):
+            break
+        inliers = new
+    return centre, radius, inliers
+
+
+def resultant_length(directions: np.ndarray) -> float:
+    """Length of the mean unit vector of ``directions`` (0 for a full sphere, 1 for one
+    direction)."""
+    u = unit_rows(np.asarray(directions, dtype=float))
+    return float(np.linalg.norm(u.mean(axis=0))) if len(u) else 1.0
+
+
+def refusal_reason(T: np.ndarray, h: np.ndarray, y: np.ndarray, centre: np.ndarray) -> str:
+    """Why the calibration ``T, h`` of ``y`` must not be written, or ``""`` if it may.
+
+    Refused: a non-finite ``T`` or ``h``; ``cond(T)`` above :data:`MAX_CONDITION`; corrected
+    directions that collapse (``1 - R`` below :data:`COLLAPSE_RATIO` times that of the
+    directions ``y - centre`` seen from the sphere-fit centre); non-finite corrected samples.
+    """
+    T = np.asarray(T, dtype=float)
+    h = np.asarray(h, dtype=float)
+    if not (np.all(np.isfinite(T)) and np.all(np.isfinite(h))):
+        return "the estimate is not finite"
+    s = np.linalg.svd(T, compute_uv=False)
+    if not s[-1] > 0 or s[0] / s[-1] > MAX_CONDITION:
+        return (f"T is nearly singular (condition number "
+                f"{s[0] / s[-1] if s[-1] > 0 else np.inf:.3g} > {MAX_CONDITION:g})")
+    corrected = np.linalg.solve(T, (np.asarray(y, float) - h).T).T
+    if not np.all(np.isfinite(corrected)):
+        return "the corrected samples are not finite"
+    spread = 1.0 - resultant_length(corrected)
+    reference = 1.0 - resultant_length(np.asarray(y, float) - centre)
+    if spread < COLLAPSE_RATIO * reference:
+        return (f"the corrected field directions collapse toward one direction (mean unit "
+                f"vector length {1 - spread:.2f}; {1 - reference:.2f} seen from the sphere "
+                "fit's centre)")
+    return ""

@@ -1,0 +1,126 @@
+"""Model-based 95 % intervals on a calibration's ``h`` and ``A`` from the Fisher information.
+
+At the estimate ``T, h`` of ``y_k = T m_k + h + e_k`` (eq. 67) with ``e_k ~ N(0, sigma^2 I)``:
+
+* the directions are ``m_k = u_k / ||u_k||``, ``u_k = T^-1 (y_k - h)``;
+* the noise is estimated from the distance of each sample to the fitted ellipsoid along its
+  normal, ``d_k = (||u_k|| - 1) / ||T^-T m_k||`` (the one residual component that carries
+  information, :mod:`magbench.core.crb`), as ``sigma^2 = sum_k d_k^2 / (K - p)`` with p the
+  model's free parameters;
+* the covariance of ``(vec T, h)`` is the inverse Fisher information within the method's model
+  (:func:`magbench.core.crb.parameter_covariance`), and that of the gauge's
+  ``A = (T T^T)^(-1/2)`` follows by the delta method, ``J C J^T`` with J the derivative of
+  ``vec A`` with respect to ``vec T`` (central differences; A does not depend on the rotation
+  the full model cannot fix, so neither does its interval).
+
+The intervals are ``estimate +- 1.96 sqrt(variance)``: model-based, exact only as far as the
+noise is independent, Gaussian and isotropic and the model holds; a bootstrap over the samples
+(:mod:`magbench.studies.calibration`) checks them on the data.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from magbench.core.crb import MODEL_PARAMETERS, parameter_covariance
+from magbench.core.gauge import safe_gauge
+
+__all__ = ["Intervals", "a_jacobian", "fisher_intervals", "noise_sigma"]
+
+Z95 = 1.959963984540054
+
+
+@dataclass(frozen=True)
+class Intervals:
+    """Model-based 95 % intervals of a calibration in the safe gauge.
+
+    Attributes
+    ----------
+    h, h_half : ndarray, shape (3,)
+        The offset and the half-widths of its intervals (recording units).
+    A, A_half : ndarray, shape (3, 3)
+        ``A = (T T^T)^(-1/2)`` and the half-widths of its entries.
+    sigma : float
+        Estimated noise standard deviation (recording units).
+    model : str
+        The model whose information was used.
+    """
+
+    h: np.ndarray
+    h_half: np.ndarray
+    A: np.ndarray
+    A_half: np.ndarray
+    sigma: float
+    model: str
+
+    def to_dict(self) -> dict:
+        return {"h": self.h.tolist(), "h_half_width": self.h_half.tolist(),
+                "A": self.A.tolist(), "A_half_width": self.A_half.tolist(),
+                "sigma": self.sigma, "model": self.model, "level": 0.95,
+                "kind": "model-based: inverse Fisher information at the estimate, "
+                        "independent Gaussian noise assumed"}
+
+
+def _directions(y: np.ndarray, T: np.ndarray, h: np.ndarray
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    u = np.linalg.solve(T, (y - h).T).T
+    rho = np.sqrt(np.einsum("ij,ij->i", u, u))
+    m = u / rho[:, None]
+    n = np.linalg.solve(T.T, m.T).T
+    return m, rho, np.sqrt(np.einsum("ij,ij->i", n, n))
+
+
+def noise_sigma(y: np.ndarray, T: np.ndarray, h: np.ndarray, n_params: int) -> float:
+    """``sqrt(sum_k d_k^2 / (K - p))`` with ``d_k`` the distance along the normal (notes)."""
+    _, rho, n_norm = _directions(np.asarray(y, float), np.asarray(T, float),
+                                 np.asarray(h, float))
+    d = (rho - 1.0) / n_norm
+    return float(np.sqrt(np.sum(d * d) / max(len(d) - n_params, 1)))
+
+
+def a_jacobian(T: np.ndarray) -> np.ndarray:
+    """``d vec(A) / d vec(T)`` (9 x 9, row-major vec) of ``A = (T T^T)^(-1/2)``."""
+    T = np.asarray(T, dtype=float)
+    step = 1e-6 * float(np.linalg.norm(T))
+    J = np.empty((9, 9))
+    for k in range(9):
+        dT = np.zeros(9)
+        dT[k] = step
+        plus = safe_gauge(T + dT.reshape(3, 3), np.zeros(3)).A
+        minus = safe_gauge(T - dT.reshape(3, 3), np.zeros(3)).A
+        J[:, k] = (plus - minus).ravel() / (2.0 * step)
+    return J
+
+
+def fisher_intervals(y: np.ndarray, T: np.ndarray, h: np.ndarray,
+                     model: str = "full") -> Intervals:
+    """95 % intervals on ``h`` and the entries of ``A`` (see the module notes).
+
+    Parameters
+    ----------
+    y : ndarray, shape (K, 3)
+        The samples the calibration was fitted on (outliers removed).
+    T, h : ndarray
+        The estimate, in any gauge.
+    model : str
+        ``full``, ``diagonal``, ``sphere`` or ``bias``: the parameters the method estimated.
+
+    Returns
+    -------
+    Intervals
+        Infinite half-widths when the directions do not determine the parameters.
+    """
+    y, T, h = (np.asarray(a, dtype=float) for a in (y, T, h))
+    m, _, _ = _directions(y, T, h)
+    sigma = noise_sigma(y, T, h, MODEL_PARAMETERS[model])
+    C = parameter_covariance(T, m, sigma, model)
+    A = safe_gauge(T, h).A
+    if not np.all(np.isfinite(C)):
+        inf = np.full(3, np.inf)
+        return Intervals(h, inf, A, np.full((3, 3), np.inf), sigma, model)
+    J = a_jacobian(T)
+    var_A = np.einsum("ij,jk,ik->i", J, C[:9, :9], J)
+    return Intervals(h, Z95 * np.sqrt(np.diag(C)[9:]), A,
+                     Z95 * np.sqrt(np.clip(var_A, 0, None)).reshape(3, 3), sigma, model)

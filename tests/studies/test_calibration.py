@@ -1,0 +1,193 @@
+"""The calibrate study: spikes set aside, coverage-limited choice, refusal, the safe gauge.
+
+Real-recording tests read ``$MAGBENCH_DATA`` (or ../shared/data/real beside the repository)
+and are skipped when it is absent; their synthetic twins always run.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import magbench
+from magbench.core.gauge import safe_gauge
+from magbench.core.geometry import fibonacci_sphere
+from magbench.core.model import CalibrationFailed
+from magbench.core.robust import refusal_reason
+from magbench.methods.registry import get_method, methods
+from magbench.sources.recordings import DATA_ENV, Recording, list_recordings, load_recording
+from magbench.studies.calibration import ROBUST_ON_CAPS, THIN_GAP_DEG, allowed, calibrate_recording
+from magbench.studies.real import fit_recording
+
+SHARED = Path(os.environ.get(DATA_ENV) or Path(__file__).resolve().parents[3] / "shared" /
+              "data" / "real")
+needs_data = pytest.mark.skipif(not (SHARED / "INDEX.csv").exists(),
+                                reason=f"real recordings not found ({DATA_ENV} unset, {SHARED} "
+                                       "absent)")
+
+FAST = ["ellipsoid", "fang", "magical", "diagonal", "sphere", "twostep"]
+T_TRUE = np.array([[520.0, 20.0, -8.0], [0.0, 470.0, 15.0], [0.0, 0.0, 610.0]])
+H_TRUE = np.array([900.0, -350.0, 120.0])
+
+
+def synthetic(K: int = 1200, seed: int = 0) -> Recording:
+    rng = np.random.default_rng(seed)
+    m = rng.standard_normal((K, 3))
+    m /= np.linalg.norm(m, axis=1)[:, None]
+    y = m @ T_TRUE.T + H_TRUE + 3.0 * rng.standard_normal((K, 3))
+    return Recording("synthetic", y, t=np.arange(K) * 0.01, n_rows=K)
+
+
+def with_spikes(rec: Recording, seed: int = 1, share: float = 0.05) -> tuple[Recording, set]:
+    """``share`` of the samples replaced by 10x spikes (the issue's test)."""
+    rng = np.random.default_rng(seed)
+    bad = rng.choice(rec.K, int(share * rec.K), replace=False)
+    y = rec.y.copy()
+    y[bad] *= 10.0
+    return Recording(rec.name, y, t=rec.t, n_rows=rec.n_rows), set(bad.tolist())
+
+
+def spread(result) -> float:
+    return result.verdict["field_error_pct"]["p95"]
+
+
+def check_spikes(rec: Recording, candidates: list[str]) -> None:
+    clean = calibrate_recording(rec, candidates, bootstrap=0)
+    spiky, bad = with_spikes(rec)
+    dirty = calibrate_recording(spiky, candidates, bootstrap=0)
+    set_aside = set(np.flatnonzero(~dirty.inliers).tolist())
+    assert bad <= set_aside                                   # every spike reported
+    assert len(set_aside - bad) <= 0.01 * rec.K               # few good samples lost
+    assert dirty.verdict["held_out"] and clean.verdict["held_out"]
+    assert spread(dirty) <= 1.5 * spread(clean)
+    T = np.array([[dirty.chosen[f"T_{i}{j}"] for j in range(3)] for i in range(3)])
+    assert np.linalg.cond(T) < 100
+
+
+def test_5_percent_10x_spikes_are_set_aside_on_synthetic_data():
+    check_spikes(synthetic(), FAST)
+
+
+@needs_data
+def test_5_percent_10x_spikes_are_set_aside_on_a_real_recording():
+    rec = load_recording(SHARED, "hmc5883l_sphere", check=False).thinned(1500)
+    check_spikes(Recording(rec.name, rec.y, t=rec.t, n_rows=rec.n_rows), FAST)
+
+
+def test_allowed_models_follow_the_coverage_sweep():
+    assert all(allowed(m, 60.0) for m in FAST)
+    assert [m for m in FAST if allowed(m, 120.0)] == [m for m in FAST if m in ROBUST_ON_CAPS]
+    assert [m for m in FAST if allowed(m, THIN_GAP_DEG + 1)] == ["sphere"]
+
+
+def test_a_60_degree_cap_never_chooses_a_method_that_fails_on_caps():
+    rng = np.random.default_rng(3)
+    y = fibonacci_sphere(600, z_range=(0.5, 1.0)) @ T_TRUE.T + H_TRUE
+    rec = Recording("cap", rng.permutation(y + 2.0 * rng.standard_normal(y.shape)), n_rows=600)
+    result = calibrate_recording(rec, FAST, bootstrap=0)
+    assert result.coverage["largest_gap_deg"] > 100
+    assert result.chosen["algorithm"] in ROBUST_ON_CAPS + ("sphere", "twostep_hi")
+    assert any("choice was limited" in w for w in result.warnings)
+    assert any("coverage is insufficient" in w for w in result.warnings)
+
+
+def test_a_collapsing_method_is_never_chosen():
+    from magbench.methods.registry import register, unregister
+
+    def collapse(samples, **_):
+        c = samples.mean(axis=0)
+        far = c + 1e3 * np.array([1.0, 0.0, 0.0])
+        return magbench.Calibration(np.linalg.norm(samples - far, axis=1).mean() * np.eye(3),
+                                    far)
+
+    register("collapse_test", label="Collapse", min_samples=4, family="extra",
+             model="sphere")(collapse)
+    try:
+        result = calibrate_recording(synthetic(400), ["collapse_test", "fang"], bootstrap=0)
+    finally:
+        unregister("collapse_test")
+    assert result.chosen["algorithm"] == "fang"
+    row = result.ranked.set_index("algorithm").loc["collapse_test"]
+    assert not row["tie"] or row["note"].startswith("refused")
+
+
+def test_fisher_intervals_agree_with_the_bootstrap_on_synthetic_data():
+    result = calibrate_recording(synthetic(1000), ["fang"], bootstrap=60)
+    b = result.bootstrap
+    assert b["replicates"] == 60
+    assert all(0.7 < r < 1.4 for r in b["ratio_h"])
+    assert 0.7 < b["ratio_A_median"] < 1.4
+
+
+def large_rotation() -> np.ndarray:
+    from scipy.spatial.transform import Rotation
+
+    return Rotation.from_rotvec(np.radians(75.0) * np.array([0.3, -0.5, 0.81]) /
+                                np.linalg.norm([0.3, -0.5, 0.81])).as_matrix()
+
+
+def check_gauge(T: np.ndarray, h: np.ndarray, y: np.ndarray) -> None:
+    g = safe_gauge(T, h)
+    np.testing.assert_array_equal(g.A, g.A.T)
+    assert np.linalg.eigvalsh(g.A).min() > 0 and np.linalg.det(g.A) > 0
+    own = np.linalg.norm(np.linalg.solve(T, (y - h).T), axis=0)
+    np.testing.assert_allclose(np.linalg.norm((y - g.b) @ g.A.T, axis=1), own, rtol=1e-9)
+
+
+MAG_ONLY = [m for m in methods() if not get_method(m).needs_gyro
+            and get_method(m).option_names() != ["attitude"]]
+
+
+@pytest.mark.parametrize("name", MAG_ONLY)
+def test_every_written_A_is_spd_with_the_methods_norms_under_a_large_rotation(name):
+    rng = np.random.default_rng(8)
+    S = np.array([[1.2, 0.1, 0.0], [0.1, 0.9, 0.05], [0.0, 0.05, 1.1]])
+    T = S @ large_rotation()                      # 75 deg of rotation in the model's T
+    y = rng.permutation(fibonacci_sphere(300)) @ T.T + [0.3, -0.2, 0.1]
+    y += 0.005 * rng.standard_normal(y.shape)
+    try:
+        cal = magbench.calibrate(y, name)
+    except CalibrationFailed:
+        pytest.skip(f"{name} fails on these data (its own tests cover that)")
+    check_gauge(cal.T, cal.h, y)
+
+
+@needs_data
+def test_every_written_A_is_spd_on_each_real_recording():
+    checked = 0
+    for rec_name in list_recordings(SHARED):
+        rec = load_recording(SHARED, rec_name, check=False).thinned(300)
+        for name in MAG_ONLY:
+            if get_method(name).min_samples > rec.K:
+                continue
+            try:
+                cal = fit_recording(rec, name, "centre")
+            except (CalibrationFailed, ValueError):
+                continue
+            if refusal_reason(cal.T, cal.h, rec.y, cal.h):
+                continue        # never written (e.g. a printed variant's cond(T) of 4e11)
+            check_gauge(cal.T, cal.h, rec.y)
+            checked += 1
+    assert checked > 0.7 * len(MAG_ONLY) * len(list_recordings(SHARED))
+
+
+def test_a_refused_fit_passes_the_choice_to_the_next_of_the_tie():
+    import pandas as pd
+
+    from magbench.studies.calibration import choose
+    from magbench.studies.real import evaluate_recording, recording_summary
+
+    rec = synthetic(600)
+    trials = pd.DataFrame(evaluate_recording(rec, ["ellipsoid", "fang"], ["centre"]))
+    summary = recording_summary(trials)
+    _, tie, first, _ = choose(summary, trials, rec, 30.0)
+    assert first is not None and first["algorithm"] in tie
+    ranked, _, second, how = choose(summary, trials, rec, 30.0, refuse=lambda r: (
+        "test refusal" if r["algorithm"] == first["algorithm"] else ""))
+    assert second is not None and second["algorithm"] != first["algorithm"]
+    note = ranked.set_index("algorithm").loc[first["algorithm"], "note"]
+    assert note == "refused: test refusal"
+    assert f"chosen {second['algorithm']}" in how
