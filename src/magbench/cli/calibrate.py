@@ -34,7 +34,13 @@ import numpy as np
 import pandas as pd
 from omegaconf import DictConfig, OmegaConf
 
-from magbench.cli.config import UsageError, check_common, check_integer, check_options
+from magbench.cli.config import (
+    UsageError,
+    check_common,
+    check_integer,
+    check_options,
+    writable_folder,
+)
 from magbench.core.exports import ardupilot_param_file, ardupilot_params, c_header, to_json_dict
 from magbench.core.files import write_csv_atomic, write_text_atomic
 from magbench.core.gauge import safe_gauge
@@ -249,7 +255,7 @@ def run_calibrate(cfg: DictConfig) -> int:
     if best is None:
         raise UsageError("every meaningful fit has a singular or non-finite T; no correction "
                          "can be written")
-    out = Path(str(cfg.out)) if cfg.get("out") else Path(f"{rec.name}-calibration")
+    out = writable_folder(cfg.out if cfg.get("out") else f"{rec.name}-calibration", "out")
     T, h = _estimate(best)
     cover = coverage_report((thinned.y - h) @ safe_gauge(T, h).A.T)
     payload = calibration_json(best, file=str(path), columns=list(rec.columns),

@@ -209,6 +209,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     except (UsageError, FolderBusy, ResultsExist) as exc:
         print(f"magbench: error: {exc}", file=sys.stderr)
         return 2
+    except OSError as exc:
+        # A file-system refusal the checks could not foresee (a disk that fills, a folder
+        # removed under a run): one line naming the path, not a traceback.
+        where = f" ({exc.filename})" if exc.filename else ""
+        print(f"magbench: error: {exc.strerror or exc}{where}; check that the paths given "
+              "exist, are of the right kind and can be written", file=sys.stderr)
+        return 2
     except KeyboardInterrupt as stop:
         what = "terminated" if isinstance(stop, Terminated) else "interrupted"
         print(f"magbench: {what}; finished chunks are kept and a rerun completes the rest",
