@@ -324,16 +324,17 @@ def wushi_study(cfg: DictConfig) -> tuple[WuShiStudy, dict]:
     def integer(key: str, default: int, low: int = 1) -> int:
         return check_integer(s.get(key, default), f"sweep.{key}", low)
 
-    N = integer("N", 300, 9)
+    algorithms = selected_algorithms(cfg)
+    min_n = max(get_method(m).min_samples for m in dict.fromkeys([ML, NM, *algorithms]))
+    N = integer("N", 300, min_n)
     sigma = check_number(s.get("sigma", 0.003), "sweep.sigma", lambda x: x >= 0, ">= 0")
     alphas = [check_number(a, "sweep.alphas_pct", lambda x: x >= 0, ">= 0")
               for a in _plain(s.get("alphas_pct", [0, 1, 2, 3, 4, 5, 6, 7]))]
-    time_N = [check_integer(n, "sweep.time_N", 9)
+    time_N = [check_integer(n, "sweep.time_N", min_n)
               for n in _plain(s.get("time_N", [100, 200, 500, 1000, 2000, 3000]))]
     thresholds = _plain(s.get("thresholds", {"ML": 0.004, "NM": 0.018}))
     if not isinstance(thresholds, dict) or set(thresholds) != {"ML", "NM"}:
         raise UsageError(f"sweep.thresholds must have keys ML and NM, got {thresholds!r}")
-    algorithms = selected_algorithms(cfg)
     study = WuShiStudy(
         runs=_trials(cfg, "sweep wushi"), N=N, sigma=sigma, seed=common["seed"],
         algorithms=tuple(algorithms), alphas_pct=tuple(alphas),

@@ -156,7 +156,7 @@ def _filter_loop(y: np.ndarray, G: np.ndarray, minus_2G: np.ndarray, theta: np.n
                     P[i, j] -= gain_i * PH[j]
 
 
-@register("crassidis", label="Crassidis EKF", min_samples=9, paper_key="Crassidis")
+@register("crassidis", label="Crassidis EKF", min_samples=10, paper_key="Crassidis")
 def fit(samples: np.ndarray, *, theta0: object = None, P0: object = None, sigma: float = 0.005,
         variance: str = "5b", passes: int = 1, bias: str = "model") -> Calibration:
     """Calibrate with the real-time EKF of Crassidis et al. (Algorithm 2).
