@@ -166,3 +166,40 @@ def test_hydra_multirun_runs_one_job_per_sweep(tmp_path):
     assert result.returncode == 0, result.stderr
     assert len(pd.read_csv(tmp_path / "baseline" / "trials.csv")) == 2
     assert sorted(pd.read_csv(tmp_path / "K" / "summary.csv")["K"]) == [50, 150, 300]
+
+
+def test_time_limit_interrupts_python_code_in_a_thread():
+    """Where signals cannot go (a Dask worker's threads) the limit still holds, and a block
+    that ends in time leaves no exception behind."""
+    import threading
+
+    from magbench.engine.trial import CallTimeout, time_limit
+
+    seen = []
+
+    def work():
+        try:
+            with time_limit(0.2):
+                while True:
+                    time.sleep(0.01)
+        except CallTimeout as exc:
+            seen.append(str(exc))
+        with time_limit(0.1):
+            pass
+        time.sleep(0.3)                     # past the second limit: nothing may fire
+        seen.append("after")
+
+    thread = threading.Thread(target=work)
+    thread.start()
+    thread.join(timeout=10)
+    assert seen == ["call exceeded call_timeout_s = 0.2 s", "after"]
+
+
+def test_dask_backend_stops_a_hanging_method(faulty, tmp_path):
+    pytest.importorskip("distributed")
+    # The sphere fit (closed form, not compiled) is the control that must stay ok.
+    trials, _ = run_sweep(spec(["faulty_hangs", "sphere"], trials=2, call_timeout_s=0.3),
+                          tmp_path, n_jobs=2, chunk_size=1, backend="dask")
+    err = trials.groupby("algorithm")["error"].first()
+    assert err["faulty_hangs"] == "CallTimeout: call exceeded call_timeout_s = 0.3 s"
+    assert trials.groupby("algorithm")["ok"].all()["sphere"]
