@@ -182,7 +182,7 @@ def _plain_keys(args: list[str]) -> list[str]:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of ``python -m magbench`` and the ``magbench`` script."""
-    from magbench.engine.sweep import FolderBusy, ResultsExist
+    from magbench.engine.sweep import FolderBusy, ResultsExist, TooLarge
 
     args = list(sys.argv[1:] if argv is None else argv)
     if args and args[0] in ("--version", "-V", "version"):
@@ -206,7 +206,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     previous = signal.signal(signal.SIGTERM, _terminate) if _main_thread() else None
     try:
         return COMMANDS[command][0](compose_config(_plain_keys(args)))
-    except (UsageError, FolderBusy, ResultsExist) as exc:
+    except (UsageError, FolderBusy, ResultsExist, TooLarge) as exc:
         print(f"magbench: error: {exc}", file=sys.stderr)
         return 2
     except OSError as exc:
