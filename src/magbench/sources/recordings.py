@@ -228,15 +228,18 @@ def _select(columns: Sequence[object] | None, header: list[str] | None, n_cols: 
                      f"{columns}")
 
 
-def _numeric(table: pd.DataFrame, position: int, name: str, line0: int) -> np.ndarray:
-    """One column as floats; missing cells become NaN, other text is an error naming the cell."""
+def _numeric(table: pd.DataFrame, position: int, name: str, line0: int,
+             row0: int = 0) -> np.ndarray:
+    """One column as floats; missing cells become NaN, other text is an error naming the cell
+    (``table`` starts at data row ``row0`` of the file, whose first data row is line ``line0``).
+    """
     text = table.iloc[:, position].astype(str).str.strip()
     missing = text.str.lower().isin(_MISSING)
     values = pd.to_numeric(text.where(~missing), errors="coerce")
     bad = np.flatnonzero(values.isna().to_numpy() & ~missing.to_numpy())
     if bad.size:
-        row = int(bad[0])
-        raise ValueError(f"non-numeric value {text.iloc[row]!r} in column {name!r} at data row "
+        row = row0 + int(bad[0])
+        raise ValueError(f"non-numeric value {text.iloc[row - row0]!r} in column {name!r} at data row "
                          f"{row + 1} (line {row + line0} of the file)"
                          + (f" and {bad.size - 1} more cell(s)" if bad.size > 1 else "")
                          + "; expected numbers (missing values may be empty or NaN)")
@@ -297,7 +300,7 @@ def _read_columns(path: Path, layout: dict, wanted: dict[int, str],
                         not pd.api.types.is_bool_dtype(column):
                     block[:, j] = column.to_numpy(dtype=float)
                 else:
-                    block[:, j] = _numeric(chunk, j, wanted[p], line0 + offset)
+                    block[:, j] = _numeric(chunk, j, wanted[p], line0, offset)
             if table is None:
                 chunks.append(block)
             offset += len(chunk)
