@@ -239,7 +239,8 @@ def _numeric(table: pd.DataFrame, position: int, name: str, line0: int,
     bad = np.flatnonzero(values.isna().to_numpy() & ~missing.to_numpy())
     if bad.size:
         row = row0 + int(bad[0])
-        raise ValueError(f"non-numeric value {text.iloc[row - row0]!r} in column {name!r} at data row "
+        raise ValueError(f"non-numeric value {text.iloc[row - row0]!r} in column {name!r} at "
+                         f"data row "
                          f"{row + 1} (line {row + line0} of the file)"
                          + (f" and {bad.size - 1} more cell(s)" if bad.size > 1 else "")
                          + "; expected numbers (missing values may be empty or NaN)")
