@@ -184,7 +184,7 @@ def test_nan_rows_give_a_warning_line_and_are_dropped(tmp_path, capsys):
     (["file={rec}", "method=nope"], "unknown method 'nope'"),
     (["file={rec}", "method=sar_ls"], "sar_ls needs gyroscope data"),
     (["file={bad}"], "non-numeric value 'x' in column 'my' at data row 3"),
-    (["file={few}", "method=twostep"], "has 5 usable samples; at least 9 are needed"),
+    (["file={few}", "method=twostep"], "has 5 usable samples; at least 10 are needed"),
     (["file={flat}"], "nearly coplanar"),
     (["file={rec}", "preprocess=bogus"], "preprocess must be one of none, scale, centre"),
 ])

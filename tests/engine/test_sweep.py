@@ -164,3 +164,20 @@ def test_tables_without_a_run_record_are_not_replaced(tmp_path):
     with pytest.raises(ResultsExist, match=r"no readable run\.json"):
         run_study(Toy(), tmp_path, progress=False)
     assert (tmp_path / "rows.csv").read_text() == "unit,x\n0,1.0\n"
+
+
+def test_a_run_too_large_for_the_disk_or_memory_is_refused_before_any_work(tmp_path,
+                                                                           monkeypatch):
+    import magbench.engine.sweep as sweep
+
+    # 12 rows of 2 columns: 960 bytes of CSV (parts and merged table), 576 bytes in memory.
+    monkeypatch.setattr(sweep, "_free_bytes", lambda folder: (900, 10**9))
+    with pytest.raises(sweep.TooLarge, match=r"about 12 rows.*of disk \(9e-07 GB free"):
+        run_study(Toy(), tmp_path / "out", progress=False)
+    assert not (tmp_path / "out").exists()
+    monkeypatch.setattr(sweep, "_free_bytes", lambda folder: (10**9, 500))
+    with pytest.raises(sweep.TooLarge, match="of memory"):
+        run_study(Toy(), tmp_path / "out", progress=False)
+    monkeypatch.setattr(sweep, "_free_bytes", lambda folder: (1000, 600))
+    run_study(Toy(), tmp_path / "out", progress=False)          # just fits
+    assert len(read(tmp_path / "out")) == 12

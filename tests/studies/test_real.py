@@ -240,9 +240,9 @@ def test_thinning_and_halves_are_deterministic():
 
 def test_applicability_reasons():
     small = Recording("x", ellipsoid(6))
-    assert "needs at least 9 samples, this fit has 6" in applicability("twostep", small)
+    assert "needs at least 10 samples, this fit has 6" in applicability("twostep", small)
     assert "needs gyroscope data" in applicability("sar_ls", Recording("x", ellipsoid(50)))
-    assert applicability("magical", small) == ""
+    assert applicability("sphere", small) == ""
 
 
 # --------------------------------------------------------------------------- the sweep
@@ -289,11 +289,11 @@ def test_real_sweep_rows_and_summaries(tmp_path):
     assert len(trials) == 18
     long_a = trials[(trials["dataset"] == "long_a") & (trials["fit_on"] == "all")]
     assert (long_a["stride"] == 3).all() and (long_a["K_fit"] == 134).all()
-    # The short recording's halves (4 samples) are below TWOSTEP's 9 unknowns: skipped rows.
+    # The short recording's halves (4 samples) are below TWOSTEP's minimum of 10: skipped rows.
     short = trials[(trials["dataset"] == "short") & (trials["algorithm"] == "twostep")]
     assert short.set_index("fit_on")["skipped"].to_dict() == {
         "all": True, "first_half": True, "second_half": True}
-    assert short["error"].str.contains("needs at least 9 samples").all()
+    assert short["error"].str.contains("needs at least 10 samples").all()
     ok = per_rec[per_rec["dataset"] != "short"]
     assert ok["meaningful"].all()
     assert (ok["J_r_in"] < 0.1 * ok["J_r_sphere_in"]).all()   # soft iron removed

@@ -14,7 +14,7 @@ from tests.conftest import dataset
 
 
 def test_sizes_below_a_methods_minimum_are_recorded_not_timed():
-    calls = bench.bench_calls(["magical"], sizes=(3, 8), datasets=1, repeats=1)
+    calls = bench.bench_calls(["magical"], sizes=(3, 12), datasets=1, repeats=1)
     first = calls.iloc[0]
     assert first["note"] == "K below minimum" and first["n"] == 0
     assert calls.iloc[1]["n"] == 1  # one dataset x one timed call (the warm-up is not counted)

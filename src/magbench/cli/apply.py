@@ -21,7 +21,7 @@ import numpy as np
 import pandas as pd
 from omegaconf import DictConfig, OmegaConf
 
-from magbench.cli.config import UsageError
+from magbench.cli.config import UsageError, writable_folder
 from magbench.core.exports import from_json_dict
 from magbench.core.files import write_csv_atomic
 from magbench.core.model import Calibration
@@ -96,6 +96,7 @@ def run_apply(cfg: DictConfig) -> int:
     if out.is_dir():
         raise UsageError(f"out={out} is a folder; expected the name of the CSV file to write, "
                          f"e.g. out={out / 'corrected.csv'}")
+    writable_folder(out.parent, "the folder of out")
     # A file without a header has no names to keep: call the axes mx, my, mz.
     names = [f"m{'xyz'[i]}" if c.startswith("column ") else c for i, c in enumerate(rec.columns)]
     frame = corrected_frame(rec, cal, names)

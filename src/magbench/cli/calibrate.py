@@ -35,7 +35,13 @@ import numpy as np
 import pandas as pd
 from omegaconf import DictConfig, OmegaConf
 
-from magbench.cli.config import UsageError, check_common, check_integer, check_options
+from magbench.cli.config import (
+    UsageError,
+    check_common,
+    check_integer,
+    check_options,
+    writable_folder,
+)
 from magbench.core.exports import ardupilot_param_file, ardupilot_params, c_header, to_json_dict
 from magbench.core.files import write_csv_atomic, write_text_atomic
 from magbench.core.gauge import safe_gauge
@@ -236,7 +242,7 @@ def run_calibrate(cfg: DictConfig) -> int:
                             "longer" if not name else "see the table")
                          + "); check that the sensor was turned through many orientations "
                          "in a steady field")
-    out = Path(str(cfg.out)) if cfg.get("out") else default_out(path)
+    out = writable_folder(cfg.out if cfg.get("out") else default_out(path), "out")
     payload = calibration_json(result, file=str(path), columns=list(rec.columns),
                                n_file=rec.K, preprocess=preprocess)
     T, h = estimate(result.chosen)

@@ -16,7 +16,14 @@ from pathlib import Path
 import pandas as pd
 from omegaconf import DictConfig, OmegaConf
 
-from magbench.cli.config import check_common, compose_config, config_dir, study_for
+from magbench.cli.config import (
+    UsageError,
+    check_common,
+    compose_config,
+    config_dir,
+    study_for,
+    writable_folder,
+)
 from magbench.core.files import write_csv_atomic, write_text_atomic
 from magbench.engine.record import cpu_model, cpu_seconds, git_commit, process_age_s
 from magbench.engine.sweep import run_study
@@ -50,7 +57,7 @@ def run(cfg: DictConfig, figures: bool = True) -> int:
     ``figures=False`` leaves the figures to a later ``report`` (as :func:`reproduce` does).
     """
     study, common = study_for(cfg)
-    out_dir = common["results_dir"] / study.name
+    out_dir = writable_folder(common["results_dir"], "results_dir") / study.name
     run_study(study, out_dir, n_jobs=common["n_jobs"], chunk_size=common["chunk_size"],
               backend=common["backend"], scheduler_address=common["scheduler_address"],
               progress=common["progress"], config=OmegaConf.to_container(cfg, resolve=True),
@@ -140,6 +147,7 @@ def bench(cfg: DictConfig) -> int:
 
     common = check_common(cfg)
     names = selected_algorithms(cfg)
+    writable_folder(common["results_dir"], "results_dir")
     folder = run_bench(common["results_dir"], names,
                        progress=(lambda line: print(line, file=sys.stderr))
                        if common["progress"] else None)
@@ -208,7 +216,11 @@ def reproduce(overrides: Sequence[str]) -> int:
 
 def report(cfg: DictConfig) -> int:
     """``python -m magbench report``: redraw the figures and rewrite ``report.md``."""
-    results_dir = Path(str(cfg.results_dir))
+    results_dir = Path(str(cfg.results_dir)).expanduser()
+    if not results_dir.is_dir():
+        raise UsageError(f"results_dir={results_dir} is not a folder of results; expected the "
+                         "folder a sweep wrote (python -m magbench sweep=NAME results_dir=...)")
+    writable_folder(results_dir, "results_dir")
     figures = draw_figures(results_dir)
     path = write_report(results_dir)
     print(f"report written to {path} ({len(figures)} figures redrawn from the CSV files)")

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import math
 import os
+import tempfile
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
@@ -26,7 +27,8 @@ from magbench.studies.wushi import ML, NM, WuShiStudy
 
 __all__ = ["KINDS", "UsageError", "check_common", "check_integer", "check_number",
            "check_options", "compose_config", "config_dir", "gyro_study", "real_study",
-           "review_study", "selected_algorithms", "study_for", "wushi_study"]
+           "review_study", "selected_algorithms", "study_for", "writable_folder",
+           "wushi_study"]
 
 #: Sweep kinds: the review's sweeps and coverage are "review"; the others name their study.
 KINDS = ("review", "gyro", "real", "wushi")
@@ -346,16 +348,17 @@ def wushi_study(cfg: DictConfig) -> tuple[WuShiStudy, dict]:
     def integer(key: str, default: int, low: int = 1) -> int:
         return check_integer(s.get(key, default), f"sweep.{key}", low)
 
-    N = integer("N", 300, 9)
+    algorithms = selected_algorithms(cfg)
+    min_n = max(get_method(m).min_samples for m in dict.fromkeys([ML, NM, *algorithms]))
+    N = integer("N", 300, min_n)
     sigma = check_number(s.get("sigma", 0.003), "sweep.sigma", lambda x: x >= 0, ">= 0")
     alphas = [check_number(a, "sweep.alphas_pct", lambda x: x >= 0, ">= 0")
               for a in _plain(s.get("alphas_pct", [0, 1, 2, 3, 4, 5, 6, 7]))]
-    time_N = [check_integer(n, "sweep.time_N", 9)
+    time_N = [check_integer(n, "sweep.time_N", min_n)
               for n in _plain(s.get("time_N", [100, 200, 500, 1000, 2000, 3000]))]
     thresholds = _plain(s.get("thresholds", {"ML": 0.004, "NM": 0.018}))
     if not isinstance(thresholds, dict) or set(thresholds) != {"ML", "NM"}:
         raise UsageError(f"sweep.thresholds must have keys ML and NM, got {thresholds!r}")
-    algorithms = selected_algorithms(cfg)
     study = WuShiStudy(
         runs=_trials(cfg, "sweep wushi"), N=N, sigma=sigma, seed=common["seed"],
         algorithms=tuple(algorithms), alphas_pct=tuple(alphas),
@@ -373,6 +376,20 @@ def wushi_study(cfg: DictConfig) -> tuple[WuShiStudy, dict]:
     return study, common
 
 
+#: The ``sweep.*`` keys each kind reads; any other is refused rather than silently ignored
+#: (``+sweep.trials=0`` once ran a full gyro sweep: the count is the top-level ``trials``).
+SWEEP_KEYS = {
+    "review": ("name", "kind", "vary", "values", "points"),
+    "gyro": ("name", "kind", "vary", "values", "rate_hz", "duration_s", "gyro_bias_max",
+             "gyro_noise", "coverage", "coverages"),
+    "real": ("name", "kind", "vary", "values", "datasets", "max_samples", "preprocess",
+             "coverage_ratio", "sphere_factor"),
+    "wushi": ("name", "kind", "vary", "values", "N", "sigma", "alphas_pct", "thresholds",
+              "max_iter", "converge_within", "time_N", "time_repeats", "time_calls",
+              "claimed_ratio", "control_runs"),
+}
+
+
 def study_for(cfg: DictConfig):
     """The study and common values of the sweep chosen by ``sweep=``."""
     kind = cfg.sweep.get("kind", "review")
@@ -380,5 +397,39 @@ def study_for(cfg: DictConfig):
                 "wushi": wushi_study}
     if kind not in builders:
         raise UsageError(f"sweep.kind must be one of {', '.join(KINDS)}, got {kind!r}")
+    unknown = [str(k) for k in cfg.sweep if k not in SWEEP_KEYS[kind]]
+    if unknown:
+        hint = (" (the number of trials is the top-level key: trials=N)"
+                if "trials" in unknown else "")
+        raise UsageError(f"unknown key(s) sweep.{', sweep.'.join(unknown)} for a {kind} sweep"
+                         f"{hint}; it reads sweep.{', sweep.'.join(SWEEP_KEYS[kind][2:])}")
     return builders[kind](cfg)
+
+
+def writable_folder(path: Path | str, key: str) -> Path:
+    """``path`` as a folder that exists and can be written to, created if need be.
+
+    Tries it rather than trusting permission bits (``os.access`` says yes to root even where
+    the file system refuses), so every path problem is found here, before any work.
+
+    Raises
+    ------
+    UsageError
+        ``path`` or one of its parents is a file, or the folder cannot be created or written.
+    """
+    path = Path(path).expanduser()
+    for parent in [path, *path.parents]:
+        if parent.exists() and not parent.is_dir():
+            what = "is" if parent == path else f"cannot be created: {parent} is"
+            raise UsageError(f"{key}={path} {what} a file; expected a folder")
+        if parent.exists():
+            break
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryFile(dir=path):
+            pass
+    except OSError as exc:
+        raise UsageError(f"{key}={path} cannot be written ({exc.strerror or exc}); choose a "
+                         "folder you can write to") from None
+    return path
 

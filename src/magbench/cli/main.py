@@ -210,7 +210,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 def _main(argv: Sequence[str] | None) -> int:
-    from magbench.engine.sweep import FolderBusy, ResultsExist
+    from magbench.engine.sweep import FolderBusy, ResultsExist, TooLarge
 
     args = list(sys.argv[1:] if argv is None else argv)
     if args and args[0] in ("--version", "-V", "version"):
@@ -236,8 +236,15 @@ def _main(argv: Sequence[str] | None) -> int:
         if command == "reproduce":
             return _reproduce(_plain_keys(args))
         return COMMANDS[command][0](compose_config(_plain_keys(args)))
-    except (UsageError, FolderBusy, ResultsExist) as exc:
+    except (UsageError, FolderBusy, ResultsExist, TooLarge) as exc:
         print(f"magbench: error: {exc}", file=sys.stderr)
+        return 2
+    except OSError as exc:
+        # A file-system refusal the checks could not foresee (a disk that fills, a folder
+        # removed under a run): one line naming the path, not a traceback.
+        where = f" ({exc.filename})" if exc.filename else ""
+        print(f"magbench: error: {exc.strerror or exc}{where}; check that the paths given "
+              "exist, are of the right kind and can be written", file=sys.stderr)
         return 2
     except KeyboardInterrupt as stop:
         what = "terminated" if isinstance(stop, Terminated) else "interrupted"

@@ -44,6 +44,18 @@ def real_cost(samples: np.ndarray, T: np.ndarray, h: np.ndarray) -> float:
     return float(np.mean((np.einsum("ij,ij->j", m, m) - 1.0) ** 2))
 
 
+def trivial_estimate(samples: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The estimate any calibration must beat: ``h`` the sample mean, ``T = r I`` with ``r``
+    the mean distance of the samples from it (no fit at all).
+
+    Scale in, scale out like every method; its J_r (81) is the ceiling of a converged fit.
+    """
+    y = np.asarray(samples, dtype=float)
+    h = y.mean(axis=0)
+    r = float(np.mean(np.sqrt(np.einsum("ij,ij->i", y - h, y - h))))
+    return r * np.eye(3), h
+
+
 def _inverse(x: float) -> float:
     # sigma = 0 makes the bound 0: its accuracy is unbounded, not an error.
     return 1.0 / x if x > 0 else (np.inf if x == 0 else np.nan)

@@ -20,7 +20,7 @@ import numpy as np
 
 from magbench.core.gauge import safe_gauge, symmetric_T
 
-__all__ = ["Calibration", "CalibrationFailed", "as_samples"]
+__all__ = ["Calibration", "CalibrationFailed", "as_samples", "check_magnitude"]
 
 
 class CalibrationFailed(RuntimeError):
@@ -207,4 +207,30 @@ def as_samples(samples: object, *, min_samples: int = 1, name: str = "samples") 
         shown = ", ".join(str(r) for r in rows[:5]) + (", ..." if rows.size > 5 else "")
         raise ValueError(f"{name} contains NaN or infinite values in {rows.size} row(s) "
                          f"(rows {shown}); drop or repair them before calibrating")
+    check_magnitude(y, name)
     return y
+
+
+#: The largest absolute sample value must lie in this range: its square (and a sum of squares
+#: over many samples) then stays a finite, normal float64, which every fit needs.
+MAGNITUDE_RANGE = (1e-150, 1e150)
+
+
+def check_magnitude(y: np.ndarray, name: str = "samples") -> None:
+    """Refuse samples whose magnitude no fit can square in float64 (one clear line).
+
+    All-zero samples pass here; :func:`magbench.methods.api.unit_scale` names them.
+
+    Raises
+    ------
+    ValueError
+        If the largest absolute value is above 1e150 or below 1e-150 (but not zero).
+    """
+    low, high = MAGNITUDE_RANGE
+    # max and -min instead of abs: no temporary copy of a long recording.
+    top = max(float(np.max(y)), -float(np.min(y))) if y.size else 0.0
+    if top > high or 0.0 < top < low:
+        raise ValueError(f"{name} reach a largest magnitude of {top:.3g}, outside the range "
+                         f"magbench can calibrate ({low:g} to {high:g}, where squares stay "
+                         "finite floats); rescale the values first (any unit works: T and h "
+                         "come out in the unit of the samples)")

@@ -43,8 +43,8 @@ from magbench.core.files import atomic_path, file_sha256, write_csv_atomic, writ
 from magbench.engine.plugins import load_plugins
 from magbench.engine.record import write_run_record
 
-__all__ = ["FolderBusy", "ResultsExist", "Study", "finished_run", "folder_lock",
-           "parallel_backend", "run_study"]
+__all__ = ["FolderBusy", "ResultsExist", "Study", "TooLarge", "check_capacity", "finished_run",
+           "folder_lock", "parallel_backend", "run_study"]
 
 
 class FolderBusy(RuntimeError):
@@ -53,6 +53,10 @@ class FolderBusy(RuntimeError):
 
 class ResultsExist(RuntimeError):
     """The results folder holds a finished run of another configuration."""
+
+
+class TooLarge(RuntimeError):
+    """The run's estimated output exceeds the free disk space or memory."""
 
 
 class Study:
@@ -76,6 +80,10 @@ class Study:
     def unit_weight(self, unit: object) -> int:
         """Progress counted for one unit (trials, for instance); 1 by default."""
         return 1
+
+    def estimated_rows(self, units: Sequence) -> int:
+        """Rows of the main table, roughly: one per unit and selected method by default."""
+        return len(units) * max(1, len(getattr(self, "algorithms", ()) or ()))
 
     def run_unit(self, unit: object) -> dict[str, list[dict]]:
         """Rows of one unit, per table. Must not raise for a method's failure."""
@@ -252,6 +260,57 @@ class _Parts:
         return n
 
 
+#: Bytes of one value in a CSV row (a float in full precision and its separator), and in
+#: memory when the finished table is summarised (a float64 column, the frame and one copy).
+CSV_BYTES_PER_VALUE = 20
+MEMORY_BYTES_PER_VALUE = 24
+
+
+def _free_bytes(folder: Path) -> tuple[int, int | None]:
+    """Free disk space where ``folder`` is (or would be) and the memory available (None where
+    the system does not say)."""
+    existing = next(p for p in [folder, *folder.parents] if p.exists())
+    disk = shutil.disk_usage(existing).free
+    try:
+        with open("/proc/meminfo") as handle:
+            info = dict(line.split(":", 1) for line in handle)
+        memory = int(info["MemAvailable"].split()[0]) * 1024
+    except (OSError, KeyError, ValueError):
+        memory = None
+    return disk, memory
+
+
+def check_capacity(study: Study, units: Sequence, out_dir: Path) -> None:
+    """Refuse, before any work, a run whose output would not fit on disk or in memory.
+
+    The estimate counts the main table: its rows (:meth:`Study.estimated_rows`) times its
+    columns, at :data:`CSV_BYTES_PER_VALUE` on disk twice over (the part files and the merged
+    table exist together for a moment) and :data:`MEMORY_BYTES_PER_VALUE` in memory (the
+    statistics read the finished table).
+
+    Raises
+    ------
+    TooLarge
+        Naming the estimate, what is free, and how to make the run smaller.
+    """
+    values = study.estimated_rows(units) * len(next(iter(study.tables.values()))[1])
+    disk_need, memory_need = 2 * CSV_BYTES_PER_VALUE * values, MEMORY_BYTES_PER_VALUE * values
+    disk, memory = _free_bytes(out_dir)
+    short = []
+    if disk_need > disk:
+        short.append(f"{_gb(disk_need)} of disk ({_gb(disk)} free at {out_dir})")
+    if memory is not None and memory_need > memory:
+        short.append(f"{_gb(memory_need)} of memory ({_gb(memory)} available)")
+    if short:
+        raise TooLarge(f"this run would write about {study.estimated_rows(units):,} rows and "
+                       f"need {' and '.join(short)}; lower trials, the points or the "
+                       "algorithms, or choose another results_dir")
+
+
+def _gb(n: float) -> str:
+    return f"{n / 1e9:.3g} GB"
+
+
 def _warn(message: str) -> None:
     warnings.warn(message, RuntimeWarning, stacklevel=3)
 
@@ -318,6 +377,8 @@ def run_study(study: Study, out_dir: Path | str, *, n_jobs: int = 1, chunk_size:
         Another run holds ``out_dir``.
     ResultsExist
         ``out_dir`` holds a finished run of another configuration and ``overwrite`` is False.
+    TooLarge
+        The estimated output exceeds the free disk space or memory (:func:`check_capacity`).
     """
     from joblib import Parallel, delayed
     from tqdm import tqdm
@@ -328,6 +389,7 @@ def run_study(study: Study, out_dir: Path | str, *, n_jobs: int = 1, chunk_size:
     units = study.units()
     chunks = [(s, min(s + chunk_size, len(units))) for s in range(0, len(units), chunk_size)]
     written = {table: out_dir / file for table, (file, _) in study.tables.items()}
+    check_capacity(study, units, out_dir)
     with folder_lock(out_dir):
         before = finished_run(study, out_dir)
         if before == "same" and not overwrite:

@@ -12,6 +12,7 @@ not depend on which other methods run or on the workers.
 from __future__ import annotations
 
 import contextlib
+import ctypes
 import signal
 import threading
 import time
@@ -38,16 +39,24 @@ class CallTimeout(Exception):
 def time_limit(seconds: float | None) -> Iterator[None]:
     """Raise :class:`CallTimeout` in the block once ``seconds`` have passed.
 
-    Uses a real-time interval timer, so it works where the work runs in the main thread of its
-    process (in-process runs and joblib's process workers). Elsewhere (threads, such as a Dask
-    worker's) no limit can be imposed safely and the block runs unlimited.
+    In the main thread of a process (in-process runs, joblib's process workers) a real-time
+    interval timer raises it from its signal handler. In any other thread (a Dask worker runs
+    its tasks in threads, where signals cannot go) a timer thread raises it asynchronously in
+    the working thread (``PyThreadState_SetAsyncExc``). Either way it arrives between two
+    Python bytecodes: a method stuck inside one long compiled call is stopped when that call
+    returns.
     """
-    if not seconds or threading.current_thread() is not threading.main_thread():
+    if not seconds:
         yield
+        return
+    message = f"call exceeded call_timeout_s = {seconds:g} s"
+    if threading.current_thread() is not threading.main_thread():
+        with _thread_time_limit(seconds, message):
+            yield
         return
 
     def expire(signum, frame):
-        raise CallTimeout(f"call exceeded call_timeout_s = {seconds:g} s")
+        raise CallTimeout(message)
 
     previous = signal.signal(signal.SIGALRM, expire)
     signal.setitimer(signal.ITIMER_REAL, seconds)
@@ -56,6 +65,38 @@ def time_limit(seconds: float | None) -> Iterator[None]:
     finally:
         signal.setitimer(signal.ITIMER_REAL, 0)
         signal.signal(signal.SIGALRM, previous)
+
+
+@contextlib.contextmanager
+def _thread_time_limit(seconds: float, message: str) -> Iterator[None]:
+    """:func:`time_limit` for a thread that is not the main one (see there)."""
+    target = ctypes.c_ulong(threading.get_ident())
+    lock = threading.Lock()
+    state = {"active": True, "fired": False}
+
+    def expire() -> None:
+        with lock:              # never fire once the block has ended
+            if state["active"]:
+                state["fired"] = True
+                ctypes.pythonapi.PyThreadState_SetAsyncExc(target, ctypes.py_object(CallTimeout))
+
+    timer = threading.Timer(seconds, expire)
+    timer.daemon = True
+    timer.start()
+    try:
+        try:
+            yield
+        finally:
+            with lock:
+                state["active"] = False
+            timer.cancel()
+            if state["fired"]:
+                # Withdraw the exception if it is still pending (the block ended just after
+                # the timer fired), so it cannot surface later in unrelated code.
+                ctypes.pythonapi.PyThreadState_SetAsyncExc(target, None)
+    except CallTimeout:
+        # The asynchronous exception is raised as a bare class: give it its message.
+        raise CallTimeout(message) from None
 
 
 @dataclass(frozen=True)

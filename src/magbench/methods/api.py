@@ -3,7 +3,9 @@
 A method is a plain function ``fit(samples, **options) -> Calibration`` registered under a
 name with :func:`register`. :func:`calibrate` is the only way the harness calls it: it validates
 the input once, brings the data to unit scale by an exact power of two, calls the method, maps
-numerical failures to :class:`~magbench.core.model.CalibrationFailed` and checks the answer.
+numerical failures to :class:`~magbench.core.model.CalibrationFailed` and checks the answer:
+a fit that claims convergence while fitting the data worse than no fit at all (J_r of eq. 81
+above the trivial estimate's) is returned with ``converged=False`` and the reason.
 """
 
 from __future__ import annotations
@@ -12,6 +14,7 @@ import math
 
 import numpy as np
 
+from magbench.core.metrics import real_cost, trivial_estimate
 from magbench.core.model import Calibration, CalibrationFailed, as_samples
 from magbench.methods.registry import get_method
 
@@ -123,5 +126,29 @@ def calibrate(samples: object, method: str, *, angular_rate: object = None,
     if not cal.is_finite:
         raise CalibrationFailed(f"{method}: estimate is not finite or T is singular "
                                 f"({cal.message or 'no message'})")
-    return Calibration(cal.T * scale, cal.h * scale, cal.n_iter, cal.converged, cal.message,
+    converged, message = cal.converged, cal.message
+    if converged:
+        fit_cost, trivial = _residual_against_trivial(y, cal, spec.model)
+        if fit_cost > trivial * (1 + 1e-9) + 1e-12:
+            converged = False
+            message = (f"{method}: residual J_r (81) {fit_cost:.3g} is above the trivial "
+                       f"estimate's {trivial:.3g} (h = mean, T = r I): not a calibration "
+                       f"({message or 'no message'})")
+    return Calibration(cal.T * scale, cal.h * scale, cal.n_iter, converged, message,
                        cal.gyro_bias)
+
+
+def _residual_against_trivial(y: np.ndarray, cal: Calibration,
+                              model: str) -> tuple[float, float]:
+    """J_r (81) of ``cal`` and of the trivial estimate on the same samples.
+
+    A method that claims convergence must fit the data at least as well as no fit at all
+    (:func:`magbench.core.metrics.trivial_estimate`); a bias-only method, whose scale is an
+    input, is held to the trivial centre at its own scale. The tolerance (1e-9 relative,
+    1e-12 absolute: a field error of 1e-6) keeps exact fits of noise-free data, whose costs
+    are both rounding, from being flagged.
+    """
+    T0, h0 = trivial_estimate(y)
+    if model == "bias":
+        T0 = cal.T
+    return real_cost(y, cal.T, cal.h), real_cost(y, T0, h0)

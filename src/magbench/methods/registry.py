@@ -62,7 +62,11 @@ def register(name: str, *, label: str, min_samples: int, family: str = "review",
     label : str
         Name shown in figures and tables.
     min_samples : int
-        The smallest K the method can work with (its number of unknowns, at least).
+        The smallest K the method accepts: at least its number of identifiable parameters
+        plus one, so that the data over-determine the fit. Without a gyro, T is identifiable
+        only up to a rotation: a full T and h have 9 (6 + 3: any 9 points lie on some quadric,
+        a fit through them is exact whatever the truth), so 10; a sphere ``T = r I`` has 4, so
+        5; a bias with a known field magnitude has 3, so 4.
     family : str
         ``"review"`` for the review's seven methods, ``"extra"`` for the others, ``"variant"``
         for a review method run exactly as the review prints it where that print differs from

@@ -13,11 +13,14 @@ methods).
 
 from __future__ import annotations
 
+import bz2
 import csv
+import gzip
+import lzma
 import math
 import os
 import warnings
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -25,6 +28,7 @@ import numpy as np
 import pandas as pd
 
 from magbench.core.geometry import MIN_COVERAGE, MIN_THICKNESS, check_geometry
+from magbench.core.model import check_magnitude
 
 __all__ = ["DATA_ENV", "GYRO_COLUMNS", "MAG_COLUMNS", "Recording", "data_dir",
            "list_recordings", "load_recording", "read_samples"]
@@ -134,10 +138,44 @@ def load_recording(root: Path | str, name: str, *, min_samples: int = 4,
     return replace(rec, name=name)
 
 
-def _sniff(path: Path) -> tuple[str, bool]:
+#: Leading bytes of the compressed formats: those read transparently (Python's own codecs),
+#: and those that must be unpacked first.
+_MAGIC = {b"\x1f\x8b": "gzip", b"BZh": "bz2", b"\xfd7zXZ\x00": "xz", b"PK\x03\x04": "zip",
+          b"\x28\xb5\x2f\xfd": "zstd"}
+_READABLE = {"gzip": gzip.open, "bz2": bz2.open, "xz": lzma.open}
+
+#: Rows parsed per chunk: the file is never held as text, only its used columns as floats.
+CHUNK_ROWS = 500_000
+
+
+def _compression(path: Path) -> str | None:
+    """The compression of ``path`` from its first bytes (None for plain text).
+
+    Raises
+    ------
+    ValueError
+        For a compressed format Python cannot read on its own (zip, zstd).
+    """
+    with open(path, "rb") as handle:
+        head = handle.read(8)
+    kind = next((k for magic, k in _MAGIC.items() if head.startswith(magic)), None)
+    if kind is not None and kind not in _READABLE:
+        raise ValueError(f"{path} is compressed input ({kind}): unpack it first, then pass the "
+                         "CSV file")
+    return kind
+
+
+def _sniff(path: Path, compression: str | None = None) -> tuple[str, bool]:
     """Delimiter, and whether the first line is a header."""
-    with open(path, newline="") as handle:
-        head = handle.read(8192)
+    opener = _READABLE.get(compression or "", open)
+    try:
+        with opener(path, "rt", newline="") as handle:
+            head = handle.read(8192)
+    except UnicodeDecodeError:
+        raise ValueError(f"{path} is not a text file (bytes that are not UTF-8 at its start); "
+                         "expected a CSV of magnetometer samples") from None
+    except (OSError, EOFError) as exc:
+        raise ValueError(f"cannot read {path} ({compression or 'plain'}): {exc}") from None
     lines = [ln for ln in head.splitlines() if ln.strip()]
     if not lines:
         raise ValueError(f"{path} is empty; expected a CSV with one magnetometer sample per row")
@@ -190,19 +228,105 @@ def _select(columns: Sequence[object] | None, header: list[str] | None, n_cols: 
                      f"{columns}")
 
 
-def _numeric(table: pd.DataFrame, position: int, name: str, line0: int) -> np.ndarray:
-    """One column as floats; missing cells become NaN, other text is an error naming the cell."""
+def _numeric(table: pd.DataFrame, position: int, name: str, line0: int,
+             row0: int = 0) -> np.ndarray:
+    """One column as floats; missing cells become NaN, other text is an error naming the cell
+    (``table`` starts at data row ``row0`` of the file, whose first data row is line ``line0``).
+    """
     text = table.iloc[:, position].astype(str).str.strip()
     missing = text.str.lower().isin(_MISSING)
     values = pd.to_numeric(text.where(~missing), errors="coerce")
     bad = np.flatnonzero(values.isna().to_numpy() & ~missing.to_numpy())
     if bad.size:
-        row = int(bad[0])
-        raise ValueError(f"non-numeric value {text.iloc[row]!r} in column {name!r} at data row "
+        row = row0 + int(bad[0])
+        raise ValueError(f"non-numeric value {text.iloc[row - row0]!r} in column {name!r} at "
+                         f"data row "
                          f"{row + 1} (line {row + line0} of the file)"
                          + (f" and {bad.size - 1} more cell(s)" if bad.size > 1 else "")
                          + "; expected numbers (missing values may be empty or NaN)")
     return values.to_numpy(dtype=float)
+
+
+#: Missing-value spellings as the C parser needs them (it matches exactly, after no strip).
+_NA_TOKENS = sorted({v for w in _MISSING for v in (w, w.upper(), w.capitalize())})
+
+
+def _read_csv(path: Path, **kwargs: object) -> pd.DataFrame:
+    """``pandas.read_csv`` with its parse errors as one ``ValueError`` naming the file."""
+    try:
+        return pd.read_csv(path, **kwargs)
+    except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError, EOFError,
+            OSError) as exc:
+        raise ValueError(f"cannot read {path} as CSV: {' '.join(str(exc).split())}") from None
+
+
+def _quiet(reader: Iterator[pd.DataFrame]) -> Iterator[pd.DataFrame]:
+    """The chunks, without pandas' mixed-type warning (such a column is checked cell by cell)."""
+    while True:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", pd.errors.DtypeWarning)
+            chunk = next(reader, None)
+        if chunk is None:
+            return
+        yield chunk
+
+
+def _read_columns(path: Path, layout: dict, wanted: dict[int, str],
+                  line0: int) -> np.ndarray:
+    """The columns at the positions in ``wanted`` (position -> name) as floats, in the order
+    of their positions (shape (rows, len(wanted))).
+
+    Read in chunks of :data:`CHUNK_ROWS` rows by pandas' C parser, keeping only those columns,
+    so memory follows the floats kept (24 bytes a row for three axes), never the file's text:
+    10 million rows once took 4.5 GB as Python strings. A chunk whose column the parser could
+    not turn into numbers (text, padded spaces) goes through :func:`_numeric`, which accepts
+    what the text reader accepts and names the first bad cell.
+    """
+    positions = sorted(wanted)
+    chunks: list[np.ndarray] = []
+    # A plain file's line count bounds its rows: fill one array instead of concatenating
+    # chunks, which would hold every sample twice at the end.
+    table = None if layout.get("compression") else np.empty((_count_lines(path),
+                                                               len(positions)))
+    offset = 0
+    try:
+        reader = pd.read_csv(path, usecols=positions, chunksize=CHUNK_ROWS, engine="c",
+                             na_values=_NA_TOKENS, keep_default_na=False, **layout)
+        for chunk in _quiet(reader):
+            block = (np.empty((len(chunk), len(positions))) if table is None else
+                     table[offset:offset + len(chunk)])
+            for j, p in enumerate(positions):
+                column = chunk.iloc[:, j]
+                if pd.api.types.is_numeric_dtype(column) and \
+                        not pd.api.types.is_bool_dtype(column):
+                    block[:, j] = column.to_numpy(dtype=float)
+                else:
+                    block[:, j] = _numeric(chunk, j, wanted[p], line0, offset)
+            if table is None:
+                chunks.append(block)
+            offset += len(chunk)
+    except (pd.errors.ParserError, UnicodeDecodeError, EOFError, OSError) as exc:
+        raise ValueError(f"cannot read {path} as CSV: {' '.join(str(exc).split())}") from None
+    if table is not None:
+        return table[:offset]
+    if len(chunks) == 1:
+        return chunks[0]
+    return np.concatenate(chunks) if chunks else np.empty((0, len(positions)))
+
+
+def _count_lines(path: Path) -> int:
+    """Line breaks in ``path`` plus one (an upper bound on its data rows)."""
+    n = 1
+    with open(path, "rb") as handle:
+        while block := handle.read(1 << 24):
+            n += block.count(b"\n")
+    return n
+
+
+#: The geometry check of a longer recording looks at an even stride of this many samples: the
+#: spread and the coverage of 10 million samples are those of any 100 000 evenly spread ones,
+#: at a hundredth of the time and memory.
+GEOMETRY_SAMPLES = 100_000
 
 
 def read_samples(path: Path | str, columns: Sequence[object] | None = None, *,
@@ -214,7 +338,8 @@ def read_samples(path: Path | str, columns: Sequence[object] | None = None, *,
     Parameters
     ----------
     path : path
-        The file. A header row is optional; without one, choose columns by position.
+        The file. A header row is optional; without one, choose columns by position. A file
+        compressed with gzip, bzip2 or xz is read as it is (recognised by its first bytes).
     columns : three names or three 0-based positions, optional
         The magnetometer axes. Default: ``mx, my, mz`` if the header has them, else the three
         columns of a three-column file.
@@ -233,8 +358,9 @@ def read_samples(path: Path | str, columns: Sequence[object] | None = None, *,
     Raises
     ------
     ValueError
-        Missing file or columns, non-numeric cells (with row and column), too few samples, or
-        bad geometry; one message each.
+        Missing file or columns, non-numeric cells (with row and column), too few samples,
+        magnitudes no fit can square (:func:`magbench.core.model.check_magnitude`), zip or
+        zstd input (to unpack first), or bad geometry; one message each.
 
     Warns
     -----
@@ -242,17 +368,18 @@ def read_samples(path: Path | str, columns: Sequence[object] | None = None, *,
         When rows with missing values are dropped (how many).
     """
     path = Path(path)
+    if path.is_dir():
+        raise ValueError(f"file {path} is a folder; expected a CSV of magnetometer samples")
     if not path.is_file():
         raise ValueError(f"file {path} not found; expected a CSV of magnetometer samples")
-    sep, has_header = _sniff(path)
-    try:
-        table = pd.read_csv(path, sep=r"\s+" if sep == " " else sep, dtype=str,
-                            keep_default_na=False, header=0 if has_header else None,
-                            skip_blank_lines=True, engine="python")
-    except (pd.errors.ParserError, UnicodeDecodeError) as exc:
-        raise ValueError(f"cannot read {path} as CSV: {' '.join(str(exc).split())}") from None
-    header = [str(c).strip() for c in table.columns] if has_header else None
-    n_cols = table.shape[1]
+    compression = _compression(path)
+    sep, has_header = _sniff(path, compression)
+    layout = {"sep": r"\s+" if sep == " " else sep, "header": 0 if has_header else None,
+              "compression": compression, "skip_blank_lines": True}
+    first = _read_csv(path, nrows=0 if has_header else 1, dtype=str, keep_default_na=False,
+                      **layout)
+    header = [str(c).strip() for c in first.columns] if has_header else None
+    n_cols = first.shape[1]
     mag = _select(columns, header, n_cols, "columns", MAG_COLUMNS)
     if mag is None:
         if n_cols == 3:
@@ -262,27 +389,37 @@ def read_samples(path: Path | str, columns: Sequence[object] | None = None, *,
             raise ValueError(f"cannot tell which columns hold the magnetometer axes: no mx, my, "
                              f"mz header and {n_cols} columns ({shown}); choose them with "
                              "columns=[name,name,name] or columns=[0,1,2]")
-    line0 = 2 if has_header else 1
     names = [header[i] if header else f"column {i}" for i in mag]
-    y = np.column_stack([_numeric(table, i, n, line0) for i, n in zip(mag, names, strict=True)])
+    t_pos = header.index("t") if header is not None and "t" in header else None
+    gyro_pos = _select(None, header, n_cols, "gyro columns", GYRO_COLUMNS)
+    wanted = {**dict(zip(mag, names, strict=True)),
+              **({} if t_pos is None else {t_pos: "t"}),
+              **({} if gyro_pos is None or t_pos is None else
+                 dict(zip(gyro_pos, GYRO_COLUMNS, strict=True)))}
+    table = _read_columns(path, layout, wanted, line0=2 if has_header else 1)
+    values = {p: table[:, j] for j, p in enumerate(sorted(wanted))}
+    order = [sorted(wanted).index(i) for i in mag]
+    # The usual three-column file is its own sample array: no copy of 10 million rows.
+    y = table if order == list(range(table.shape[1])) else table[:, order]
     used = ~np.isnan(y).any(axis=1)
     t = gyro = None
-    if header is not None and "t" in header:
-        t = _numeric(table, header.index("t"), "t", line0)
+    if t_pos is not None:
+        t = values[t_pos]
         if np.isnan(t).all():
             t = None
-    gyro_pos = _select(None, header, n_cols, "gyro columns", GYRO_COLUMNS)
     if gyro_pos is not None and t is not None:
-        gyro = np.column_stack([_numeric(table, i, GYRO_COLUMNS[k], line0)
-                                for k, i in enumerate(gyro_pos)])
+        gyro = np.column_stack([values[i] for i in gyro_pos])
         used &= ~np.isnan(gyro).any(axis=1) & ~np.isnan(t)
     n_dropped = int((~used).sum())
+    if not n_dropped:
+        used = slice(None)          # a view, not a copy of every sample
     if n_dropped:
-        warnings.warn(f"{path.name}: dropped {n_dropped} of {len(used)} rows with missing or "
+        warnings.warn(f"{path.name}: dropped {n_dropped} of {len(y)} rows with missing or "
                       "NaN values in the columns used", UserWarning, stacklevel=2)
     y = y[used]
     if not np.isfinite(y).all():
         raise ValueError(f"{path.name} contains infinite values; expected finite numbers")
+    check_magnitude(y, f"the samples of {path.name}")
     if y.shape[0] < min_samples:
         raise ValueError(f"{path.name} has {y.shape[0]} usable samples; at least {min_samples} "
                          "are needed (the method's number of unknowns)")
@@ -290,6 +427,7 @@ def read_samples(path: Path | str, columns: Sequence[object] | None = None, *,
                     None if t is None else t[used], None if gyro is None else gyro[used],
                     n_rows=int(y.shape[0]), columns=tuple(names))
     if check:
-        check_geometry(rec.y, min_coverage=min_coverage, min_thickness=min_thickness,
-                       what=path.name)
+        stride = math.ceil(rec.K / GEOMETRY_SAMPLES)
+        check_geometry(rec.y[::stride], min_coverage=min_coverage,
+                       min_thickness=min_thickness, what=path.name)
     return rec

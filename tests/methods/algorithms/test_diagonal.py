@@ -37,7 +37,7 @@ def test_cross_coupling_is_not_represented(nominal):
 
 def test_is_registered_with_its_model():
     spec = magbench.get_method("diagonal")
-    assert (spec.model, spec.family, spec.min_samples) == ("diagonal", "extra", 6)
+    assert (spec.model, spec.family, spec.min_samples) == ("diagonal", "extra", 7)
 
 
 def test_a_quadric_that_is_no_ellipsoid_gives_no_algebraic_start():

@@ -218,7 +218,7 @@ def _filter_loop(y: np.ndarray, G: np.ndarray, minus_2G: np.ndarray, theta: np.n
                     P[i, j] -= gain_i * PH[j]
 
 
-@register("crassidis", label="Crassidis EKF", min_samples=9, paper_key="Crassidis")
+@register("crassidis", label="Crassidis EKF", min_samples=10, paper_key="Crassidis")
 def fit(samples: np.ndarray, *, theta0: object = None, P0: object = "data", sigma: float = 0.005,
         variance: str = "5b", passes: int = 1, bias: str = "model") -> Calibration:
     """Calibrate with the real-time EKF of Crassidis et al. (Algorithm 2).
@@ -302,5 +302,5 @@ def fit(samples: np.ndarray, *, theta0: object = None, P0: object = "data", sigm
 
 # The initial covariance of the nominal distortion distribution (80), the default until issue
 # 14: it uses knowledge of the truth, so it is kept as a variant beside the truth-free default.
-register("crassidis_prior", label="Crassidis EKF (P0 from eq. (80))", min_samples=9,
+register("crassidis_prior", label="Crassidis EKF (P0 from eq. (80))", min_samples=10,
          family="variant")(partial(fit, P0="prior"))

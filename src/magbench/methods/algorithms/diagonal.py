@@ -47,7 +47,7 @@ def _algebraic_start(y: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
     return np.sqrt(G / a), h
 
 
-@register("diagonal", label="Offset + diagonal scale", min_samples=6, family="extra",
+@register("diagonal", label="Offset + diagonal scale", min_samples=7, family="extra",
           model="diagonal")
 def fit(samples: np.ndarray) -> Calibration:
     """Calibrate with offset and per-axis scale only (``T`` diagonal).

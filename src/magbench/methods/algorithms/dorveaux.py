@@ -61,7 +61,7 @@ def iterate(y: np.ndarray, max_iter: int, tol: float
     return A_total, B_total, it, J_stop
 
 
-@register("dorveaux", label="Dorveaux", min_samples=4, paper_key="Dorveaux")
+@register("dorveaux", label="Dorveaux", min_samples=10, paper_key="Dorveaux")
 def fit(samples: np.ndarray, *, max_iter: int = 5000, tol: float = 1e-12) -> Calibration:
     """Calibrate with the iterative least-squares method of Dorveaux et al. (Algorithm 3).
 

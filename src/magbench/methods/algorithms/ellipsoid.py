@@ -112,7 +112,7 @@ def fit_unit_normalised(y: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
     return A, v[6:9], float(v[9])
 
 
-@register("ellipsoid", label="Ellipsoid fit", min_samples=9, family="extra")
+@register("ellipsoid", label="Ellipsoid fit", min_samples=10, family="extra")
 def fit(samples: np.ndarray, *, constraint: str = "trace") -> Calibration:
     """Calibrate with the algebraic (general quadric) ellipsoid fit.
 

@@ -103,7 +103,7 @@ def unit_mean_norm_scale(eigenvalues: np.ndarray, V: np.ndarray, y: np.ndarray,
     return float(np.mean(np.linalg.norm((y - h) @ G, axis=1)))
 
 
-@register("fang", label="Fang", min_samples=9, family="extra")
+@register("fang", label="Fang", min_samples=10, family="extra")
 def fit(samples: np.ndarray) -> Calibration:
     """Calibrate with the constrained ellipsoid fit of Fang et al. (2011), section III.
 

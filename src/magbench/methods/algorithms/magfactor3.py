@@ -41,7 +41,7 @@ def check_attitude(attitude: object, reference_field: object,
     return R, m0 / np.linalg.norm(m0)
 
 
-@register("magfactor3", label="MagFactor3", min_samples=4, family="extra", needs_gyro=True,
+@register("magfactor3", label="MagFactor3", min_samples=5, family="extra", needs_gyro=True,
           model="sphere")
 def fit(samples: np.ndarray, *, angular_rate: np.ndarray, time: np.ndarray,
         attitude: np.ndarray | None = None,

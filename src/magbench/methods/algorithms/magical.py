@@ -85,7 +85,7 @@ def iterate(y: np.ndarray, max_iter: int, tol: float, rtol: float, xtol: float =
     return T, h, max_iter, False, J
 
 
-@register("magical", label="MAG.I.C.AL", min_samples=4, paper_key="MAGICAL")
+@register("magical", label="MAG.I.C.AL", min_samples=10, paper_key="MAGICAL")
 def fit(samples: np.ndarray, *, max_iter: int = 2000, tol: float = 1e-24,
         rtol: float = 1e-12, xtol: float = np.inf) -> Calibration:
     """Calibrate with MAG.I.C.AL. (Algorithm 7).

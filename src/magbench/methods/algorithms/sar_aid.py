@@ -59,17 +59,18 @@ def adaptive_identifier(y: np.ndarray, w: np.ndarray, t: np.ndarray, k1: float, 
     return np.array(out)
 
 
-@register("sar_aid", label="SAR-AID", min_samples=4, family="extra", needs_gyro=True,
-          model="bias")
+@register("sar_aid", label="SAR-AID", min_samples=5, family="extra", needs_gyro=True,
+          model="sphere")
 def fit(samples: np.ndarray, *, angular_rate: np.ndarray, time: np.ndarray,
         k1: float = 1.0, k2: float = 1.0, normalize: bool = False, tail: float = 0.2,
-        discretization: str = "rotation", estimate_scale: bool = False) -> Calibration:
+        discretization: str = "rotation", estimate_scale: bool = True) -> Calibration:
     """Calibrate the hard iron with SAR-AID.
 
     Parameters
     ----------
     samples : ndarray, shape (K, 3)
-        Magnetometer samples, in their own unit (bias-only methods get them unscaled).
+        Magnetometer samples; :func:`magbench.calibrate` passes them divided by the power of
+        two nearest their RMS norm (a field magnitude near 1), as for every method.
     angular_rate : ndarray, shape (K, 3)
         Gyro samples in rad/s, in the magnetometer's axes; assumed unbiased.
     time : ndarray, shape (K,)
@@ -85,7 +86,8 @@ def fit(samples: np.ndarray, *, angular_rate: np.ndarray, time: np.ndarray,
         The estimate is the mean of the last ``tail`` fraction of ``b^_k`` (navlib: 0.2);
         0 returns the final value.
     estimate_scale : bool
-        Also return ``T = r I`` with ``r`` the RMS of ``||y - b||`` (an addition).
+        ``T = r I`` with ``r`` the RMS of ``||y - b||`` (default; scale in, scale out), or
+        the paper's ``T = I`` when False (see :func:`magbench.methods.algorithms.sar_ls.fit`).
 
     Returns
     -------

@@ -24,33 +24,36 @@ def noise_from_second_differences(y: np.ndarray) -> float:
     return float(np.sqrt(np.mean(d2**2) / 6.0))
 
 
-@register("sar_kf", label="SAR-KF", min_samples=4, family="extra", needs_gyro=True,
-          model="bias")
+@register("sar_kf", label="SAR-KF", min_samples=5, family="extra", needs_gyro=True,
+          model="sphere")
 def fit(samples: np.ndarray, *, angular_rate: np.ndarray, time: np.ndarray,
         mag_noise: float | None = None, rate_noise: float = 1e-3,
-        initial_bias_std: float | None = None, estimate_scale: bool = False) -> Calibration:
+        initial_bias_std: float | None = None, estimate_scale: bool = True) -> Calibration:
     """Calibrate the hard iron with SAR-KF.
 
     Parameters
     ----------
     samples : ndarray, shape (K, 3)
-        Magnetometer samples, in their own unit (bias-only methods get them unscaled).
+        Magnetometer samples; :func:`magbench.calibrate` passes them divided by the power of
+        two nearest their RMS norm (a field magnitude near 1), as for every method.
     angular_rate : ndarray, shape (K, 3)
         Gyro samples in rad/s, in the magnetometer's axes; assumed unbiased.
     time : ndarray, shape (K,)
         Sample times in seconds, strictly increasing.
     mag_noise : float, optional
-        Measurement noise std (samples' unit); estimated from second differences when None
+        Measurement noise std in the unit the method sees (field magnitude near 1, see
+        ``samples``); estimated from second differences when None
         (floored at ``1e-9`` times the RMS sample norm so noise-free data do not make the
         filter singular).
     rate_noise : float
         Gyro noise std (rad/s) driving the process noise of ``x``:
         ``Q_x = (rate_noise dt ||x - b||)^2 I`` per step.
     initial_bias_std : float, optional
-        Prior std of each bias component (samples' unit); the RMS sample norm when None.
+        Prior std of each bias component, in the same unit; the RMS sample norm when None.
         The prior mean is zero.
     estimate_scale : bool
-        Also return ``T = r I`` with ``r`` the RMS of ``||y - b||`` (an addition).
+        ``T = r I`` with ``r`` the RMS of ``||y - b||`` (default; scale in, scale out), or
+        the paper's ``T = I`` when False (see :func:`magbench.methods.algorithms.sar_ls.fit`).
 
     Returns
     -------

@@ -38,10 +38,10 @@ def scale_of(y: np.ndarray, b: np.ndarray) -> float:
     return float(np.sqrt(np.mean(np.sum((y - b) ** 2, axis=1))))
 
 
-@register("sar_ls", label="SAR-LS", min_samples=4, family="extra", needs_gyro=True,
-          model="bias")
+@register("sar_ls", label="SAR-LS", min_samples=5, family="extra", needs_gyro=True,
+          model="sphere")
 def fit(samples: np.ndarray, *, angular_rate: np.ndarray, time: np.ndarray,
-        estimate_scale: bool = False) -> Calibration:
+        estimate_scale: bool = True) -> Calibration:
     """Calibrate the hard iron with SAR-LS (Troni and Whitcomb 2019, IV.A).
 
     Parameters
@@ -53,8 +53,10 @@ def fit(samples: np.ndarray, *, angular_rate: np.ndarray, time: np.ndarray,
     time : ndarray, shape (K,)
         Sample times in seconds, strictly increasing.
     estimate_scale : bool
-        False (the method): ``T = I``. True: ``T = r I`` with ``r`` the RMS of
-        ``||y - b||`` (an addition; the method itself only estimates ``b``).
+        True (default): ``T = r I`` with ``r`` the RMS of ``||y - b||``, the field magnitude
+        in the samples' unit, so the result scales with the samples (scale in, scale out, as
+        every method does). False: the paper's ``T = I``, right only for samples in units of
+        the field magnitude (the method itself estimates only ``b``).
 
     Returns
     -------

@@ -24,7 +24,7 @@ from magbench.core.model import Calibration, CalibrationFailed
 from magbench.methods.registry import register
 
 
-@register("sphere", label="Sphere fit", min_samples=4, family="extra", model="sphere")
+@register("sphere", label="Sphere fit", min_samples=5, family="extra", model="sphere")
 def fit(samples: np.ndarray) -> Calibration:
     """Calibrate with the closed-form least-squares sphere fit.
 

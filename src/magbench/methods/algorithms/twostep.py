@@ -95,7 +95,7 @@ def centred_estimate(L_tilde: np.ndarray, z_tilde: np.ndarray,
     return theta, F
 
 
-@register("twostep", label="TWOSTEP", min_samples=9, paper_key="TWOSTEP")
+@register("twostep", label="TWOSTEP", min_samples=10, paper_key="TWOSTEP")
 def fit(samples: np.ndarray, *, sigma: float = 0.005, tol: float = 1e-10, max_iter: int = 50,
         refine: bool = True, bias: str = "model") -> Calibration:
     """Calibrate with TWOSTEP (Algorithm 1).

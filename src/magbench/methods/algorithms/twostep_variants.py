@@ -57,7 +57,7 @@ def no_svd_calibration(T: np.ndarray, h: np.ndarray, bias: str = "review"
     return T_no_svd, (T_no_svd @ h_star if bias == "model" else h_star)
 
 
-@register("twostep_no_svd", label="TWOSTEP (D* = E*, steps 9-10 skipped)", min_samples=9,
+@register("twostep_no_svd", label="TWOSTEP (D* = E*, steps 9-10 skipped)", min_samples=10,
           family="variant")
 def fit(samples: np.ndarray, *, sigma: float = 0.005, tol: float = 1e-10, max_iter: int = 50,
         bias: str = "review") -> Calibration:

@@ -246,7 +246,7 @@ def _newton_step(g: np.ndarray, H: np.ndarray) -> np.ndarray:
                                 "is undefined") from None
 
 
-@register("vasconcelos", label="Vasconcelos", min_samples=9, paper_key="Vasconcelos")
+@register("vasconcelos", label="Vasconcelos", min_samples=10, paper_key="Vasconcelos")
 def fit(samples: np.ndarray, *, max_iter: int = 50, rtol: float = 1e-10, tol: float = 1e-24,
         sigma: float = 0.005, safeguard: str = "none", lm_init: float = 1e-3,
         initial: str = "corrected") -> Calibration:
@@ -351,4 +351,4 @@ def fit(samples: np.ndarray, *, max_iter: int = 50, rtol: float = 1e-10, tol: fl
 # beside the corrected method. It reproduces the review's Figure 3 finding that Vasconcelos
 # "succeeds only for small to moderate" beta.
 register("vasconcelos_printed", label="Vasconcelos (review's printed (40)-(43))",
-         min_samples=9, family="variant")(partial(fit, initial="printed"))
+         min_samples=10, family="variant")(partial(fit, initial="printed"))

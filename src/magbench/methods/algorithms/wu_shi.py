@@ -397,7 +397,7 @@ def refine(samples: np.ndarray, T0: np.ndarray, h0: np.ndarray, *, max_iter: int
             np.array(history))
 
 
-@register("wu_shi", label="Wu-Shi", min_samples=9, paper_key="Wu_Shi")
+@register("wu_shi", label="Wu-Shi", min_samples=10, paper_key="Wu_Shi")
 def fit(samples: np.ndarray, *, max_iter: int = 50, xtol: float = 1e-10, rtol: float = 1e-12,
         null_vector: str = "svd", t0_form: str = "inverse") -> Calibration:
     """Calibrate with Wu and Shi's optimal ML estimator (Algorithm 6).
@@ -435,5 +435,5 @@ def fit(samples: np.ndarray, *, max_iter: int = 50, xtol: float = 1e-10, rtol: f
 # The review's printed eq. (57), T_hat(0) = chol(A), starts Newton from R instead of R^-1 (Wu
 # and Shi's T(0) = (R(0))^-1): registered as its own method so every sweep shows its effect.
 # It reproduces the review's Wu-Shi robustness (RB 87.2 % at the nominal point, Table 2).
-register("wu_shi_printed", label="Wu-Shi (review's printed (57))", min_samples=9,
+register("wu_shi_printed", label="Wu-Shi (review's printed (57))", min_samples=10,
          family="variant")(partial(fit, t0_form="chol"))

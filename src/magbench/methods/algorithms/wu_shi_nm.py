@@ -132,7 +132,7 @@ def refine(samples: np.ndarray, T0: np.ndarray, h0: np.ndarray, *, max_iter: int
             np.array(history))
 
 
-@register("wu_shi_nm", label="Wu-Shi NM", min_samples=9, family="extra")
+@register("wu_shi_nm", label="Wu-Shi NM", min_samples=10, family="extra")
 def fit(samples: np.ndarray, *, max_iter: int = 50, xtol: float = 1e-10, rtol: float = 1e-12,
         null_vector: str = "svd") -> Calibration:
     """Calibrate with Wu and Shi's approximate ML (NM) estimator, their eqs. (8), (11)-(15).

@@ -1,0 +1,122 @@
+"""Every path and value problem, in every command, is one line on stderr and exit status 2
+(issue 17): outputs that are files or cannot be written, inputs that are folders, compressed
+or out of range, and the values of every sweep kind."""
+
+from __future__ import annotations
+
+import gzip
+import json
+import sys
+import zipfile
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from magbench.cli import main
+from magbench.core.geometry import fibonacci_sphere
+
+#: A folder even root cannot write to (the kernel's, not the permission bits').
+UNWRITABLE = Path("/sys/magbench-test-cannot-create")
+needs_sys = pytest.mark.skipif(not sys.platform.startswith("linux") or
+                               not Path("/sys/kernel").is_dir(),
+                               reason="needs Linux /sys as a folder nobody can write")
+
+
+def samples(scale: float = 40.0) -> np.ndarray:
+    return scale * (fibonacci_sphere(200) * [1.1, 0.9, 1.0] + [0.2, -0.1, 0.05])
+
+
+@pytest.fixture(scope="module")
+def files(tmp_path_factory) -> dict[str, Path]:
+    root = tmp_path_factory.mktemp("inputs")
+    frame = pd.DataFrame(samples(), columns=["mx", "my", "mz"])
+    frame.to_csv(root / "rec.csv", index=False)
+    (root / "a_file").write_text("not a folder\n")
+    with gzip.open(root / "rec.csv.gz", "wt") as handle:
+        frame.to_csv(handle, index=False)
+    with zipfile.ZipFile(root / "rec.zip", "w") as archive:
+        archive.writestr("rec.csv", frame.to_csv(index=False))
+    pd.DataFrame(samples(1e298), columns=["mx", "my", "mz"]).to_csv(root / "huge.csv",
+                                                                    index=False)
+    pd.DataFrame(samples(1e-300), columns=["mx", "my", "mz"]).to_csv(root / "tiny.csv",
+                                                                     index=False)
+    (root / "binary.csv").write_bytes(bytes(range(256)) * 4)
+    assert main(["calibrate", f"file={root / 'rec.csv'}", "method=sphere",
+                 f"out={root / 'cal'}"]) == 0
+    return {"root": root, "rec": root / "rec.csv", "file": root / "a_file",
+            "gz": root / "rec.csv.gz", "zip": root / "rec.zip", "huge": root / "huge.csv",
+            "tiny": root / "tiny.csv", "binary": root / "binary.csv",
+            "cal": root / "cal" / "calibration.json"}
+
+
+SWEEP = ["progress=false", "trials=1", "algorithms=[sphere]"]
+
+#: (arguments with {placeholders}, words the one line must hold)
+CASES = [
+    # outputs
+    (["results_dir={file}", *SWEEP], "is a file; expected a folder"),
+    (["results_dir={file}/below", *SWEEP], "is a file; expected a folder"),
+    (["sweep=gyro", "results_dir={file}", *SWEEP], "is a file; expected a folder"),
+    (["bench", "results_dir={file}"], "is a file; expected a folder"),
+    (["report", "results_dir={file}"], "is not a folder of results"),
+    (["report", "results_dir={root}/never-written"], "is not a folder of results"),
+    (["calibrate", "file={rec}", "method=sphere", "out={file}"], "is a file; expected a folder"),
+    (["apply", "calibration={cal}", "file={rec}", "out={root}"], "is a folder; expected"),
+    (["apply", "calibration={cal}", "file={rec}", "out={file}/x.csv"],
+     "the folder of out="),
+    # inputs
+    (["calibrate", "file={root}"], "is a folder; expected a CSV"),
+    (["calibrate", "file={zip}"], "compressed input (zip): unpack it first"),
+    (["calibrate", "file={binary}"], "is not a text file"),
+    (["calibrate", "file={huge}"], "outside the range magbench can calibrate"),
+    (["calibrate", "file={tiny}"], "outside the range magbench can calibrate"),
+    (["apply", "calibration={rec}", "file={rec}"], "is not valid JSON"),
+    # values, every sweep kind
+    (["n_jobs=abc", *SWEEP], "n_jobs must be a non-zero integer"),
+    (["sweep=gyro", "n_jobs=abc", *SWEEP], "n_jobs must be a non-zero integer"),
+    (["sweep=gyro", "n_jobs=0", *SWEEP], "n_jobs must be a non-zero integer"),
+    (["sweep=gyro", "seed=-1", *SWEEP], "seed must be an integer >= 0"),
+    (["sweep=gyro", "nominal.sigma=-1", *SWEEP], "nominal.sigma must be >= 0"),
+    (["sweep=gyro", "sweep.rate_hz=0", *SWEEP], "sweep.rate_hz must be > 0"),
+    (["sweep=gyro", "+sweep.trials=0", "progress=false"], "unknown key(s) sweep.trials"),
+    (["sweep=gyro", "trials=0", "progress=false"], "trials must be an integer >= 1"),
+    (["sweep=gyro", "trials=2.7", "progress=false"], "trials must be an integer >= 1, got 2.7"),
+    (["sweep=gyro", "delta=7", *SWEEP], "delta must be in (0, 1)"),
+    (["sweep=wushi", "seed=-1", *SWEEP], "seed must be an integer >= 0"),
+    (["sweep=wushi", "+options.magical.bogus=1", "progress=false", "trials=1"],
+     "unknown option(s) bogus for magical"),
+    (["sweep=wushi", "sweep.N=9", *SWEEP], "sweep.N must be an integer >= 10"),
+    (["sweep=baseline", "+sweep.rate_hz=3", *SWEEP], "unknown key(s) sweep.rate_hz"),
+    (["calibrate", "file={rec}", "seed=-1"], "seed must be an integer >= 0"),
+    (["calibrate", "file={rec}", "max_samples=0"], "max_samples must be an integer >= 8"),
+]
+
+
+@pytest.mark.parametrize(("args", "words"), CASES, ids=[" ".join(a) for a, _ in CASES])
+def test_every_problem_is_one_line_and_status_2(args, words, files, tmp_path, capsys):
+    filled = [a.format(**files) for a in args]
+    if not any(a.startswith(("results_dir=", "out=")) for a in filled):
+        filled.append(f"results_dir={tmp_path / 'results'}")
+    assert main(filled) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1, err
+    assert err[0].startswith("magbench: error: ") and words in err[0], err[0]
+
+
+@needs_sys
+@pytest.mark.parametrize("args", [["results_dir={bad}", *SWEEP], ["bench", "results_dir={bad}"],
+                                  ["calibrate", "file={rec}", "method=sphere", "out={bad}"]])
+def test_an_unwritable_output_is_one_line_and_status_2(args, files, capsys):
+    assert main([a.format(bad=UNWRITABLE, **files) for a in args]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "cannot be written" in err[0], err
+
+
+def test_gzip_input_is_read_as_the_plain_file(files, tmp_path):
+    assert main(["calibrate", f"file={files['gz']}", "method=sphere",
+                 f"out={tmp_path / 'gz'}"]) == 0
+    a = json.loads((tmp_path / "gz" / "calibration.json").read_text())
+    b = json.loads(files["cal"].read_text())
+    assert a["T"] == b["T"] and a["h"] == b["h"]
