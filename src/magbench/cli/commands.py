@@ -31,8 +31,9 @@ from magbench.report.wushi import evaluate_claims, wushi_report_section
 from magbench.studies import wushi
 from magbench.studies.review import with_coverage_column
 from magbench.studies.speed import run_bench
+from magbench.studies.timing import repeat_timing, timing_is_current, write_timing
 
-__all__ = ["bench", "draw_figures", "report", "run"]
+__all__ = ["bench", "draw_figures", "report", "run", "timing_check"]
 
 
 def _say(cfg: DictConfig, text: str) -> None:
@@ -48,6 +49,9 @@ def run(cfg: DictConfig) -> int:
               progress=common["progress"], config=OmegaConf.to_container(cfg, resolve=True),
               overwrite=common["overwrite"])
     kind = cfg.sweep.get("kind", "review")
+    if kind == "review" and not timing_is_current(study, out_dir):
+        # The timing protocol for tau (studies/timing.py): after the trials, workers gone.
+        write_timing(study, out_dir, progress=common["progress"])
     if kind == "wushi":
         wushi.finish(study, out_dir)
     else:
@@ -122,10 +126,12 @@ def draw_figures(results_dir: Path | str) -> list[Path]:
 
 def bench(cfg: DictConfig) -> int:
     """``python -m magbench bench``: time every method; writes ``<results_dir>/bench/``."""
-    from magbench.cli.config import check_common, selected_algorithms
+    from magbench.cli.config import _flag, check_common, selected_algorithms
 
     common = check_common(cfg)
     names = selected_algorithms(cfg)
+    if _flag(cfg.get("timing_check", False), "timing_check"):
+        return timing_check(cfg)
     folder = run_bench(common["results_dir"], names,
                        progress=(lambda line: print(line, file=sys.stderr))
                        if common["progress"] else None)
@@ -133,6 +139,29 @@ def bench(cfg: DictConfig) -> int:
     write_text_atomic(bench_report_section(common["results_dir"]), folder / "bench.md")
     print(f"benchmark written to {folder}/ (calls.csv, first_calls.csv, scaling.png, peers.csv, "
           "parallel.csv, bench.md)")
+    return 0
+
+
+def timing_check(cfg: DictConfig) -> int:
+    """``python -m magbench bench timing_check=true [sweep=NAME]``: the sweep's timing protocol
+    run twice in a row; writes ``<results_dir>/bench/timing_check.csv`` (both passes) and
+    ``timing_check_summary.csv`` (per method: worst ratio of pass 2 to pass 1, agreement within
+    10 %) and prints the comparison."""
+    from magbench.cli.config import UsageError
+
+    study, common = study_for(cfg)
+    if cfg.sweep.get("kind", "review") != "review":
+        raise UsageError(f"timing_check times a review sweep (baseline, gamma, beta, K, sigma, "
+                         f"coverage), got sweep={study.name}")
+    folder = common["results_dir"] / "bench"
+    passes, comparison = repeat_timing(
+        study, progress=(lambda line: print(line, file=sys.stderr)) if common["progress"]
+        else None)
+    write_csv_atomic(passes, folder / "timing_check.csv")
+    write_csv_atomic(comparison, folder / "timing_check_summary.csv")
+    print(comparison.to_string(index=False))
+    print(f"{int(comparison['agree'].sum())} of {len(comparison)} methods within 10 % in every "
+          f"cell ({passes['cpu_model'].iloc[0]}); written to {folder}/timing_check.csv")
     return 0
 
 

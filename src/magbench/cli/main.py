@@ -75,7 +75,8 @@ COMMANDS: dict[str, tuple[Callable[[DictConfig], int], str, str, tuple[str, ...]
     "report": (_report, "redraw every figure and rewrite results/report.md from the CSV files",
                "python -m magbench report", ("results_dir",)),
     "bench": (_bench, "time every method, its scaling with K, peers and parallel speed-up",
-              "python -m magbench bench", ("results_dir", "algorithms", "progress")),
+              "python -m magbench bench", ("results_dir", "algorithms", "progress",
+                                           "timing_check", "sweep")),
     "methods": (_methods, "list the registered calibration methods and their options",
                 "python -m magbench methods", ("plugins",)),
 }
