@@ -72,3 +72,15 @@ def test_a_timing_file_is_current_only_for_the_same_study(tmp_path):
     assert timing.timing_is_current(study, tmp_path)
     other = ReviewStudy("baseline", [Point(K=30)], 2, 2, ["sphere"])     # another seed
     assert not timing.timing_is_current(other, tmp_path)
+
+
+def test_a_change_of_the_whole_machine_is_told_apart_from_a_method_changing():
+    a, b = passes({"magical": [1e-3, 2e-3], "ali": [4e-3, 4e-3], "sphere": [5e-4, 5e-4]},
+                  {"magical": [1.6e-3, 3.2e-3], "ali": [6.4e-3, 6.4e-3],
+                   "sphere": [8e-4, 1.2e-3]})
+    out = timing.compare_timings(a, b).set_index("algorithm")
+    assert not out["agree"].any()                    # everything 1.6x slower ...
+    assert out["common_ratio"].iloc[0] == pytest.approx(1.6)
+    assert out.loc["magical", "agree_relative"] and out.loc["ali", "agree_relative"]
+    assert not out.loc["sphere", "agree_relative"]   # ... but sphere 2.4x at one point
+    assert out.loc["sphere", "worst_relative"] == pytest.approx(1.5)

@@ -161,7 +161,10 @@ def timing_check(cfg: DictConfig) -> int:
     write_csv_atomic(comparison, folder / "timing_check_summary.csv")
     print(comparison.to_string(index=False))
     print(f"{int(comparison['agree'].sum())} of {len(comparison)} methods within 10 % in every "
-          f"cell ({passes['cpu_model'].iloc[0]}); written to {folder}/timing_check.csv")
+          f"cell ({passes['cpu_model'].iloc[0]}); the whole machine ran "
+          f"{comparison['common_ratio'].iloc[0]:.3g}x as long in pass 2, and relative to that "
+          f"{int(comparison['agree_relative'].sum())} of {len(comparison)} agree within 10 %; "
+          f"written to {folder}/timing_check.csv")
     return 0
 
 

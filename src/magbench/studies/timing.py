@@ -22,11 +22,14 @@ its own, in the sweep's process once the workers are gone:
 
 Budget (issue 14 item 4: under 15 s for every review sweep of ``make reproduce`` on 2 cores):
 the committed sweeps have 27 points and 14 methods, whose mean calls sum to about 0.83 s over
-all (point, method) cells. Each cell gets 3 datasets x at least 3 calls, and a fast method more
-calls until 5 ms are spent per dataset (at most 50): about 15-25 ms per cell, plus two warm-up
-calls per method and sweep. Measured on this 2-core machine under load from other work: 8.8 s
-for all six review sweeps in one process (coverage 4 s, the largest), about 0.5 s more per
-sweep for loading the compiled loops in its own process. A method whose second warm-up call
+all (point, method) cells. Each dataset gets calls until 3 ms are spent on it (at least 1, at
+most 30): a sub-millisecond method gets 10-30 timed calls per point, one of 40 ms (Dorveaux
+failing on a 60-degree cap) 3, where one call's own spread is small beside its length. Plus
+two warm-up calls per method and sweep. Measured on this 2-core machine while other work kept
+it loaded (load average about 3): 0.9, 1.8, 1.5, 0.5, 0.6 and 2.0 s for the baseline, gamma,
+beta, K, sigma and coverage sweeps, 7.3 s in one process; each sweep's own process adds about
+0.5 s for loading the compiled loops in its warm-up, about 10 s in all.
+A method whose second warm-up call
 takes more than ``slow_call_s`` is timed on one dataset, once per point, so a slow or hanging
 method cannot blow the budget. Calls go through the one trial loop
 (:func:`magbench.engine.trial.run_method`), so exactly what a trial times is timed here.
@@ -61,9 +64,9 @@ __all__ = ["DATASETS", "MIN_TIME_S", "REPEATS", "TIMING_COLUMNS", "TIMING_FILE",
 
 TIMING_FILE = "timing.csv"
 #: Datasets per sweep point and timed calls per dataset (see the module notes for the budget).
-DATASETS, REPEATS = 3, 3
+DATASETS, REPEATS = 3, 1
 #: Time spent per (dataset, method) at the least: fast methods get more than REPEATS calls.
-MIN_TIME_S = 0.005
+MIN_TIME_S = 0.003
 TIMING_COLUMNS = POINT_COLUMNS + ["algorithm", "calls", "failed_calls", "median_s", "q25_s",
                                   "q75_s", "min_s", "wall_median_s", "speed_hz", "datasets",
                                   "cpu_model", "fingerprint", "measured"]
@@ -81,7 +84,7 @@ def _call(name: str, y: np.ndarray, opts: dict, seed: int, stream: tuple,
 def time_methods(points: Sequence[Point], seed: int, algorithms: Sequence[str],
                  options: dict | None = None, *, datasets: int = DATASETS,
                  repeats: int = REPEATS, min_time_s: float = MIN_TIME_S,
-                 max_repeats: int = 50, slow_call_s: float = 0.2,
+                 max_repeats: int = 30, slow_call_s: float = 0.2,
                  call_timeout_s: float | None = None,
                  clock: Callable[[], str] | None = None) -> pd.DataFrame:
     """Time every method on the first ``datasets`` datasets of each point (the protocol above).
@@ -223,27 +226,39 @@ def compare_timings(first: pd.DataFrame, second: pd.DataFrame,
     DataFrame
         One row per method (in ``first``'s order): ``cells`` compared, ``median_s_first``,
         ``median_s_second`` (medians over the cells), ``worst_ratio`` (second / first of the
-        cell farthest from 1), ``agree`` (every cell within ``tolerance``). Cells present in
-        only one pass are left out; a method with none is ``agree = False``.
+        cell farthest from 1), ``agree`` (every cell within ``tolerance``); ``common_ratio``
+        (the median ratio over all cells and methods: the machine's change of speed),
+        ``worst_relative`` and ``agree_relative``, the same after dividing by it. Cells
+        present in only one pass are left out; a method with none does not agree.
     """
     keys = POINT_COLUMNS + ["algorithm"]
     both = first[keys + ["median_s"]].merge(second[keys + ["median_s"]], on=keys,
                                             suffixes=("_first", "_second"))
     both["ratio"] = both["median_s_second"] / both["median_s_first"]
+    # A change of the whole machine's speed between the passes (another tenant, a frequency
+    # step) moves every method by one factor; dividing it out shows whether the methods'
+    # relative speeds, which every speed verdict rests on, still agree.
+    common = float(np.median(both["ratio"])) if len(both) else np.nan
     rows = []
     for name in dict.fromkeys(first["algorithm"]):
         g = both[both["algorithm"] == name]
         if g.empty:
             rows.append({"algorithm": name, "cells": 0, "median_s_first": np.nan,
-                         "median_s_second": np.nan, "worst_ratio": np.nan, "agree": False})
+                         "median_s_second": np.nan, "worst_ratio": np.nan, "agree": False,
+                         "common_ratio": common, "worst_relative": np.nan,
+                         "agree_relative": False})
             continue
-        dev = np.abs(np.log(g["ratio"].to_numpy(float)))
-        worst = float(g["ratio"].to_numpy(float)[int(np.argmax(dev))])
+        ratio = g["ratio"].to_numpy(float)
+        worst = float(ratio[int(np.argmax(np.abs(np.log(ratio))))])
+        relative = ratio / common
         rows.append({"algorithm": name, "cells": len(g),
                      "median_s_first": float(g["median_s_first"].median()),
                      "median_s_second": float(g["median_s_second"].median()),
                      "worst_ratio": worst,
-                     "agree": bool(np.all(np.abs(g["ratio"] - 1.0) <= tolerance))})
+                     "agree": bool(np.all(np.abs(ratio - 1.0) <= tolerance)),
+                     "common_ratio": common,
+                     "worst_relative": float(relative[int(np.argmax(np.abs(np.log(relative))))]),
+                     "agree_relative": bool(np.all(np.abs(relative - 1.0) <= tolerance))})
     return pd.DataFrame(rows)
 
 
