@@ -7,10 +7,8 @@ import pandas as pd
 import pytest
 
 from magbench.cli import main
-from magbench.figures.sweeps import FIGURES, figure_data, write_figure
 from magbench.report import build as report
 from magbench.report.build import FAILS, HOLDS, PARTLY, REVIEW
-from magbench.studies.review import with_coverage_column
 
 NOMINAL = {"K": 300, "sigma": 0.005, "beta": 0.05, "gamma": 0.05, "cap_deg": 180.0,
            "band_deg": 90.0}
@@ -83,26 +81,6 @@ def test_K_time_slope_and_flat_robustness():
         table[n]["speed_hz"] = [100, 100, 100]                   # time independent of K
     assert report.check_K(summary("K", [50, 150, 300], table, floor=[160, 280, 400]))[2] \
         .verdict == FAILS
-
-
-def test_figure_and_its_csv_from_a_fixture(tmp_path):
-    s = gamma_case()
-    data = figure_data(s, "gamma")
-    assert set(data["series"]) == {*REVIEW, "crb"}
-    assert len(data) == 7 * 3 + 3
-    png, csv = write_figure(s, "gamma", tmp_path)
-    assert png.stat().st_size > 10_000 and png.read_bytes()[:4] == b"\x89PNG"
-    pd.testing.assert_frame_equal(pd.read_csv(csv), data, check_dtype=False)
-
-
-def test_coverage_figure_keeps_the_sweep_order(tmp_path):
-    s = pd.DataFrame([{**NOMINAL, "cap_deg": c, "band_deg": b, "algorithm": "magical", "n": 1,
-                       "RB_pct": 100, "accuracy": 1.0, "speed_hz": 1.0, "tau_s": 1.0}
-                      for c, b in [(180, 90), (60, 90), (180, 10)]])
-    data = figure_data(with_coverage_column(s), "coverage")
-    assert list(data["x"]) == ["full sphere", "cap 60 deg", "band +-10 deg"]
-    assert write_figure(with_coverage_column(s), "coverage", tmp_path)[0].exists()
-    assert FIGURES["coverage"].stem == "fig_coverage"
 
 
 def test_report_from_fixture_files(tmp_path):

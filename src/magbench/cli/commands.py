@@ -31,7 +31,12 @@ from magbench.report.wushi import evaluate_claims, wushi_report_section
 from magbench.studies import wushi
 from magbench.studies.review import with_coverage_column
 from magbench.studies.speed import run_bench
-from magbench.studies.timing import repeat_timing, timing_is_current, write_timing
+from magbench.studies.timing import (
+    read_timing,
+    repeat_timing,
+    timing_is_current,
+    write_timing,
+)
 
 __all__ = ["bench", "draw_figures", "report", "run", "timing_check"]
 
@@ -77,9 +82,11 @@ def draw_sweep_figures(kind: str, name: str, out_dir: Path) -> list[Path]:
         if name not in FIGURES or not (out_dir / "summary.csv").exists():
             return []
         summary = pd.read_csv(out_dir / "summary.csv")
+        timing = read_timing(out_dir)
         if name == "coverage":
             summary = with_coverage_column(summary)
-        return list(write_figure(summary, name, out_dir))[:1]
+            timing = None if timing is None else with_coverage_column(timing)
+        return list(write_figure(summary, name, out_dir, timing))[:1]
     if kind == "gyro" and (out_dir / "summary.csv").exists():
         return [write_gyro_figure(pd.read_csv(out_dir / "summary.csv"), out_dir)]
     if kind == "real" and (out_dir / "fig6_real.csv").exists():
