@@ -17,7 +17,7 @@ from magbench.cli.config import study_for
 from magbench.core.files import write_csv_atomic, write_text_atomic
 from magbench.engine.sweep import run_study
 from magbench.figures.gyro import write_gyro_figure
-from magbench.figures.real import figure6
+from magbench.figures.real import figure6, figure6_recordings
 from magbench.figures.speed import plot_scaling
 from magbench.figures.style import save_figure
 from magbench.figures.sweeps import FIGURES, write_figure
@@ -90,9 +90,11 @@ def draw_sweep_figures(kind: str, name: str, out_dir: Path) -> list[Path]:
     if kind == "gyro" and (out_dir / "summary.csv").exists():
         return [write_gyro_figure(pd.read_csv(out_dir / "summary.csv"), out_dir)]
     if kind == "real" and (out_dir / "fig6_real.csv").exists():
-        fig = figure6(pd.read_csv(out_dir / "fig6_real.csv"),
-                      pd.read_csv(out_dir / "real_summary.csv"))
-        return [save_figure(fig, out_dir / "fig6_real.png")]
+        per_method = pd.read_csv(out_dir / "fig6_real.csv")
+        per_recording = pd.read_csv(out_dir / "real_summary.csv")
+        return [save_figure(figure6(per_method), out_dir / "fig6_real.png"),
+                save_figure(figure6_recordings(per_method, per_recording),
+                            out_dir / "fig6_real_recordings.png")]
     if kind == "wushi" and (out_dir / "fig5_time.csv").exists():
         return write_wushi_figures(out_dir)
     return []
