@@ -115,9 +115,9 @@ def figure6(per_method: pd.DataFrame, per_recording: pd.DataFrame | None = None)
     n_rec = int(per_method["n_recordings"].max()) if "n_recordings" in per_method else None
     fig.legend(handles=handles, loc="outside lower center", ncols=len(handles), fontsize=9,
                frameon=False)
-    note = (f"; not shown (no meaningful fit on any recording): "
+    note = ("; not shown (no meaningful fit on any recording): "
             + ", ".join(method_style(n)["label"] for n in left_out)) if left_out else ""
-    fig.suptitle(f"Figure 6 on public real recordings (review section 10.2)"
+    fig.suptitle("Figure 6 on public real recordings (review section 10.2)"
                  + (f", {n_rec} recordings" if n_rec else "") + note, fontsize=11)
     return fig
 
