@@ -20,7 +20,7 @@ def passes(first: dict[str, list[float]], second: dict[str, list[float]]):
             for i, m in enumerate(medians):
                 p = Point(gamma=0.05 * (i + 1))
                 rows.append({**{c: getattr(p, c) for c in POINT_COLUMNS}, "algorithm": name,
-                             "median_s": m})
+                             "tau_s": m})
         return pd.DataFrame(rows)
     return frame(first), frame(second)
 
@@ -58,7 +58,7 @@ def test_the_pass_times_every_method_on_the_same_number_of_calls():
     assert list(frame["gamma"]) == [0.05, 0.05, 0.5, 0.5]
     assert (frame["q25_s"] <= frame["median_s"]).all()
     assert (frame["median_s"] <= frame["q75_s"]).all()
-    assert frame["speed_hz"].to_numpy() == pytest.approx(1 / frame["median_s"].to_numpy())
+    assert frame["speed_hz"].to_numpy() == pytest.approx(1 / frame["tau_s"].to_numpy())
     # A method that is slow on the first dataset is timed once per point, on one dataset.
     slow = timing.time_methods(points[:1], 7, ["sphere"], datasets=2, repeats=2,
                                slow_call_s=-1.0)
@@ -84,3 +84,23 @@ def test_a_change_of_the_whole_machine_is_told_apart_from_a_method_changing():
     assert out.loc["magical", "agree_relative"] and out.loc["ali", "agree_relative"]
     assert not out.loc["sphere", "agree_relative"]   # ... but sphere 2.4x at one point
     assert out.loc["sphere", "worst_relative"] == pytest.approx(1.5)
+
+
+def test_tau_weights_every_dataset_once_however_often_it_was_repeated(monkeypatch):
+    # A stand-in for the call: dataset 0 takes 0.1 ms (so it is repeated until 3 ms are
+    # spent), dataset 1 takes 10 ms (called once); no clock is read.
+    calls = []
+
+    def fake(name, y, opts, seed, stream, timeout):
+        calls.append(stream[1])
+        spent = 1e-4 if stream[1] == 0 else 1e-2
+        return spent, spent, True
+
+    monkeypatch.setattr(timing, "_call", fake)
+    frame = timing.time_methods([Point(K=30)], 7, ["sphere"], datasets=2, repeats=1,
+                                min_time_s=3e-3, max_repeats=50)
+    row = frame.iloc[0]
+    assert calls.count(1) == 1 and calls.count(0) > 20   # (and two warm-up calls on 0)
+    assert row["tau_s"] == pytest.approx((1e-4 + 1e-2) / 2)     # not the median of all calls
+    assert row["median_s"] == pytest.approx((1e-4 + 1e-2) / 2)  # median of two datasets
+    assert row["speed_hz"] == pytest.approx(1 / row["tau_s"])

@@ -12,9 +12,13 @@ its own, in the sweep's process once the workers are gone:
 * single-threaded: one process, BLAS pinned to one thread (``python -m magbench`` sets it before
   numpy loads), methods interleaved per dataset so a drift of the machine's load spreads over
   all of them instead of landing on one;
-* each call repeated (at least ``repeats`` times, more for fast methods); the statistic is the
-  median over all timed calls of a (point, method), recorded with its quartiles and the CPU
-  model;
+* each call repeated (at least ``repeats`` times, more for fast methods) and its median
+  taken, which removes the machine's noise; tau (``tau_s``) is the mean of these medians over
+  the datasets, each dataset weighted once, as eq. (79) averages over datasets (a method whose
+  iterations vary from dataset to dataset, such as MAG.I.C.AL at large gamma, keeps that
+  variation) on which the method ended by its own rule, as (79) times the successful runs
+  (``tau_all_s``: every dataset); ``median_s`` is the median over datasets, and the quartiles are over all calls;
+  the row records the CPU model;
 * the time is the process's CPU time of the call (``time.process_time``): on one thread it
   equals the wall time of a quiet machine, and on a shared one it leaves out the time the
   process waited for a core, which is the other work's cost, not the method's. The wall-clock
@@ -22,13 +26,14 @@ its own, in the sweep's process once the workers are gone:
 
 Budget (issue 14 item 4: under 15 s for every review sweep of ``make reproduce`` on 2 cores):
 the committed sweeps have 27 points and 14 methods, whose mean calls sum to about 0.83 s over
-all (point, method) cells. Each dataset gets calls until 3 ms are spent on it (at least 1, at
-most 30): a sub-millisecond method gets 10-30 timed calls per point, one of 40 ms (Dorveaux
-failing on a 60-degree cap) 3, where one call's own spread is small beside its length. Plus
-two warm-up calls per method and sweep. Measured on this 2-core machine while other work kept
-it loaded (load average about 3): 0.9, 1.8, 1.5, 0.5, 0.6 and 2.0 s for the baseline, gamma,
-beta, K, sigma and coverage sweeps, 7.3 s in one process; each sweep's own process adds about
-0.5 s for loading the compiled loops in its warm-up, about 10 s in all.
+all (point, method) cells. Each dataset gets at least 3 calls, a fast method more until 3 ms
+are spent on it (at most 30), and a call longer than 10 ms only one (Dorveaux failing on a
+60-degree cap takes 40 ms; its length dwarfs the jitter): a sub-millisecond method gets 9-30
+timed calls per point. Plus two warm-up calls per method and sweep. Measured on this 2-core
+machine while other work kept it loaded (load average 4-5): 1.2, 2.2, 1.9, 0.9, 1.0 and 5.0 s
+for the baseline, gamma, beta, K, sigma and coverage sweeps, 12 s in one process; each
+sweep's own process adds about 0.5 s for loading the compiled loops in its warm-up. On a quiet
+machine about half of that.
 A method whose second warm-up call
 takes more than ``slow_call_s`` is timed on one dataset, once per point, so a slow or hanging
 method cannot blow the budget. Calls go through the one trial loop
@@ -64,10 +69,11 @@ __all__ = ["DATASETS", "MIN_TIME_S", "REPEATS", "TIMING_COLUMNS", "TIMING_FILE",
 
 TIMING_FILE = "timing.csv"
 #: Datasets per sweep point and timed calls per dataset (see the module notes for the budget).
-DATASETS, REPEATS = 3, 1
+DATASETS, REPEATS = 3, 3
 #: Time spent per (dataset, method) at the least: fast methods get more than REPEATS calls.
 MIN_TIME_S = 0.003
-TIMING_COLUMNS = POINT_COLUMNS + ["algorithm", "calls", "failed_calls", "median_s", "q25_s",
+TIMING_COLUMNS = POINT_COLUMNS + ["algorithm", "calls", "failed_calls", "tau_s", "tau_all_s",
+                                  "ok_datasets", "median_s", "q25_s",
                                   "q75_s", "min_s", "wall_median_s", "speed_hz", "datasets",
                                   "cpu_model", "fingerprint", "measured"]
 
@@ -84,7 +90,8 @@ def _call(name: str, y: np.ndarray, opts: dict, seed: int, stream: tuple,
 def time_methods(points: Sequence[Point], seed: int, algorithms: Sequence[str],
                  options: dict | None = None, *, datasets: int = DATASETS,
                  repeats: int = REPEATS, min_time_s: float = MIN_TIME_S,
-                 max_repeats: int = 30, slow_call_s: float = 0.2,
+                 max_repeats: int = 30, long_call_s: float = 0.01,
+                 slow_call_s: float = 0.2,
                  call_timeout_s: float | None = None,
                  clock: Callable[[], str] | None = None) -> pd.DataFrame:
     """Time every method on the first ``datasets`` datasets of each point (the protocol above).
@@ -105,6 +112,9 @@ def time_methods(points: Sequence[Point], seed: int, algorithms: Sequence[str],
     min_time_s, max_repeats : float, int
         A fast method is called again on a dataset until ``min_time_s`` is spent on it (at most
         ``max_repeats`` calls): more calls where they are cheap.
+    long_call_s : float
+        A call longer than this on a dataset is not repeated there (its length dwarfs the
+        machine's jitter, and repeating it would spend the budget).
     slow_call_s : float
         A method whose second warm-up call takes longer is timed once per point, on one dataset.
     call_timeout_s : float, optional
@@ -137,9 +147,11 @@ def time_methods(points: Sequence[Point], seed: int, algorithms: Sequence[str],
     rows = []
     for point in points:
         data = [make_dataset(rng(seed, point.key, t), point) for t in range(datasets)]
-        times: dict[str, list[float]] = {n: [] for n in names}
+        # Per method, one list of CPU times (and wall times) per dataset.
+        times: dict[str, list[list[float]]] = {n: [] for n in names}
         walls: dict[str, list[float]] = {n: [] for n in names}
         failed = dict.fromkeys(names, 0)
+        ended: dict[str, list[bool]] = {n: [] for n in names}
         for t, d in enumerate(data):
             for name in names:                   # interleaved: load drift spreads over all
                 if name in slow and t > 0:
@@ -148,26 +160,41 @@ def time_methods(points: Sequence[Point], seed: int, algorithms: Sequence[str],
                 # At least `repeats` calls, more for a fast method until `min_time_s` is
                 # spent on this dataset: a median of 3 sub-millisecond calls moves with every
                 # burst of load, one of 30 does not, and it costs the budget nothing.
-                spent_here, n_here = 0.0, 0
-                while n_here < (1 if name in slow else repeats) or (
-                        name not in slow and spent_here < min_time_s and n_here < max_repeats):
+                spent_here, here, fine = 0.0, [], True
+                while (len(here) < (1 if name in slow else repeats)
+                       and not (here and here[0] > long_call_s)) or (
+                        name not in slow and spent_here < min_time_s
+                        and len(here) < max_repeats):
                     cpu, wall, ok = _call(name, d.y, opts, seed, (point.key, t),
                                           call_timeout_s)
-                    times[name].append(cpu)
+                    here.append(cpu)
                     walls[name].append(wall)
                     failed[name] += not ok
+                    fine = fine and ok
                     spent_here += wall
-                    n_here += 1
+                times[name].append(here)
+                ended[name].append(fine)
         for name in names:
-            x = np.asarray(times[name])
-            median = float(np.median(x))
+            # The median of a dataset's repeated calls removes the machine's noise; the mean
+            # over datasets is tau of eq. (79), each dataset weighted once (a fast dataset
+            # gets more repeats, which must not make it count more).
+            # As eq. (79) times the runs that succeeded, tau averages the datasets on which
+            # the method ended by its own rule (a run at its iteration cap costs the cap, not
+            # the method's speed); tau_all_s averages all of them.
+            per_dataset = [float(np.median(x)) for x in times[name]]
+            good = [v for v, fine in zip(per_dataset, ended[name], strict=True) if fine]
+            tau = float(np.mean(good)) if good else np.nan
+            tau_all = float(np.mean(per_dataset))
+            x = np.concatenate(times[name])
             rows.append({**{c: getattr(point, c) for c in POINT_COLUMNS}, "algorithm": name,
-                         "calls": x.size, "failed_calls": failed[name], "median_s": median,
+                         "calls": x.size, "failed_calls": failed[name], "tau_s": tau,
+                         "tau_all_s": tau_all, "ok_datasets": len(good),
+                         "median_s": float(np.median(per_dataset)),
                          "q25_s": float(np.quantile(x, 0.25)),
                          "q75_s": float(np.quantile(x, 0.75)), "min_s": float(x.min()),
                          "wall_median_s": float(np.median(walls[name])),
-                         "speed_hz": 1.0 / median if median > 0 else np.nan,
-                         "datasets": 1 if name in slow else datasets, "cpu_model": machine,
+                         "speed_hz": 1.0 / tau if good and tau > 0 else np.nan,
+                         "datasets": len(per_dataset), "cpu_model": machine,
                          "fingerprint": "", "measured": stamp})
     return pd.DataFrame(rows, columns=TIMING_COLUMNS)
 
@@ -219,22 +246,22 @@ def compare_timings(first: pd.DataFrame, second: pd.DataFrame,
     first, second : DataFrame
         Two outputs of :func:`time_methods` (the same points and methods).
     tolerance : float
-        Largest accepted relative difference of the medians.
+        Largest accepted relative difference of tau.
 
     Returns
     -------
     DataFrame
-        One row per method (in ``first``'s order): ``cells`` compared, ``median_s_first``,
-        ``median_s_second`` (medians over the cells), ``worst_ratio`` (second / first of the
+        One row per method (in ``first``'s order): ``cells`` compared, ``tau_s_first``,
+        ``tau_s_second`` (medians over the cells), ``worst_ratio`` (second / first of the
         cell farthest from 1), ``agree`` (every cell within ``tolerance``); ``common_ratio``
         (the median ratio over all cells and methods: the machine's change of speed),
         ``worst_relative`` and ``agree_relative``, the same after dividing by it. Cells
         present in only one pass are left out; a method with none does not agree.
     """
     keys = POINT_COLUMNS + ["algorithm"]
-    both = first[keys + ["median_s"]].merge(second[keys + ["median_s"]], on=keys,
-                                            suffixes=("_first", "_second"))
-    both["ratio"] = both["median_s_second"] / both["median_s_first"]
+    both = first[keys + ["tau_s"]].merge(second[keys + ["tau_s"]], on=keys,
+                                         suffixes=("_first", "_second"))
+    both["ratio"] = both["tau_s_second"] / both["tau_s_first"]
     # A change of the whole machine's speed between the passes (another tenant, a frequency
     # step) moves every method by one factor; dividing it out shows whether the methods'
     # relative speeds, which every speed verdict rests on, still agree.
@@ -243,8 +270,8 @@ def compare_timings(first: pd.DataFrame, second: pd.DataFrame,
     for name in dict.fromkeys(first["algorithm"]):
         g = both[both["algorithm"] == name]
         if g.empty:
-            rows.append({"algorithm": name, "cells": 0, "median_s_first": np.nan,
-                         "median_s_second": np.nan, "worst_ratio": np.nan, "agree": False,
+            rows.append({"algorithm": name, "cells": 0, "tau_s_first": np.nan,
+                         "tau_s_second": np.nan, "worst_ratio": np.nan, "agree": False,
                          "common_ratio": common, "worst_relative": np.nan,
                          "agree_relative": False})
             continue
@@ -252,8 +279,8 @@ def compare_timings(first: pd.DataFrame, second: pd.DataFrame,
         worst = float(ratio[int(np.argmax(np.abs(np.log(ratio))))])
         relative = ratio / common
         rows.append({"algorithm": name, "cells": len(g),
-                     "median_s_first": float(g["median_s_first"].median()),
-                     "median_s_second": float(g["median_s_second"].median()),
+                     "tau_s_first": float(g["tau_s_first"].median()),
+                     "tau_s_second": float(g["tau_s_second"].median()),
                      "worst_ratio": worst,
                      "agree": bool(np.all(np.abs(ratio - 1.0) <= tolerance)),
                      "common_ratio": common,
