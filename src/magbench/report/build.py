@@ -796,14 +796,16 @@ def build_report(results_dir: Path | str) -> str:
         if {"vasconcelos_printed", "wu_shi_printed"} <= set(variants.index):
             paper = paper_values()["review"]["table2"]
             vasc = printed_robustness(baseline, summaries.get("gamma"), summaries.get("beta"))
+            v_rb, w_rb = (cell(variants.loc[n, "RB_pct"], rb_interval(variants.loc[n]))
+                          for n in ("vasconcelos_printed", "wu_shi_printed"))
             out += ["### Robustness: the review's printed formulas reproduce its numbers", "",
                     "Implemented from the original papers, Vasconcelos and Wu-Shi are 100 % "
                     "robust here. Run as the review prints them (registered as variants), they "
                     "give the review's robustness: Vasconcelos with (40)-(43) as printed "
-                    f"{cell(variants.loc['vasconcelos_printed', 'RB_pct'], rb_interval(variants.loc['vasconcelos_printed']))} % "
+                    f"{v_rb} % "
                     f"(paper {paper['Vasconcelos']['robustness_pct']:.3g} %), Wu-Shi with (57) "
                     "as printed, starting from R instead of R^-1, "
-                    f"{cell(variants.loc['wu_shi_printed', 'RB_pct'], rb_interval(variants.loc['wu_shi_printed']))} % "
+                    f"{w_rb} % "
                     f"(paper {paper['Wu_Shi']['robustness_pct']:.3g} %); brackets: 95 % Wilson "
                     "intervals. " + vasc, ""]
         if "efficiency" in baseline:

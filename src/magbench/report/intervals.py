@@ -69,7 +69,9 @@ def accuracy_intervals(trials: pd.DataFrame, by: Sequence[str], sweep: str,
     for key, g in ok.groupby(list(by), sort=False):
         key = key if isinstance(key, tuple) else (key,)
         stream = [sweep] + [f"{c}={v}" for c, v in zip(by, key, strict=True)]
-        lo, hi = bootstrap_inverse_mean(g[value].to_numpy(float), *stream)
+        # One run has no spread to resample: no interval rather than a point posing as one.
+        lo, hi = (bootstrap_inverse_mean(g[value].to_numpy(float), *stream) if len(g) > 1
+                  else (np.nan, np.nan))
         rows.append({**dict(zip(by, key, strict=True)), "acc_lo": lo, "acc_hi": hi})
     return pd.DataFrame(rows, columns=[*by, "acc_lo", "acc_hi"])
 

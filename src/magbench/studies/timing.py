@@ -17,7 +17,8 @@ its own, in the sweep's process once the workers are gone:
   the datasets, each dataset weighted once, as eq. (79) averages over datasets (a method whose
   iterations vary from dataset to dataset, such as MAG.I.C.AL at large gamma, keeps that
   variation) on which the method ended by its own rule, as (79) times the successful runs
-  (``tau_all_s``: every dataset); ``median_s`` is the median over datasets, and the quartiles are over all calls;
+  (``tau_all_s``: every dataset); ``median_s`` is the median over datasets, and the
+  quartiles are over all calls;
   the row records the CPU model;
 * the time is the process's CPU time of the call (``time.process_time``): on one thread it
   equals the wall time of a quiet machine, and on a shared one it leaves out the time the
