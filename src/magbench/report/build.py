@@ -537,7 +537,8 @@ def printed_robustness(baseline: pd.DataFrame, gamma: pd.DataFrame | None,
     if name not in b.index:
         return ""
     row = b.loc[name]
-    n, k = int(row["n"]), int(round(row["RB_pct"] * row["n"] / 100))
+    n = int(row["n"])
+    k = int(row["n_meaningful"]) if "n_meaningful" in row else round(row["RB_pct"] * n / 100)
     lo, hi = rb_interval(row)
     parts = [f"{_label(name)}: {row['RB_pct']:.3g} % [{lo:.3g}, {hi:.3g}] at the baseline "
              f"rests on {n - k} failed run{'s' if n - k != 1 else ''} of {n}"
