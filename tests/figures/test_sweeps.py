@@ -52,3 +52,23 @@ def test_coverage_keeps_the_sweep_order_and_never_joins_a_cap_to_a_band(tmp_path
         assert sorted(map(list, runs)) == [[0, 1], [3, 4]]
     assert write_figure(s, "coverage", tmp_path)[0].exists()
     assert FIGURES["coverage"].stem == "fig_coverage"
+
+
+def test_figure6_splits_the_review_from_the_others_and_leaves_out_empty_methods():
+    from magbench.figures.real import figure6, split_methods
+
+    rows = [{"preprocess": how, "algorithm": name, "label": name, "n_recordings": 4,
+             "n_applicable": 4 if name != "magfactor3" else 1,
+             "n_meaningful": 0 if name == "magfactor3" else 3, "RB_pct": 75.0,
+             "accuracy_in": 900.0}
+            for how in ("scale", "centre") for name in ("magical", "fang", "magfactor3",
+                                                         "dorveaux")]
+    per_method = pd.DataFrame(rows)
+    assert split_methods(per_method) == (["dorveaux", "magical"], ["fang"], ["magfactor3"])
+    fig = figure6(per_method)
+    titles = [ax.get_title(loc="left") for ax in fig.axes]
+    assert [t[:3] for t in titles] == ["(a)", "(b)", "(c)", "(d)"]      # one letter each
+    assert "MagFactor3" in fig._suptitle.get_text()
+    # Nothing meaningful at all: a figure that says so instead of an error.
+    empty = per_method.assign(n_meaningful=0)
+    assert "No method gave a meaningful fit" in figure6(empty).texts[0].get_text()

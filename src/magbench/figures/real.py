@@ -83,9 +83,14 @@ def figure6(per_method: pd.DataFrame, per_recording: pd.DataFrame | None = None)
     here (see :func:`figure6_recordings`).
     """
     review, others, left_out = split_methods(per_method)
-    rows = [(review, "the review's seven methods (its Figure 6)")]
-    if others:
-        rows.append((others, "the other methods"))
+    rows = [(names, what) for names, what in ((review, "the review's methods (its Figure 6)"),
+                                              (others, "the other methods")) if names]
+    if not rows:
+        fig = new_figure(8, 3)
+        fig.text(0.5, 0.5, "No method gave a meaningful fit on any recording: "
+                 + ", ".join(method_style(n)["label"] for n in left_out),
+                 ha="center", va="center", wrap=True)
+        return fig
     fig = new_figure(max(11.0, 0.62 * max(len(review), len(others)) + 4.5), 4.3 * len(rows))
     grid = fig.add_gridspec(len(rows), 2, width_ratios=[1, 1])
     letters = iter("abcdef")
@@ -129,7 +134,7 @@ def figure6_recordings(per_method: pd.DataFrame, per_recording: pd.DataFrame) ->
     Methods with no meaningful fit anywhere are left out (as in :func:`figure6`).
     """
     review, others, _ = split_methods(per_method)
-    order = review + others
+    order = review + others or list(dict.fromkeys(per_method["algorithm"]))
     hows = list(dict.fromkeys(per_method["preprocess"]))
     datasets = list(dict.fromkeys(per_recording["dataset"]))
     fig = new_figure(6.2 * len(hows) + 1.5, 0.26 * len(datasets) + 3.2)
