@@ -5,7 +5,7 @@ from __future__ import annotations
 from matplotlib.colors import is_color_like
 
 from magbench.figures.style import METHOD_STYLE, method_style
-from magbench.methods.registry import get_method, methods
+from magbench.methods.registry import get_method, methods, register, unregister
 
 
 def test_every_registered_method_has_its_own_colour_and_marker():
@@ -25,7 +25,22 @@ def test_style_follows_the_family_and_is_stable():
     assert method_style("dorveaux") == method_style("dorveaux")
 
 
-def test_an_unknown_method_gets_a_valid_grey_of_its_own():
+def test_an_unknown_method_gets_a_valid_style_of_its_own():
     style = method_style("someone_elses_method")
     assert is_color_like(style["color"]) and style["label"] == "someone_elses_method"
     assert style == method_style("someone_elses_method")
+    assert style["color"] not in {c for c, _ in METHOD_STYLE.values()}
+
+
+def test_registered_methods_without_a_fixed_entry_get_distinct_styles():
+    names = [f"zz_variant_{i}" for i in range(15)]
+    for name in names:
+        register(name, label=name, min_samples=4, family="variant")(lambda samples: None)
+    try:
+        pairs = {(method_style(n)["color"], method_style(n)["marker"]) for n in names}
+        fixed = {(method_style(n)["color"], method_style(n)["marker"]) for n in METHOD_STYLE}
+        assert len(pairs) == len(names) and not pairs & fixed
+        assert method_style("zz_variant_3") == method_style("zz_variant_3")
+    finally:
+        for name in names:
+            unregister(name)

@@ -7,10 +7,8 @@ import pandas as pd
 import pytest
 
 from magbench.cli import main
-from magbench.figures.sweeps import FIGURES, figure_data, write_figure
 from magbench.report import build as report
 from magbench.report.build import FAILS, HOLDS, PARTLY, REVIEW
-from magbench.studies.review import with_coverage_column
 
 NOMINAL = {"K": 300, "sigma": 0.005, "beta": 0.05, "gamma": 0.05, "cap_deg": 180.0,
            "band_deg": 90.0}
@@ -85,26 +83,6 @@ def test_K_time_slope_and_flat_robustness():
         .verdict == FAILS
 
 
-def test_figure_and_its_csv_from_a_fixture(tmp_path):
-    s = gamma_case()
-    data = figure_data(s, "gamma")
-    assert set(data["series"]) == {*REVIEW, "crb"}
-    assert len(data) == 7 * 3 + 3
-    png, csv = write_figure(s, "gamma", tmp_path)
-    assert png.stat().st_size > 10_000 and png.read_bytes()[:4] == b"\x89PNG"
-    pd.testing.assert_frame_equal(pd.read_csv(csv), data, check_dtype=False)
-
-
-def test_coverage_figure_keeps_the_sweep_order(tmp_path):
-    s = pd.DataFrame([{**NOMINAL, "cap_deg": c, "band_deg": b, "algorithm": "magical", "n": 1,
-                       "RB_pct": 100, "accuracy": 1.0, "speed_hz": 1.0, "tau_s": 1.0}
-                      for c, b in [(180, 90), (60, 90), (180, 10)]])
-    data = figure_data(with_coverage_column(s), "coverage")
-    assert list(data["x"]) == ["full sphere", "cap 60 deg", "band +-10 deg"]
-    assert write_figure(with_coverage_column(s), "coverage", tmp_path)[0].exists()
-    assert FIGURES["coverage"].stem == "fig_coverage"
-
-
 def test_report_from_fixture_files(tmp_path):
     (tmp_path / "gamma").mkdir()
     gamma_case().to_csv(tmp_path / "gamma" / "summary.csv", index=False)
@@ -163,3 +141,128 @@ def test_top_share_is_a_paired_bootstrap_of_the_squared_metric():
              for i, e in enumerate(err)]
     text = report._top_share(pd.DataFrame(rows), ["magical", "dorveaux"])
     assert "not significant" in text
+
+
+# --- verdicts that rest on intervals, the timing pass and the scaling benchmark -----------------
+
+def rb_sweep(x: str, values: list, rb: dict[str, list[float]], n: int = 250) -> pd.DataFrame:
+    """A summary of RB % only (n runs per point), the other review methods at 100 %."""
+    table = {name: {"RB_pct": rb.get(name, [100.0] * len(values)),
+                    "accuracy": [400.0] * len(values), "speed_hz": [500.0] * len(values)}
+             for name in REVIEW}
+    s = summary(x, values, table)
+    s["n"] = n
+    s["n_meaningful"] = (s["RB_pct"] * n / 100).round().astype(int)
+    return s
+
+
+def test_bias_versus_non_orthogonality_counts_only_differences_beyond_the_intervals():
+    values = [0.05, 0.5, 1.0]
+    # The committed pattern: two methods better with bias, two with beta, three tie.
+    gamma = rb_sweep("gamma", values, {"dorveaux": [100, 84, 30], "magical": [100, 100, 96],
+                                       "crassidis": [100, 60, 26], "vasconcelos": [100] * 3})
+    beta = rb_sweep("beta", values, {"ali": [100, 80, 42.8], "wu_shi": [100, 99, 94.8],
+                                     "crassidis": [100, 61, 26.8], "vasconcelos": [100, 100, 99.6]})
+    check = report.check_bias_vs_distortion(gamma, beta, "claim")
+    assert check.verdict == FAILS
+    assert "more robust to bias: Ali PSO, Wu-Shi;" in check.evidence
+    assert "more robust to non-orthogonality: Dorveaux, MAG.I.C.AL;" in check.evidence
+    classes, _ = report.bias_vs_distortion(gamma, beta)
+    assert classes["vasconcelos"] == classes["crassidis"] == "tie"   # 0.4 and 0.8 points
+    # Two more methods fail with beta only: now most handle bias better.
+    beta2 = rb_sweep("beta", values, {"ali": [100, 80, 42.8], "wu_shi": [100, 99, 94.8],
+                                      "twostep": [100, 90, 70], "vasconcelos": [100, 90, 60],
+                                      "crassidis": [100, 40, 10]})
+    gamma2 = rb_sweep("gamma", values, {"crassidis": [100, 60, 26]})
+    assert report.check_bias_vs_distortion(gamma2, beta2, "claim").verdict == HOLDS
+    # The same differences on 10 runs per point are inside the intervals: no difference.
+    small = report.bias_vs_distortion(rb_sweep("gamma", values, {}, n=10),
+                                      rb_sweep("beta", values, {"wu_shi": [100, 99, 90]},
+                                               n=10))[0]
+    assert small["wu_shi"] == "tie"
+
+
+def test_flat_robustness_flips_on_a_swing_beyond_the_intervals():
+    values = [0.0005, 0.005, 0.05]
+    flat = rb_sweep("sigma", values, {"twostep": [100, 99.6, 100]})
+    assert report._flat_robustness(flat, "sigma", "Figure 5", "c").verdict == HOLDS
+    swing = rb_sweep("sigma", values, {"crassidis": [84.8, 100, 100]})      # the EKF's 15
+    check = report._flat_robustness(swing, "sigma", "Figure 5", "c")
+    assert check.verdict == PARTLY and "intervals: Crassidis EKF" in check.evidence
+
+
+def test_speed_verdict_reads_the_timing_pass_when_there_is_one():
+    s = gamma_case()                       # per-trial speeds: MAG.I.C.AL slows 3x, others flat
+    assert report.check_gamma(s)[4].verdict == HOLDS
+    timing = s[["gamma", "algorithm"]].assign(speed_hz=500.0)   # the pass: all flat
+    check = report.check_gamma(s, timing)[4]
+    assert check.verdict == FAILS and "(timing pass)" in check.evidence
+
+
+def test_time_versus_K_is_judged_on_the_scaling_benchmark():
+    table = {n: {"RB_pct": [100] * 3, "accuracy": [160, 280, 400], "speed_hz": [100] * 3}
+             for n in REVIEW}                                   # flat: overhead-dominated
+    s = summary("K", [50, 150, 300], table, floor=[160, 280, 400])
+    assert report.check_K(s)[2].verdict == FAILS
+    calls = pd.DataFrame([{"algorithm": n, "K": K, "median_s": 1e-3 * K / 1000}
+                          for n in REVIEW for K in (1000, 10000)])
+    check = report.check_K(s, calls=calls)[2]
+    assert check.verdict == HOLDS and "TWOSTEP 10 (slope 1.00)" in check.evidence
+    calls.loc[calls["K"] == 10000, "median_s"] = 1e-1            # 100x: quadratic
+    assert report.check_K(s, calls=calls)[2].verdict == FAILS
+
+
+def test_printed_bias_cost_is_recomputed_from_the_estimates():
+    T_true, h_true = np.diag([1.1, 0.9, 1.0]), np.array([0.1, -0.05, 0.02])
+    T_est = T_true + 0.001 * np.eye(3)
+    h_est = h_true + 0.001
+    row = {"algorithm": "twostep", "meaningful": True, "trial": 0}
+    row.update({f"h_{i}": h_est[i] for i in range(3)})
+    row.update({f"T_{i}{j}": T_est[i, j] for i in range(3) for j in range(3)})
+    row.update({f"h_true_{i}": h_true[i] for i in range(3)})
+    row.update({f"T_true_{i}{j}": T_true[i, j] for i in range(3) for j in range(3)})
+    J, J_h, J_T = report.accuracy_cost(T_est, h_est, T_true, h_true)
+    row.update({"J": J, "J_h": J_h, "J_T": J_T})
+    cost = report.printed_bias_cost(pd.DataFrame([row])).iloc[0]
+    Jp, Jp_h, Jp_T = report.accuracy_cost(T_est, np.linalg.solve(T_est, h_est), T_true, h_true)
+    assert cost["factor_J"] == pytest.approx(Jp / J)
+    assert cost["factor_sq"] == pytest.approx((Jp_h ** 2 + Jp_T ** 2) / (J_h ** 2 + J_T ** 2))
+    assert cost["factor_sq"] > cost["factor_J"] > 1
+    text = report.printed_bias_sentence(pd.DataFrame([cost]))
+    assert f"x{cost['factor_J']:.2g} in J and x{cost['factor_sq']:.2g} in the squared" in text
+
+
+def test_printed_vasconcelos_explains_beta_but_not_gamma_only_when_the_numbers_say_so():
+    values = [0.05, 0.5, 1.0]
+    base = rb_sweep("K", [300], {})
+    base = pd.concat([base, base[base["algorithm"] == "vasconcelos"].assign(
+        algorithm="vasconcelos_printed", RB_pct=99.6, n_meaningful=249)])
+
+    def sweep(x, printed):
+        s = rb_sweep(x, values, {})
+        v = s[s["algorithm"] == "vasconcelos"].assign(algorithm="vasconcelos_printed")
+        v["RB_pct"] = printed
+        v["n_meaningful"] = (v["RB_pct"] * 2.5).round().astype(int)
+        return pd.concat([s, v])
+
+    text = report.printed_robustness(base, sweep("gamma", [100, 27, 14.4]),
+                                     sweep("beta", [100, 80, 32.4]))
+    assert "rests on 1 failed run of 250" in text and "99.6 % [97.8, 99.9]" in text
+    assert "explain the review's fall with beta" in text
+    assert "the explanation holds for beta, not for gamma" in text
+    text = report.printed_robustness(base, sweep("gamma", [100, 100, 99.2]),
+                                     sweep("beta", [100, 80, 32.4]))
+    assert "leave it robust to bias, as the review shows" in text
+
+
+def test_tables_carry_intervals_and_sections_name_their_run(tmp_path):
+    s = rb_sweep("gamma", [0.05, 1.0], {"magical": [100, 96]})
+    text = report.sweep_tables(s, "gamma")
+    assert "96 [92.8, 97.8]" in text and "100 [98.5, 100]" in text
+    (tmp_path / "gamma").mkdir()
+    (tmp_path / "gamma" / "run.json").write_text(
+        '{"fingerprint": "abc123", "git_commit": "0123456789abcdef", '
+        '"settings": {"trials": 250, "delta": 0.5, "seed": 7}}')
+    note = report.run_note(tmp_path / "gamma")
+    assert "250 trials per point" in note and "`abc123`" in note and "`0123456789`" in note
+    assert "unknown" in report.run_note(tmp_path / "beta")

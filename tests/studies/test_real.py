@@ -305,7 +305,7 @@ def test_real_sweep_rows_and_summaries(tmp_path):
     for name in ("real_trials.csv", "real_summary.csv", "fig6_real.csv"):
         assert (tmp_path / "out" / "real" / name).exists()
     section = real_report_section(tmp_path / "out")
-    assert "| TWOSTEP | 100 |" in section and "2 / 2" in section
+    assert "| TWOSTEP | 100 [34.2, 100] |" in section and "2 / 2" in section   # Wilson, 2 of 2
     assert real_report_section(tmp_path / "elsewhere") == ""
 
 

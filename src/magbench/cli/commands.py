@@ -29,7 +29,7 @@ from magbench.engine.record import cpu_model, cpu_seconds, git_commit, process_a
 from magbench.engine.sweep import run_study
 from magbench.figures.gyro import write_gyro_figure
 from magbench.figures.options import option_column, write_option_figure
-from magbench.figures.real import figure6
+from magbench.figures.real import figure6, figure6_recordings
 from magbench.figures.speed import plot_scaling
 from magbench.figures.style import save_figure
 from magbench.figures.sweeps import FIGURES, write_figure
@@ -43,8 +43,15 @@ from magbench.report.wushi import evaluate_claims, wushi_report_section
 from magbench.studies import wushi
 from magbench.studies.review import with_coverage_column
 from magbench.studies.speed import format_reproduce_times, reproduce_times, run_bench
+from magbench.studies.timing import (
+    read_timing,
+    repeat_timing,
+    timing_is_current,
+    write_timing,
+)
 
-__all__ = ["bench", "draw_figures", "report", "reproduce", "reproduce_sweeps", "run"]
+__all__ = ["bench", "draw_figures", "report", "reproduce", "reproduce_sweeps", "run",
+           "timing_check"]
 
 
 def _say(cfg: DictConfig, text: str) -> None:
@@ -63,6 +70,9 @@ def run(cfg: DictConfig, figures: bool = True) -> int:
               progress=common["progress"], config=OmegaConf.to_container(cfg, resolve=True),
               overwrite=common["overwrite"])
     kind = cfg.sweep.get("kind", "review")
+    if kind == "review" and not timing_is_current(study, out_dir):
+        # The timing protocol for tau (studies/timing.py): after the trials, workers gone.
+        write_timing(study, out_dir, progress=common["progress"])
     if kind == "wushi":
         wushi.finish(study, out_dir)
     else:
@@ -93,15 +103,19 @@ def draw_sweep_figures(kind: str, name: str, out_dir: Path) -> list[Path]:
             return [write_option_figure(summary, out_dir, name)]
         if name not in FIGURES:
             return []
+        timing = read_timing(out_dir)
         if name == "coverage":
             summary = with_coverage_column(summary)
-        return list(write_figure(summary, name, out_dir))[:1]
+            timing = None if timing is None else with_coverage_column(timing)
+        return list(write_figure(summary, name, out_dir, timing))[:1]
     if kind == "gyro" and (out_dir / "summary.csv").exists():
         return [write_gyro_figure(pd.read_csv(out_dir / "summary.csv"), out_dir)]
     if kind == "real" and (out_dir / "fig6_real.csv").exists():
-        fig = figure6(pd.read_csv(out_dir / "fig6_real.csv"),
-                      pd.read_csv(out_dir / "real_summary.csv"))
-        return [save_figure(fig, out_dir / "fig6_real.png")]
+        per_method = pd.read_csv(out_dir / "fig6_real.csv")
+        per_recording = pd.read_csv(out_dir / "real_summary.csv")
+        return [save_figure(figure6(per_method), out_dir / "fig6_real.png"),
+                save_figure(figure6_recordings(per_method, per_recording),
+                            out_dir / "fig6_real_recordings.png")]
     if kind == "wushi" and (out_dir / "fig5_time.csv").exists():
         return write_wushi_figures(out_dir)
     return []
@@ -143,11 +157,13 @@ def draw_figures(results_dir: Path | str) -> list[Path]:
 
 def bench(cfg: DictConfig) -> int:
     """``python -m magbench bench``: time every method; writes ``<results_dir>/bench/``."""
-    from magbench.cli.config import check_common, selected_algorithms
+    from magbench.cli.config import _flag, check_common, selected_algorithms
 
     common = check_common(cfg)
     names = selected_algorithms(cfg)
     writable_folder(common["results_dir"], "results_dir")
+    if _flag(cfg.get("timing_check", False), "timing_check"):
+        return timing_check(cfg)
     folder = run_bench(common["results_dir"], names,
                        progress=(lambda line: print(line, file=sys.stderr))
                        if common["progress"] else None)
@@ -211,6 +227,32 @@ def reproduce(overrides: Sequence[str]) -> int:
     print(format_reproduce_times(table))
     print(f"per-step times written to {path} ({machine['cpu_model']}, "
           f"{machine['cpu_count']} CPUs, n_jobs={machine['n_jobs']})")
+    return 0
+
+
+def timing_check(cfg: DictConfig) -> int:
+    """``python -m magbench bench timing_check=true [sweep=NAME]``: the sweep's timing protocol
+    run twice in a row; writes ``<results_dir>/bench/timing_check.csv`` (both passes) and
+    ``timing_check_summary.csv`` (per method: worst ratio of pass 2 to pass 1, agreement within
+    10 %) and prints the comparison."""
+    from magbench.cli.config import UsageError
+
+    study, common = study_for(cfg)
+    if cfg.sweep.get("kind", "review") != "review":
+        raise UsageError(f"timing_check times a review sweep (baseline, gamma, beta, K, sigma, "
+                         f"coverage), got sweep={study.name}")
+    folder = common["results_dir"] / "bench"
+    passes, comparison = repeat_timing(
+        study, progress=(lambda line: print(line, file=sys.stderr)) if common["progress"]
+        else None)
+    write_csv_atomic(passes, folder / "timing_check.csv")
+    write_csv_atomic(comparison, folder / "timing_check_summary.csv")
+    print(comparison.to_string(index=False))
+    print(f"{int(comparison['agree'].sum())} of {len(comparison)} methods within 10 % in every "
+          f"cell ({passes['cpu_model'].iloc[0]}); the whole machine ran "
+          f"{comparison['common_ratio'].iloc[0]:.3g}x as long in pass 2, and relative to that "
+          f"{int(comparison['agree_relative'].sum())} of {len(comparison)} agree within 10 %; "
+          f"written to {folder}/timing_check.csv")
     return 0
 
 

@@ -88,7 +88,8 @@ COMMANDS: dict[str, tuple[Callable[..., int], str, str, tuple[str, ...]]] = {
     "report": (_report, "redraw every figure and rewrite results/report.md from the CSV files",
                "python -m magbench report", ("results_dir",)),
     "bench": (_bench, "time every method, its scaling with K, peers and parallel speed-up",
-              "python -m magbench bench", ("results_dir", "algorithms", "progress")),
+              "python -m magbench bench", ("results_dir", "algorithms", "progress",
+                                           "timing_check", "sweep")),
     "methods": (_methods, "list the registered calibration methods and their options",
                 "python -m magbench methods", ("plugins",)),
 }
@@ -163,14 +164,16 @@ def command_help(command: str) -> str:
     for key in keys:
         default, meaning = known.get(key, ("", ""))
         if key == "sweep":
-            default, meaning = "baseline", "which sweep to run (see below)"
+            default, meaning = "baseline", ("with timing_check=true: the sweep whose timing "
+                                            "pass is run twice" if command == "bench" else
+                                            "which sweep to run (see below)")
         if key == "nominal":
             default, meaning = "K=300 sigma=0.005 beta=0.05 gamma=0.05", \
                 "the nominal point of eq. (80), e.g. nominal.K=150"
         if key == "options":
             default, meaning = "{}", "a method's option, e.g. options.magical.max_iter=100"
         lines.append(f"  {key:<18} {default:<22} {meaning}")
-    if command == "run":
+    if "sweep" in keys:
         lines += ["", "sweeps:"] + [f"  {n:<10} {w}" for n, w in sweep_kinds()]
     if command in ("run", "calibrate", "bench"):
         from magbench.methods.registry import methods

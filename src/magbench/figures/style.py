@@ -42,6 +42,28 @@ METHOD_STYLE: dict[str, tuple[str, str]] = {
 FAMILY_LINE = {"review": ("-", 1.8), "extra": ("--", 1.2), "variant": ("-.", 1.2),
                "gyro": (":", 1.4)}
 _SPARE_MARKERS = "os^Dv<>hpd"
+#: Colours for methods without a fixed entry (Paul Tol's "vibrant" and "bright" schemes, none
+#: of which is in METHOD_STYLE), combined with a marker so every such method differs.
+_SPARE_COLOURS = ("#EE7733", "#0077BB", "#EE3377", "#CC3311", "#009988", "#4477AA",
+                  "#228833", "#CCBB44", "#EE6677", "#AA3377", "#33BBEE", "#BBBBBB")
+
+
+def _spare_index(name: str) -> int:
+    """A stable index for a method outside METHOD_STYLE.
+
+    Registered methods without a fixed entry are numbered in name order, so no two of them
+    share a (colour, marker) pair and the number does not depend on the figure; a name that
+    is not registered (a method of an older run) is placed by its CRC-32 after them.
+    """
+    try:
+        from magbench.methods.registry import methods
+
+        unstyled = sorted(n for n in methods() if n not in METHOD_STYLE)
+    except Exception:      # the registry failed to load: still draw something
+        unstyled = []
+    if name in unstyled:
+        return unstyled.index(name)
+    return len(unstyled) + zlib.crc32(name.encode()) % (len(_SPARE_COLOURS) ** 2)
 
 
 class MethodStyle(dict):
@@ -51,8 +73,9 @@ class MethodStyle(dict):
 def method_style(name: str) -> MethodStyle:
     """The fixed style of ``name``: colour, marker, line style and width, and its label.
 
-    A method that is not in :data:`METHOD_STYLE` (a plugin, or one of an older run) gets a grey
-    shade and a marker derived from its name, the same in every figure.
+    A method that is not in :data:`METHOD_STYLE` (a new variant, a plugin, or one of an older
+    run) gets a spare colour and marker (:func:`_spare_index`), the same in every figure and
+    distinct from every other registered method's.
     """
     try:
         spec = get_method(name)
@@ -63,9 +86,9 @@ def method_style(name: str) -> MethodStyle:
     if name in METHOD_STYLE:
         colour, marker = METHOD_STYLE[name]
     else:
-        code = zlib.crc32(name.encode())
-        colour = "#" + f"{0x55 + code % 0x66:02x}" * 3
-        marker = _SPARE_MARKERS[code % len(_SPARE_MARKERS)]
+        k = _spare_index(name)
+        colour = _SPARE_COLOURS[k % len(_SPARE_COLOURS)]
+        marker = _SPARE_MARKERS[(k // len(_SPARE_COLOURS) + k) % len(_SPARE_MARKERS)]
     linestyle, width = FAMILY_LINE.get(family, FAMILY_LINE["extra"])
     return MethodStyle(color=colour, marker=marker, linestyle=linestyle, linewidth=width,
                        markersize=5, label=label)

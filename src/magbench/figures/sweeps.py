@@ -3,11 +3,20 @@
 Each figure has the review's three panels against the swept parameter: (a) accuracy 1/rho
 (78), (b) execution speed 1/tau (79), (c) robustness RB % (77); one line per method, the
 review's seven solid, the extra methods dashed, the review's printed-formula variants
-dash-dotted. The accuracy panel also carries the
-Cramer-Rao limit: 1/E[J] of an efficient unbiased estimator (column ``crb_accuracy`` of
-``summary.csv``, see :mod:`magbench.core.crb`), the accuracy no unbiased method can beat on average
-in the small-noise regime. :func:`figure_data` returns exactly what is drawn; it is written
-beside the PNG as CSV.
+dash-dotted. A fourth panel (d) compares every method with the Cramer-Rao bound on the *same*
+runs it is scored on: ``efficiency`` of ``summary.csv``, the bound over a method's meaningful
+runs divided by its mean squared error over those runs (1 = on the floor; see
+:mod:`magbench.core.crb`). A single floor line averaged over all datasets, beside 1/rho
+averaged over the meaningful runs only, put methods "above the limit" by construction where
+robustness is below 100 %; the matched ratio cannot.
+
+The speed panel reads the sweep's timing pass (``timing.csv``, :mod:`magbench.studies.timing`:
+the same datasets, warmed up, one thread) when it is there, and the per-trial times of
+``summary.csv`` otherwise; the panel's title says which. :func:`figure_data` returns exactly
+what is drawn; it is written beside the PNG as CSV.
+
+The coverage sweep's points are of two geometries (a polar cap of shrinking half-angle, an
+equatorial band): each is drawn as its own group, a line within a group and never across.
 
 Figures are built as bare ``matplotlib.figure.Figure`` objects, rendered by the Agg canvas,
 without pyplot: no global backend state, nothing opens a window, nothing leaks between calls.
@@ -26,11 +35,8 @@ from magbench.core.files import write_csv_atomic
 from magbench.figures.style import method_style, new_figure, save_figure
 from magbench.methods.registry import get_method, methods
 
-__all__ = ["FIGURES", "FigureSpec", "figure_data", "plot_sweep", "write_figure"]
-
-#: The series name of the Cramer-Rao limit in :func:`figure_data`.
-CRB_SERIES = "crb"
-CRB_LABEL = "Cramer-Rao limit (1/E[J], efficient estimator)"
+__all__ = ["FIGURES", "FigureSpec", "coverage_group", "figure_data", "plot_sweep",
+           "write_figure"]
 
 
 @dataclass(frozen=True)
@@ -77,8 +83,22 @@ def _ordered(names: list[str]) -> list[str]:
     return sorted(names, key=lambda n: (order.get(n, len(order)), n))
 
 
-def figure_data(summary: pd.DataFrame, sweep: str) -> pd.DataFrame:
-    """The numbers a sweep's figure draws, one row per (series, x value).
+def _timing_speed(timing: pd.DataFrame | None, x: str) -> dict | None:
+    """(x value, method) -> speed 1/median of the timing pass, or None without one."""
+    if timing is None or timing.empty:
+        return None
+    return {(getattr(r, x), r.algorithm): r.speed_hz for r in timing.itertuples(index=False)}
+
+
+def coverage_group(label: str) -> str:
+    """The geometry of a coverage point's label: ``"band"`` or ``"cap"`` (the full sphere is
+    the widest cap)."""
+    return "band" if str(label).startswith("band") else "cap"
+
+
+def figure_data(summary: pd.DataFrame, sweep: str,
+                timing: pd.DataFrame | None = None) -> pd.DataFrame:
+    """The numbers a sweep's figure draws, one row per (method, x value).
 
     Parameters
     ----------
@@ -86,15 +106,21 @@ def figure_data(summary: pd.DataFrame, sweep: str) -> pd.DataFrame:
         ``summary.csv`` of the sweep (columns of :func:`magbench.core.metrics.summarize`).
     sweep : str
         A key of :data:`FIGURES`.
+    timing : DataFrame, optional
+        ``timing.csv`` of the sweep (the timing protocol); its speeds replace the per-trial
+        ones. For the coverage sweep it must carry the ``coverage`` label column too.
 
     Returns
     -------
     DataFrame
-        Columns ``series`` (method name, or ``"crb"`` for the Cramer-Rao limit), ``label``,
-        ``family`` ("review", "extra" or "bound"), ``x`` (the swept value), ``accuracy``
-        (1/rho), ``speed_hz`` (1/tau) and ``RB_pct``. The ``crb`` rows carry only accuracy.
+        Columns ``series`` (method name), ``label``, ``family``, ``x`` (the swept value),
+        ``group`` (the coverage geometry, ``cap`` or ``band``; empty elsewhere), ``accuracy``
+        (1/rho), ``speed_hz`` (1/tau), ``speed_source`` (``timing`` or ``trials``),
+        ``RB_pct`` and ``efficiency`` (Cramer-Rao bound / mean squared error over the same
+        meaningful runs; NaN without the Cramer-Rao columns).
     """
     spec = FIGURES[sweep]
+    speeds = _timing_speed(timing, spec.x)
     rows = []
     for name in _ordered(list(summary["algorithm"].unique())):
         label, family = _method_info(name)
@@ -102,73 +128,95 @@ def figure_data(summary: pd.DataFrame, sweep: str) -> pd.DataFrame:
         if not spec.categorical:
             part = part.sort_values(spec.x)
         for rec in part.itertuples(index=False):
-            rows.append({"series": name, "label": label, "family": family,
-                         "x": getattr(rec, spec.x), "accuracy": rec.accuracy,
-                         "speed_hz": rec.speed_hz, "RB_pct": rec.RB_pct})
-    if "crb_accuracy" in summary.columns:
-        # The same datasets feed every method: the bound is one number per point.
-        floor = summary.groupby(spec.x, sort=not spec.categorical)["crb_accuracy"].first()
-        rows += [{"series": CRB_SERIES, "label": CRB_LABEL, "family": "bound", "x": x,
-                  "accuracy": v, "speed_hz": np.nan, "RB_pct": np.nan}
-                 for x, v in floor.items()]
-    return pd.DataFrame(rows, columns=["series", "label", "family", "x", "accuracy",
-                                       "speed_hz", "RB_pct"])
+            x = getattr(rec, spec.x)
+            timed = speeds.get((x, name)) if speeds is not None else None
+            rows.append({"series": name, "label": label, "family": family, "x": x,
+                         "group": coverage_group(x) if spec.categorical else "",
+                         "accuracy": rec.accuracy,
+                         "speed_hz": rec.speed_hz if timed is None else timed,
+                         "speed_source": "trials" if timed is None else "timing",
+                         "RB_pct": rec.RB_pct,
+                         "efficiency": getattr(rec, "efficiency", np.nan)})
+    return pd.DataFrame(rows, columns=["series", "label", "family", "x", "group", "accuracy",
+                                       "speed_hz", "speed_source", "RB_pct", "efficiency"])
 
 
 def plot_sweep(data: pd.DataFrame, sweep: str) -> Figure:
-    """Draw :func:`figure_data` output as the review's three panels, legend on the right."""
+    """Draw :func:`figure_data` output: the review's three panels and the matched
+    Cramer-Rao comparison, legend on the right."""
     spec = FIGURES[sweep]
-    fig = new_figure(16.5, 4.8)
-    axes = fig.subplots(1, 3)
+    fig = new_figure(13.5, 8.2)
+    grid = fig.subplots(2, 2)
+    axes = [grid[0, 0], grid[0, 1], grid[1, 0], grid[1, 1]]
+    timed = bool(len(data)) and (data["speed_source"] == "timing").all()
+    speed_label = (r"execution speed $1/\tau$ (1/s), timing pass" if timed else
+                   r"execution speed $1/\tau$ (1/s), per-trial times")
     panels = [("accuracy", r"accuracy $1/\rho$ (1 / field units)", True),
-              ("speed_hz", r"execution speed $1/\tau$ (1/s)", True),
-              ("RB_pct", "robustness RB (%)", False)]
-    methods_here = [s for s in dict.fromkeys(data["series"]) if s != CRB_SERIES]
-    # Categorical x (coverage labels): positions in the sweep's order, labels as ticks.
+              ("speed_hz", speed_label, True),
+              ("RB_pct", "robustness RB (%)", False),
+              ("efficiency", "Cramer-Rao bound / mean squared error,\nsame meaningful runs "
+               "(1 = on the floor)", True)]
+    methods_here = list(dict.fromkeys(data["series"]))
+    # Categorical x (coverage): caps, then a gap, then bands; lines only within a geometry.
     categories = list(dict.fromkeys(data["x"])) if spec.categorical else None
-
-    def xs(values: pd.Series) -> list:
-        return [categories.index(v) for v in values] if categories else list(values)
+    position = {}
+    if categories:
+        k = 0
+        for i, c in enumerate(categories):
+            if i and coverage_group(c) != coverage_group(categories[i - 1]):
+                k += 1                                    # a gap between the geometries
+            position[c] = k
+            k += 1
 
     for name in methods_here:
         part = data[data["series"] == name]
         style = method_style(name)
-        for ax, (column, _, _) in zip(axes, panels, strict=True):
-            ax.plot(xs(part["x"]), part[column], **style)
-    floor = data[data["series"] == CRB_SERIES]
-    if len(floor):
-        axes[0].plot(xs(floor["x"]), floor["accuracy"], color="black", linestyle=":",
-                     linewidth=2.5, label=CRB_LABEL)
-    letters = "abc"
+        groups = part.groupby("group", sort=False) if categories else [("", part)]
+        for gi, (_, g) in enumerate(groups):
+            xs = [position[v] for v in g["x"]] if categories else list(g["x"])
+            for ax, (column, _, _) in zip(axes, panels, strict=True):
+                ax.plot(xs, g[column], **{**style, "label": style["label"] if gi == 0 else
+                                          "_nolegend_"})
+    letters = "abcd"
     for k, (ax, (column, ylabel, logy)) in enumerate(zip(axes, panels, strict=True)):
-        if logy and np.any(data[column].to_numpy(dtype=float) > 0):
+        values = data[column].to_numpy(dtype=float)
+        if logy and np.any(values[np.isfinite(values)] > 0):
             ax.set_yscale("log")
         if spec.logx:
             ax.set_xscale("log")
         if categories:
-            ax.set_xticks(range(len(categories)), categories, rotation=35, ha="right")
+            ax.set_xticks([position[c] for c in categories], categories, rotation=35,
+                          ha="right")
+            gaps = [position[c] - 1 for i, c in enumerate(categories)
+                    if i and coverage_group(c) != coverage_group(categories[i - 1])]
+            for gap in gaps:
+                ax.axvline(gap, color="0.6", linestyle="--", linewidth=1)
         else:
-            ax.set_xticks(sorted(data["x"].unique()))
+            ticks = sorted(data["x"].unique())
+            ax.set_xticks(ticks, [f"{v:g}" for v in ticks])
         ax.set_xlabel(spec.xlabel)
         ax.set_ylabel(ylabel)
         ax.set_title(f"({letters[k]})", loc="left")
         ax.grid(True, which="major", alpha=0.3)
     axes[2].set_ylim(-3, 103)
-    if spec.logx:
-        for ax in axes:
-            ax.set_xticks(sorted(data["x"].unique()))
-            ax.set_xticklabels([f"{v:g}" for v in sorted(data["x"].unique())])
+    axes[3].axhline(1.0, color="black", linestyle=":", linewidth=2,
+                    label="Cramer-Rao floor (same runs)")
     handles, labels = axes[0].get_legend_handles_labels()
-    fig.legend(handles, labels, loc="outside right center", fontsize=9, frameon=False)
-    fig.suptitle(spec.title)
+    h3, l3 = axes[3].get_legend_handles_labels()
+    fig.legend(handles + h3[-1:], labels + l3[-1:], loc="outside right center", fontsize=9,
+               frameon=False)
+    fig.suptitle(spec.title + (" (polar caps | equatorial bands: two geometries, never joined)"
+                               if categories else ""))
     return fig
 
 
-def write_figure(summary: pd.DataFrame, sweep: str, out_dir: Path | str) -> tuple[Path, Path]:
-    """Write ``fig<N>_<x>.png`` and the CSV of what it plots into ``out_dir``."""
+def write_figure(summary: pd.DataFrame, sweep: str, out_dir: Path | str,
+                 timing: pd.DataFrame | None = None) -> tuple[Path, Path]:
+    """Write ``fig<N>_<x>.png`` and the CSV of what it plots into ``out_dir`` (speeds from
+    ``timing``, the sweep's timing pass, when given)."""
     out_dir = Path(out_dir)
     spec = FIGURES[sweep]
-    data = figure_data(summary, sweep)
+    data = figure_data(summary, sweep, timing)
     fig = plot_sweep(data, sweep)
     png, csv = out_dir / f"{spec.stem}.png", out_dir / f"{spec.stem}.csv"
     save_figure(fig, png)

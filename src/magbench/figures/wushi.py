@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from magbench.figures.style import new_figure, save_figure
+from magbench.figures.style import method_style, new_figure, save_figure
 from magbench.studies.wushi import read_settings
 
 __all__ = ["plot_fig3", "plot_fig5", "plot_fig6", "write_wushi_figures"]
@@ -17,7 +17,8 @@ def plot_fig3(history: pd.DataFrame, thresholds: dict, path: Path) -> None:
     fig = new_figure(10, 4)
     axes = fig.subplots(1, 2)
     units = {"ML": "objective (4), gauss$^2$", "NM": "objective (11), dimensionless"}
-    for ax, short, colour in zip(axes, ("ML", "NM"), ("tab:blue", "tab:orange"), strict=True):
+    colours = (method_style("wu_shi")["color"], method_style("wu_shi_nm")["color"])
+    for ax, short, colour in zip(axes, ("ML", "NM"), colours, strict=True):
         sub = history[history["method"] == short]
         for _, g in sub.groupby("run"):
             ax.plot(g["iteration"], g["objective"], color=colour, lw=0.7, alpha=0.6,
@@ -40,8 +41,9 @@ def plot_fig5(times: pd.DataFrame, claimed: float, path: Path) -> None:
     """Time against N (log-log) and the ML/NM ratio."""
     fig = new_figure(10, 4)
     ax, ax2 = fig.subplots(1, 2)
-    ax.loglog(times["N"], 1e3 * times["ml_time_s"], "o-", label="ML (wu_shi)")
-    ax.loglog(times["N"], 1e3 * times["nm_time_s"], "s-", label="NM (wu_shi_nm)")
+    ml, nm = method_style("wu_shi"), method_style("wu_shi_nm")
+    ax.loglog(times["N"], 1e3 * times["ml_time_s"], **{**ml, "label": "ML (wu_shi)"})
+    ax.loglog(times["N"], 1e3 * times["nm_time_s"], **{**nm, "label": "NM (wu_shi_nm)"})
     ax.set_xlabel("number of samples N")
     ax.set_ylabel("median execution time (ms)")
     ax.set_title("execution time (initial estimate + Gauss-Newton)")
@@ -66,9 +68,10 @@ def plot_fig6(div: pd.DataFrame, path: Path) -> None:
     fig = new_figure(6, 4)
     ax = fig.subplots()
     runs = int(div["runs"].max())
-    ax.plot(div["alpha_pct"], div["ML_divergences"], "o-", label="ML (wu_shi), threshold 0.004")
-    ax.plot(div["alpha_pct"], div["NM_divergences"], "s-",
-            label="NM (wu_shi_nm), threshold 0.018")
+    ax.plot(div["alpha_pct"], div["ML_divergences"],
+            **{**method_style("wu_shi"), "label": "ML (wu_shi), threshold 0.004"})
+    ax.plot(div["alpha_pct"], div["NM_divergences"],
+            **{**method_style("wu_shi_nm"), "label": "NM (wu_shi_nm), threshold 0.018"})
     ax.set_xlabel("initial-estimate perturbation alpha (%)")
     ax.set_ylabel(f"number of divergent runs (out of {runs})")
     ax.set_ylim(-0.5, runs + 0.5)

@@ -7,6 +7,7 @@ from pathlib import Path
 import pandas as pd
 
 from magbench.methods.registry import get_method
+from magbench.report.intervals import rb_interval, run_note
 
 __all__ = ["gyro_report_section"]
 
@@ -28,15 +29,21 @@ def gyro_report_section(results_dir: Path | str) -> str:
              f"and magnetometer noise {sub['sigma'].iloc[0]:g}; gyro-bias error |d - d_true| "
              "(rad/s, median) for the methods that estimate it. Gyro-aided methods are marked *."
              " SAR methods and MagFactor3 estimate no soft iron (T = I, T = s I), so their J "
-             "includes the whole soft-iron error; MAGYC-LS and SAR assume an unbiased gyro.", "",
+             "includes the whole soft-iron error; MAGYC-LS and SAR assume an unbiased gyro. "
+             "RB % carries its 95 % Wilson interval.", "",
+             run_note(Path(results_dir) / "gyro", "manoeuvres per point"), "",
              "| method | " + " | ".join(coverages) + " | gyro bias error |",
              "|---|" + "---|" * (len(coverages) + 1)]
     for name in order:
         cells = []
         for cov in coverages:
             r = sub[(sub["algorithm"] == name) & (sub["coverage"] == cov)]
-            cells.append(f"{r['median_J'].iloc[0]:.2e} ({r['RB_pct'].iloc[0]:.0f})"
-                         if len(r) else "-")
+            if len(r):
+                lo, hi = rb_interval(r.iloc[0])
+                cells.append(f"{r['median_J'].iloc[0]:.2e} ({r['RB_pct'].iloc[0]:.0f} "
+                             f"[{lo:.0f}, {hi:.0f}])")
+            else:
+                cells.append("-")
         wb = sub[sub["algorithm"] == name]["median_J_wb"]
         wb_text = f"{wb.median():.1e}" if wb.notna().any() else "-"
         try:

@@ -7,6 +7,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from magbench.report.intervals import accuracy_intervals, cell, rb_interval, run_note
+
 __all__ = ["real_report_section"]
 
 
@@ -42,15 +44,38 @@ def real_report_section(results_dir: Path | str, figure_link: str = "real/fig6_r
         "`scale` divides by the mean norm (the review's); `centre` also removes the "
         "sphere-fit centre and radius.", "",
         f"![Figure 6 on real data]({figure_link})", "",
+        f"Per recording: ![Figure 6 per recording]"
+        f"({figure_link.replace('fig6_real.png', 'fig6_real_recordings.png')})", "",
+        run_note(folder, "recordings"), "",
+        "Brackets: 95 % intervals, Wilson's for RB % (meaningful fits out of the recordings the "
+        "method applies to), the percentile bootstrap over the meaningful fits' J_r for the "
+        "accuracies.", "",
     ]
+    # The rows method_summary (studies/real.py) averages: recordings the method applies to.
+    single = per_rec[~per_rec["skipped"].astype(bool)] if "skipped" in per_rec else per_rec
+    bounds = {}
+    for column in ("J_r_in", "J_r_out"):
+        if column in single.columns:
+            part = single[np.isfinite(single[column].astype(float))]
+            acc = accuracy_intervals(part, ["preprocess", "algorithm"], f"real {column}",
+                                     value=column)
+            bounds[column] = {(r.preprocess, r.algorithm): (r.acc_lo, r.acc_hi)
+                              for r in acc.itertuples(index=False)}
     for how, g in per_method.groupby("preprocess", sort=False):
         lines += [f"Preprocessing `{how}`:", "",
-                  "| method | RB % | accuracy in | accuracy out | ratio in | ratio out | "
+                  "| method | RB % [95 %] | accuracy in [95 %] | accuracy out [95 %] | "
+                  "ratio in | ratio out | "
                   "n ok / n | time (ms) |",
                   "|---|---:|---:|---:|---:|---:|---:|---:|"]
         for r in g.itertuples(index=False):
-            lines.append(f"| {r.label} | {_fmt(r.RB_pct, 3)} | {_fmt(r.accuracy_in)} | "
-                         f"{_fmt(r.accuracy_out)} | {_fmt(r.median_ratio_in, 2)} | "
+            rb = rb_interval({"n": r.n_applicable, "n_meaningful": r.n_meaningful,
+                              "RB_pct": r.RB_pct})
+            acc_in = cell(r.accuracy_in, bounds.get("J_r_in", {}).get(
+                (how, r.algorithm), (np.nan, np.nan)))
+            acc_out = cell(r.accuracy_out, bounds.get("J_r_out", {}).get(
+                (how, r.algorithm), (np.nan, np.nan)))
+            lines.append(f"| {r.label} | {cell(r.RB_pct, rb)} | {acc_in} | "
+                         f"{acc_out} | {_fmt(r.median_ratio_in, 2)} | "
                          f"{_fmt(r.median_ratio_out, 2)} | "
                          f"{r.n_meaningful} / {r.n_applicable} | {_fmt(1e3 * r.tau_s, 2)} |")
         lines.append("")

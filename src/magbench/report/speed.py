@@ -27,6 +27,10 @@ def bench_report_section(results_dir: Path | str) -> str:
              "Median time of one `calibrate` call at the nominal setting, K = 300, on this "
              "machine (Python, one thread), beside the review's MATLAB speeds (Table 2). "
              "Produced by `make bench`; scaling plot: `bench/scaling.png`.", "",
+             f"*Benchmark `bench`: {int(at300['n'].max()) if len(at300) else 0} timed calls per "
+             "method and K (datasets x repeats, `calls.csv`); the benchmark is not a sweep and "
+             "has no config fingerprint. The sweeps' speeds come from their own timing passes "
+             "(`<sweep>/timing.csv`).*", "",
              "| method | median (ms) | quartiles (ms) | speed (1/s) | paper speed (1/s) | "
              "K=10000 / K=1000 |", "|---|---:|---:|---:|---:|---:|"]
     for r in at300.itertuples(index=False):

@@ -31,9 +31,8 @@ from magbench.methods.registry import get_method
 from magbench.sources.synthetic import Point, make_dataset
 
 __all__ = ["POINT_COLUMNS", "ROW_COLUMNS", "TRUTH_COLUMNS", "OptionAxis", "ReviewStudy",
-           "coverage_label",
-           "point_with", "points_for", "read_trials", "summarize_review", "trial_rows",
-           "with_coverage_column"]
+           "coverage_label", "method_options", "point_with", "points_for", "read_trials",
+           "summarize_review", "trial_rows", "with_coverage_column"]
 
 POINT_COLUMNS = ["K", "sigma", "beta", "gamma", "cap_deg", "band_deg"]
 _T_COLUMNS = [f"T_{i}{j}" for i in range(3) for j in range(3)]
@@ -168,15 +167,9 @@ def trial_rows(point: Point, trial: int, seed: int, algorithms: Sequence[str],
         runs += [(axis.method, v) for v in axis.values if axis.method in algorithms]
     rows = []
     for name, value in runs:
-        opts = dict(options.get(name) or {})
+        opts = method_options(name, point, options)
         if value is not None:
             opts[axis.option] = value
-        if "sigma" in get_method(name).option_names() and "sigma" not in opts \
-                and point.sigma > 0:
-            # Methods that weight by an assumed noise level (TWOSTEP's and the EKF's eq. 5)
-            # are told the true one, as the review assumes ("sigma_k^2 ... similar to the
-            # measurement's output error variance").
-            opts["sigma"] = point.sigma
         out = run_method(name, lambda o, n=name: calibrate(data.y, n, **o), options=opts,
                          seed=seed, stream=(point.key, trial), call_timeout_s=call_timeout_s)
         J, J_h, J_T = (accuracy_cost(out.T, out.h, data.T, data.h) if out.calibration
@@ -188,6 +181,19 @@ def trial_rows(point: Point, trial: int, seed: int, algorithms: Sequence[str],
                      **truth, **estimate_columns(out.T, out.h),
                      **({} if axis is None else {axis.column: value})})
     return rows
+
+
+def method_options(name: str, point: Point, options: dict | None = None) -> dict:
+    """The keyword options ``name`` gets at ``point``: the user's, plus the true noise level.
+
+    Methods that weight by an assumed noise level (TWOSTEP's and the EKF's eq. 5) are told the
+    true one unless the user set it, as the review assumes ("sigma_k^2 ... similar to the
+    measurement's output error variance").
+    """
+    opts = dict((options or {}).get(name) or {})
+    if "sigma" in get_method(name).option_names() and "sigma" not in opts and point.sigma > 0:
+        opts["sigma"] = point.sigma
+    return opts
 
 
 def read_trials(path: Path | str) -> pd.DataFrame:

@@ -1,0 +1,311 @@
+"""The timing protocol for tau (eq. 79): a dedicated pass, after a sweep's trials.
+
+The per-trial ``time_s`` in ``trials.csv`` is measured while the sweep's workers share the
+machine, so it carries their load, worker start-up and first-call costs (issue 14: TWOSTEP at
+the same nominal point ran at 987/s, 590/s, 510/s in three sweeps). This pass measures speed on
+its own, in the sweep's process once the workers are gone:
+
+* every method is timed on the *same* datasets: the first ``datasets`` trials of each sweep
+  point, drawn exactly as the sweep drew them (``rng(seed, point.key, trial)``);
+* warmed up: each method is called once before anything is timed (imports, numba's cached
+  loops, allocations), so the first point pays nothing the others do not;
+* single-threaded: one process, BLAS pinned to one thread (``python -m magbench`` sets it before
+  numpy loads), methods interleaved per dataset so a drift of the machine's load spreads over
+  all of them instead of landing on one;
+* each call repeated (at least ``repeats`` times, more for fast methods) and its median
+  taken, which removes the machine's noise; tau (``tau_s``) is the mean of these medians over
+  the datasets, each dataset weighted once, as eq. (79) averages over datasets (a method whose
+  iterations vary from dataset to dataset, such as MAG.I.C.AL at large gamma, keeps that
+  variation) on which the method ended by its own rule, as (79) times the successful runs
+  (``tau_all_s``: every dataset); ``median_s`` is the median over datasets, and the
+  quartiles are over all calls;
+  the row records the CPU model;
+* the time is the process's CPU time of the call (``time.process_time``): on one thread it
+  equals the wall time of a quiet machine, and on a shared one it leaves out the time the
+  process waited for a core, which is the other work's cost, not the method's. The wall-clock
+  median is kept beside it (``wall_median_s``).
+
+Budget (issue 14 item 4: under 15 s for every review sweep of ``make reproduce`` on 2 cores):
+the committed sweeps have 27 points and 14 methods, whose mean calls sum to about 0.83 s over
+all (point, method) cells. Each dataset gets at least 3 calls, a fast method more until 3 ms
+are spent on it (at most 30), and a call longer than 10 ms only one (Dorveaux failing on a
+60-degree cap takes 40 ms; its length dwarfs the jitter): a sub-millisecond method gets 9-30
+timed calls per point. Plus two warm-up calls per method and sweep. Measured on this 2-core
+machine while other work kept it loaded (load average 4-5): 1.2, 2.2, 1.9, 0.9, 1.0 and 5.0 s
+for the baseline, gamma, beta, K, sigma and coverage sweeps, 12 s in one process; each
+sweep's own process adds about 0.5 s for loading the compiled loops in its warm-up. On a quiet
+machine about half of that.
+A method whose second warm-up call
+takes more than ``slow_call_s`` is timed on one dataset, once per point, so a slow or hanging
+method cannot blow the budget. Calls go through the one trial loop
+(:func:`magbench.engine.trial.run_method`), so exactly what a trial times is timed here.
+
+The result is ``timing.csv`` in the sweep's folder; figures' speed panels and the report's
+speed columns read it when it is there (``trials.csv`` keeps its per-trial times).
+:func:`compare_timings` compares two passes (``python -m magbench bench timing_check=true``).
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from collections.abc import Callable, Sequence
+from datetime import UTC, datetime
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from magbench.core.files import write_csv_atomic
+from magbench.core.seeding import rng
+from magbench.engine.record import cpu_model
+from magbench.engine.trial import run_method
+from magbench.methods.api import calibrate
+from magbench.sources.synthetic import Point, make_dataset
+from magbench.studies.review import POINT_COLUMNS, ReviewStudy, method_options
+
+__all__ = ["DATASETS", "MIN_TIME_S", "REPEATS", "TIMING_COLUMNS", "TIMING_FILE",
+           "compare_timings", "read_timing", "repeat_timing", "time_methods",
+           "timing_is_current", "write_timing"]
+
+TIMING_FILE = "timing.csv"
+#: Datasets per sweep point and timed calls per dataset (see the module notes for the budget).
+DATASETS, REPEATS = 3, 3
+#: Time spent per (dataset, method) at the least: fast methods get more than REPEATS calls.
+MIN_TIME_S = 0.003
+TIMING_COLUMNS = POINT_COLUMNS + ["algorithm", "calls", "failed_calls", "tau_s", "tau_all_s",
+                                  "ok_datasets", "median_s", "q25_s",
+                                  "q75_s", "min_s", "wall_median_s", "speed_hz", "datasets",
+                                  "cpu_model", "fingerprint", "measured"]
+
+
+def _call(name: str, y: np.ndarray, opts: dict, seed: int, stream: tuple,
+          call_timeout_s: float | None) -> tuple[float, float, bool]:
+    """(CPU seconds, wall seconds, ok) of one call through the trial loop."""
+    cpu = time.process_time()
+    out = run_method(name, lambda o: calibrate(y, name, **o), options=opts, seed=seed,
+                     stream=stream, call_timeout_s=call_timeout_s)
+    return time.process_time() - cpu, out.time_s, out.ok
+
+
+def time_methods(points: Sequence[Point], seed: int, algorithms: Sequence[str],
+                 options: dict | None = None, *, datasets: int = DATASETS,
+                 repeats: int = REPEATS, min_time_s: float = MIN_TIME_S,
+                 max_repeats: int = 30, long_call_s: float = 0.01,
+                 slow_call_s: float = 0.2,
+                 call_timeout_s: float | None = None,
+                 clock: Callable[[], str] | None = None) -> pd.DataFrame:
+    """Time every method on the first ``datasets`` datasets of each point (the protocol above).
+
+    Parameters
+    ----------
+    points : sequence of Point
+        The sweep's points.
+    seed : int
+        The sweep's seed: the datasets are the sweep's own first trials.
+    algorithms : sequence of str
+        Registered methods.
+    options : dict, optional
+        Per-method options, as the sweep passes them (the true sigma added where a method
+        takes one, :func:`magbench.studies.review.method_options`).
+    datasets, repeats : int
+        Datasets per point and the fewest timed calls per dataset.
+    min_time_s, max_repeats : float, int
+        A fast method is called again on a dataset until ``min_time_s`` is spent on it (at most
+        ``max_repeats`` calls): more calls where they are cheap.
+    long_call_s : float
+        A call longer than this on a dataset is not repeated there (its length dwarfs the
+        machine's jitter, and repeating it would spend the budget).
+    slow_call_s : float
+        A method whose second warm-up call takes longer is timed once per point, on one dataset.
+    call_timeout_s : float, optional
+        Time limit of one call (as in the sweep).
+    clock : callable, optional
+        Returns the ``measured`` timestamp (tests pass a fixed one).
+
+    Returns
+    -------
+    DataFrame
+        One row per (point, method), columns :data:`TIMING_COLUMNS` (``fingerprint`` empty).
+    """
+    if datasets < 1 or repeats < 1:
+        raise ValueError(f"datasets and repeats must be >= 1, got {datasets}, {repeats}")
+    options = options or {}
+    names = list(algorithms)
+    stamp = (clock or (lambda: datetime.now(UTC).isoformat(timespec="seconds")))()
+    machine = cpu_model()
+    slow = set()
+    if points:
+        first = make_dataset(rng(seed, points[0].key, 0), points[0])
+        for name in names:
+            # The warm-up, never recorded: the first call loads (or compiles) the method's
+            # loops; the second one says whether the method is slow on this data.
+            opts = method_options(name, points[0], options)
+            spent = [_call(name, first.y, opts, seed, (points[0].key, 0), call_timeout_s)[1]
+                     for _ in range(2)]
+            if spent[-1] > slow_call_s:
+                slow.add(name)
+    rows = []
+    for point in points:
+        data = [make_dataset(rng(seed, point.key, t), point) for t in range(datasets)]
+        # Per method, one list of CPU times (and wall times) per dataset.
+        times: dict[str, list[list[float]]] = {n: [] for n in names}
+        walls: dict[str, list[float]] = {n: [] for n in names}
+        failed = dict.fromkeys(names, 0)
+        ended: dict[str, list[bool]] = {n: [] for n in names}
+        for t, d in enumerate(data):
+            for name in names:                   # interleaved: load drift spreads over all
+                if name in slow and t > 0:
+                    continue
+                opts = method_options(name, point, options)
+                # At least `repeats` calls, more for a fast method until `min_time_s` is
+                # spent on this dataset: a median of 3 sub-millisecond calls moves with every
+                # burst of load, one of 30 does not, and it costs the budget nothing.
+                spent_here, here, fine = 0.0, [], True
+                while (len(here) < (1 if name in slow else repeats)
+                       and not (here and here[0] > long_call_s)) or (
+                        name not in slow and spent_here < min_time_s
+                        and len(here) < max_repeats):
+                    cpu, wall, ok = _call(name, d.y, opts, seed, (point.key, t),
+                                          call_timeout_s)
+                    here.append(cpu)
+                    walls[name].append(wall)
+                    failed[name] += not ok
+                    fine = fine and ok
+                    spent_here += wall
+                times[name].append(here)
+                ended[name].append(fine)
+        for name in names:
+            # The median of a dataset's repeated calls removes the machine's noise; the mean
+            # over datasets is tau of eq. (79), each dataset weighted once (a fast dataset
+            # gets more repeats, which must not make it count more).
+            # As eq. (79) times the runs that succeeded, tau averages the datasets on which
+            # the method ended by its own rule (a run at its iteration cap costs the cap, not
+            # the method's speed); tau_all_s averages all of them.
+            per_dataset = [float(np.median(x)) for x in times[name]]
+            good = [v for v, fine in zip(per_dataset, ended[name], strict=True) if fine]
+            tau = float(np.mean(good)) if good else np.nan
+            tau_all = float(np.mean(per_dataset))
+            x = np.concatenate(times[name])
+            rows.append({**{c: getattr(point, c) for c in POINT_COLUMNS}, "algorithm": name,
+                         "calls": x.size, "failed_calls": failed[name], "tau_s": tau,
+                         "tau_all_s": tau_all, "ok_datasets": len(good),
+                         "median_s": float(np.median(per_dataset)),
+                         "q25_s": float(np.quantile(x, 0.25)),
+                         "q75_s": float(np.quantile(x, 0.75)), "min_s": float(x.min()),
+                         "wall_median_s": float(np.median(walls[name])),
+                         "speed_hz": 1.0 / tau if good and tau > 0 else np.nan,
+                         "datasets": len(per_dataset), "cpu_model": machine,
+                         "fingerprint": "", "measured": stamp})
+    return pd.DataFrame(rows, columns=TIMING_COLUMNS)
+
+
+def timing_is_current(study: ReviewStudy, out_dir: Path | str) -> bool:
+    """True when ``out_dir`` holds a timing pass of this very study (same fingerprint)."""
+    path = Path(out_dir) / TIMING_FILE
+    if not path.exists():
+        return False
+    try:
+        found = set(pd.read_csv(path, usecols=["fingerprint"], dtype=str)["fingerprint"])
+    except (OSError, ValueError, KeyError):
+        return False
+    return found == {study.fingerprint()}
+
+
+def write_timing(study: ReviewStudy, out_dir: Path | str, *, datasets: int = DATASETS,
+                 repeats: int = REPEATS, progress: bool = False) -> Path:
+    """Run the timing pass of ``study`` and write ``<out_dir>/timing.csv``.
+
+    Run after the sweep's trials (the workers are gone); the sweep's command calls it unless
+    the folder already holds a pass of the same study.
+    """
+    out_dir = Path(out_dir)
+    start = time.perf_counter()
+    frame = time_methods(study.points, study.seed, study.algorithms, study.options,
+                         datasets=datasets, repeats=repeats, call_timeout_s=study.call_timeout_s)
+    frame["fingerprint"] = study.fingerprint()
+    path = out_dir / TIMING_FILE
+    write_csv_atomic(frame, path)
+    if progress:
+        print(f"{study.name}: timing pass, {len(frame)} (point, method) cells, "
+              f"{time.perf_counter() - start:.1f} s", file=sys.stderr)
+    return path
+
+
+def read_timing(folder: Path | str) -> pd.DataFrame | None:
+    """``<folder>/timing.csv``, or None when the sweep has no timing pass."""
+    path = Path(folder) / TIMING_FILE
+    return pd.read_csv(path) if path.exists() else None
+
+
+def compare_timings(first: pd.DataFrame, second: pd.DataFrame,
+                    tolerance: float = 0.10) -> pd.DataFrame:
+    """Per method, how far two timing passes on the same cells agree.
+
+    Parameters
+    ----------
+    first, second : DataFrame
+        Two outputs of :func:`time_methods` (the same points and methods).
+    tolerance : float
+        Largest accepted relative difference of tau.
+
+    Returns
+    -------
+    DataFrame
+        One row per method (in ``first``'s order): ``cells`` compared, ``tau_s_first``,
+        ``tau_s_second`` (medians over the cells), ``worst_ratio`` (second / first of the
+        cell farthest from 1), ``agree`` (every cell within ``tolerance``); ``common_ratio``
+        (the median ratio over all cells and methods: the machine's change of speed),
+        ``worst_relative`` and ``agree_relative``, the same after dividing by it. Cells
+        present in only one pass are left out; a method with none does not agree.
+    """
+    keys = POINT_COLUMNS + ["algorithm"]
+    both = first[keys + ["tau_s"]].merge(second[keys + ["tau_s"]], on=keys,
+                                         suffixes=("_first", "_second"))
+    both["ratio"] = both["tau_s_second"] / both["tau_s_first"]
+    # A change of the whole machine's speed between the passes (another tenant, a frequency
+    # step) moves every method by one factor; dividing it out shows whether the methods'
+    # relative speeds, which every speed verdict rests on, still agree.
+    common = float(np.median(both["ratio"])) if len(both) else np.nan
+    rows = []
+    for name in dict.fromkeys(first["algorithm"]):
+        g = both[both["algorithm"] == name]
+        if g.empty:
+            rows.append({"algorithm": name, "cells": 0, "tau_s_first": np.nan,
+                         "tau_s_second": np.nan, "worst_ratio": np.nan, "agree": False,
+                         "common_ratio": common, "worst_relative": np.nan,
+                         "agree_relative": False})
+            continue
+        ratio = g["ratio"].to_numpy(float)
+        worst = float(ratio[int(np.argmax(np.abs(np.log(ratio))))])
+        relative = ratio / common
+        rows.append({"algorithm": name, "cells": len(g),
+                     "tau_s_first": float(g["tau_s_first"].median()),
+                     "tau_s_second": float(g["tau_s_second"].median()),
+                     "worst_ratio": worst,
+                     "agree": bool(np.all(np.abs(ratio - 1.0) <= tolerance)),
+                     "common_ratio": common,
+                     "worst_relative": float(relative[int(np.argmax(np.abs(np.log(relative))))]),
+                     "agree_relative": bool(np.all(np.abs(relative - 1.0) <= tolerance))})
+    return pd.DataFrame(rows)
+
+
+def repeat_timing(study: ReviewStudy, tolerance: float = 0.10,
+                  progress: Callable[[str], None] | None = None,
+                  ) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """Run the timing pass of ``study`` twice, one after the other, and compare them.
+
+    Returns
+    -------
+    (passes, comparison) : tuple of DataFrame
+        Both passes stacked (column ``pass`` = 1 or 2) and :func:`compare_timings` of them.
+    """
+    passes = []
+    for k in (1, 2):
+        start = time.perf_counter()
+        frame = time_methods(study.points, study.seed, study.algorithms, study.options,
+                             call_timeout_s=study.call_timeout_s)
+        passes.append(frame.assign(fingerprint=study.fingerprint(), **{"pass": k}))
+        if progress:
+            progress(f"timing pass {k} of {study.name}: {time.perf_counter() - start:.1f} s")
+    return pd.concat(passes, ignore_index=True), compare_timings(*passes, tolerance=tolerance)

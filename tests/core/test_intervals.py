@@ -1,0 +1,49 @@
+"""The two interval helpers: Wilson's binomial interval and the bootstrap of 1/mean."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from magbench.core.intervals import bootstrap_inverse_mean, intervals_overlap, wilson
+
+
+def test_wilson_matches_published_values():
+    # Brown, Cai and DasGupta (2001) / any statistics package: 5 of 10 -> [0.2366, 0.7634],
+    # 0 of 10 -> [0, 0.2775] (the normal approximation would give [0, 0]).
+    assert wilson(5, 10) == pytest.approx((23.6593, 76.3407), abs=1e-3)
+    assert wilson(0, 10) == pytest.approx((0.0, 27.7533), abs=1e-3)
+    assert wilson(10, 10) == pytest.approx((72.2467, 100.0), abs=1e-3)
+
+
+def test_wilson_one_failure_in_250_is_not_distinguishable_from_100_percent():
+    low, high = wilson(249, 250)
+    assert low == pytest.approx(97.769, abs=1e-3) and high == pytest.approx(99.929, abs=1e-3)
+    assert intervals_overlap((low, high), wilson(250, 250))
+    assert not intervals_overlap(wilson(237, 250), wilson(250, 250))   # 94.8 % vs 100 %
+
+
+def test_wilson_contains_the_estimate_and_narrows_with_n():
+    for k, n in [(1, 3), (30, 40), (300, 400)]:
+        low, high = wilson(k, n)
+        assert low <= 100 * k / n <= high
+    assert np.diff(wilson(300, 400)) < np.diff(wilson(30, 40))
+    assert all(np.isnan(wilson(0, 0)))
+    with pytest.raises(ValueError):
+        wilson(5, 4)
+
+
+def test_bootstrap_is_seeded_by_its_keys_and_brackets_the_estimate():
+    values = np.random.default_rng(3).exponential(0.0025, size=250)
+    a = bootstrap_inverse_mean(values, "baseline", "magical")
+    assert a == bootstrap_inverse_mean(values, "baseline", "magical")
+    assert a != bootstrap_inverse_mean(values, "baseline", "dorveaux")
+    assert a[0] < 1 / values.mean() < a[1]
+    # The relative half-width of a mean of n exponentials is about 1.96 / sqrt(n).
+    assert (a[1] - a[0]) / 2 * values.mean() == pytest.approx(1.96 / np.sqrt(250), rel=0.2)
+
+
+def test_bootstrap_degenerate_inputs():
+    assert bootstrap_inverse_mean([0.5, 0.5, 0.5], "x") == pytest.approx((2.0, 2.0))
+    assert all(np.isnan(bootstrap_inverse_mean([], "x")))
+    assert bootstrap_inverse_mean([np.nan, 0.25], "x") == pytest.approx((4.0, 4.0))

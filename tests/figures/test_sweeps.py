@@ -1,0 +1,74 @@
+"""Figures 2-5 and coverage from hand-made summaries: what is drawn, and how."""
+
+from __future__ import annotations
+
+import pandas as pd
+
+from magbench.figures.sweeps import FIGURES, figure_data, plot_sweep, write_figure
+from magbench.studies.review import with_coverage_column
+from tests.report.test_build import NOMINAL, gamma_case
+
+
+def test_figure_and_its_csv_from_a_fixture(tmp_path):
+    s = gamma_case()
+    data = figure_data(s, "gamma")
+    assert len(data) == 7 * 3 and (data["speed_source"] == "trials").all()
+    # The floor enters only as the matched ratio of each method (no global floor series).
+    assert "crb" not in set(data["series"]) and (data["efficiency"] == 1.0).all()
+    png, csv = write_figure(s, "gamma", tmp_path)
+    assert png.stat().st_size > 10_000 and png.read_bytes()[:4] == b"\x89PNG"
+    columns = [c for c in data.columns if c != "group"]        # empty here: read as NaN
+    pd.testing.assert_frame_equal(pd.read_csv(csv)[columns], data[columns], check_dtype=False)
+
+
+def test_speed_comes_from_the_timing_pass_when_there_is_one():
+    s = gamma_case()
+    timing = s[["gamma", "algorithm"]].assign(speed_hz=1234.0)
+    data = figure_data(s, "gamma", timing)
+    assert (data["speed_hz"] == 1234.0).all() and (data["speed_source"] == "timing").all()
+    partial = timing[timing["algorithm"] != "ali"]
+    data = figure_data(s, "gamma", partial).set_index("series")
+    assert (data.loc["ali", "speed_source"] == "trials").all()
+    assert (data.loc["ali", "speed_hz"] == 500).all()
+
+
+def coverage_summary():
+    return with_coverage_column(pd.DataFrame(
+        [{**NOMINAL, "cap_deg": c, "band_deg": b, "algorithm": "magical", "n": 1,
+          "RB_pct": 100, "accuracy": 1.0, "speed_hz": 1.0, "tau_s": 1.0, "efficiency": 1.0}
+         for c, b in [(180, 90), (60, 90), (180, 30), (180, 10)]]))
+
+
+def test_coverage_keeps_the_sweep_order_and_never_joins_a_cap_to_a_band(tmp_path):
+    s = coverage_summary()
+    data = figure_data(s, "coverage")
+    assert list(data["x"]) == ["full sphere", "cap 60 deg", "band +-30 deg", "band +-10 deg"]
+    assert list(data["group"]) == ["cap", "cap", "band", "band"]
+    fig = plot_sweep(data, "coverage")
+    for ax in fig.axes:
+        runs = [line.get_xdata() for line in ax.get_lines()
+                if len(set(line.get_xdata())) > 1 and not line.get_label().startswith("Cramer")]
+        # Two lines per panel (caps at 0, 1; bands after a gap at 3, 4), none across.
+        assert sorted(map(list, runs)) == [[0, 1], [3, 4]]
+    assert write_figure(s, "coverage", tmp_path)[0].exists()
+    assert FIGURES["coverage"].stem == "fig_coverage"
+
+
+def test_figure6_splits_the_review_from_the_others_and_leaves_out_empty_methods():
+    from magbench.figures.real import figure6, split_methods
+
+    rows = [{"preprocess": how, "algorithm": name, "label": name, "n_recordings": 4,
+             "n_applicable": 4 if name != "magfactor3" else 1,
+             "n_meaningful": 0 if name == "magfactor3" else 3, "RB_pct": 75.0,
+             "accuracy_in": 900.0}
+            for how in ("scale", "centre") for name in ("magical", "fang", "magfactor3",
+                                                         "dorveaux")]
+    per_method = pd.DataFrame(rows)
+    assert split_methods(per_method) == (["dorveaux", "magical"], ["fang"], ["magfactor3"])
+    fig = figure6(per_method)
+    titles = [ax.get_title(loc="left") for ax in fig.axes]
+    assert [t[:3] for t in titles] == ["(a)", "(b)", "(c)", "(d)"]      # one letter each
+    assert "MagFactor3" in fig._suptitle.get_text()
+    # Nothing meaningful at all: a figure that says so instead of an error.
+    empty = per_method.assign(n_meaningful=0)
+    assert "No method gave a meaningful fit" in figure6(empty).texts[0].get_text()
