@@ -266,3 +266,40 @@ def test_tables_carry_intervals_and_sections_name_their_run(tmp_path):
     note = report.run_note(tmp_path / "gamma")
     assert "250 trials per point" in note and "`abc123`" in note and "`0123456789`" in note
     assert "unknown" in report.run_note(tmp_path / "beta")
+
+
+def test_stress_rows_read_the_hardest_point_of_each_sweep():
+    gamma = summary("gamma", [0.05, 1.0], {
+        "magical": {"RB_pct": [100, 100], "accuracy": [400, 380], "speed_hz": [300] * 2},
+        "ali": {"RB_pct": [100, 99.2], "accuracy": [400, 300], "speed_hz": [30] * 2},
+        "crassidis": {"RB_pct": [100, 22], "accuracy": [400, 5], "speed_hz": [900] * 2},
+        "vasconcelos_printed": {"RB_pct": [100, 100], "accuracy": [900, 900],
+                                "speed_hz": [9] * 2}})
+    line = report.stress_line(gamma, "gamma", "Large offset", "Fig. 2")
+    assert line.startswith("- **Large offset** (Fig. 2, gamma = 1, 10 datasets): 2 methods keep")
+    assert "most accurate are MAG.I.C.AL (1/rho 380-380)" in line     # Ali is 21 % behind
+    assert "least robust: Crassidis EKF (RB 22 %)" in line
+    assert "Vasconcelos (review" not in line                         # variants never advised
+    # K: the hardest point is the fewest samples, and nobody robust there is said so.
+    few = summary("K", [10, 300], {
+        "magical": {"RB_pct": [60, 100], "accuracy": [3, 400], "speed_hz": [300] * 2},
+        "fang": {"RB_pct": [75, 100], "accuracy": [2, 400], "speed_hz": [300] * 2}})
+    assert report.stress_line(few, "K", "Few samples", "Fig. 4") == (
+        "- **Few samples** (Fig. 4, K = 10, 10 datasets): no method keeps RB >= 99 %; the most "
+        "robust is Fang (RB 75 %).")
+    assert report.stress_line(None, "K", "Few samples", "Fig. 4") == ""
+
+
+def test_gyro_row_compares_the_best_gyro_and_magnetometer_only_methods():
+    def gyro_summary(sar_rb):
+        rows = [{"coverage": c, "gyro_noise": g, "algorithm": a, "n": 30, "RB_pct": rb,
+                 "accuracy": acc}
+                for c in ("wide", "low") for g in (0.0, 0.03)
+                for a, rb, acc in (("sar_ls", sar_rb, 50.0), ("magical", 40.0, 20.0))]
+        return pd.DataFrame(rows)
+
+    helps = report.gyro_line(gyro_summary(90.0))
+    assert "'low' manoeuvre, gyro noise 0.03 rad/s, 30 runs" in helps
+    assert helps.endswith("the gyro helps here.")
+    assert report.gyro_line(gyro_summary(10.0)).endswith("use it where the manoeuvre cannot "
+                                                         "be varied.")

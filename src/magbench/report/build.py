@@ -631,12 +631,22 @@ def _family(name: str) -> str:
         return "extra"          # a plugin's method that is not registered in this process
 
 
-def recommendations(baseline: pd.DataFrame | None, coverage: pd.DataFrame | None) -> list[str]:
+def _needs_gyro(name: str) -> bool:
+    try:
+        return get_method(name).needs_gyro
+    except ValueError:
+        return False
+
+
+def recommendations(baseline: pd.DataFrame | None, coverage: pd.DataFrame | None,
+                    summaries: dict[str, pd.DataFrame | None] | None = None) -> list[str]:
     """The report's opening: which method to use when, computed from the sweep summaries.
 
-    Only registered methods outside the ``variant`` family (the review's printed formulas,
-    kept to explain its numbers) are recommended.
+    ``summaries`` holds the other sweeps' summaries by name (``gamma``, ``beta``, ``K``,
+    ``gyro``) for their rows. Only registered methods outside the ``variant`` family (the
+    review's printed formulas, kept to explain its numbers) are recommended.
     """
+    summaries = summaries or {}
     lines = []
     if baseline is not None:
         b = baseline[[_family(n) != "variant" for n in baseline["algorithm"]]]
@@ -683,11 +693,87 @@ def recommendations(baseline: pd.DataFrame | None, coverage: pd.DataFrame | None
                    f"{RECOMMEND_RB_PCT:g} %; " if robust else "")
                 + "on narrower caps the most robust are " + "; ".join(best)
                 + ". Below a hemisphere, turn the sensor more rather than choose a method.")
+    lines += [line for line in (stress_line(summaries.get(key), column, title, figure)
+                                for key, column, title, figure in STRESS_CONDITIONS) if line]
+    gyro = gyro_line(summaries.get("gyro"))
+    if gyro:
+        lines.append(gyro)
     if lines:
         lines.append("- **Your own recording**: `python -m magbench calibrate file=...` fits "
                      "every applicable method, ranks them out of sample and writes the chosen "
                      "correction (see the real-recordings section below).")
     return lines
+
+
+#: (sweep, swept column, condition, figure) of the "which method when" rows read at the
+#: sweep's hardest point: the largest offset, the strongest distortion, the fewest samples.
+STRESS_CONDITIONS = (
+    ("gamma", "gamma", "Large offset", "Fig. 2"),
+    ("beta", "beta", "Strong non-orthogonality and scale errors", "Fig. 3"),
+    ("K", "K", "Few samples", "Fig. 4"),
+)
+
+
+def _hardest(summary: pd.DataFrame, column: str) -> pd.DataFrame:
+    """The rows of the sweep's hardest point (smallest K, else the largest value)."""
+    value = summary[column].min() if column == "K" else summary[column].max()
+    return summary[summary[column] == value]
+
+
+def stress_line(summary: pd.DataFrame | None, column: str, title: str, figure: str) -> str:
+    """One "which method when" row: who stays robust at the sweep's hardest point, and the most
+    accurate of them (or the most robust, when none reaches RB >= 99 %)."""
+    if summary is None or summary.empty or column not in summary:
+        return ""
+    rows = _hardest(summary, column)
+    rows = rows[[_family(n) != "variant" for n in rows["algorithm"]]]
+    if rows.empty:
+        return ""
+    value = rows[column].iloc[0]
+    where = f"**{title}** ({figure}, {column} = {value:g}, {int(rows['n'].max())} datasets)"
+    robust = rows[rows["RB_pct"] >= RECOMMEND_RB_PCT].sort_values("accuracy", ascending=False)
+    if robust.empty:
+        top = rows.sort_values("RB_pct", ascending=False).iloc[0]
+        return (f"- {where}: no method keeps RB >= {RECOMMEND_RB_PCT:g} %; the most robust is "
+                f"{_label(top['algorithm'])} (RB {top['RB_pct']:.3g} %).")
+    best = robust.iloc[0]
+    near = robust[robust["accuracy"] >= 0.9 * best["accuracy"]]
+    fragile = rows[rows["RB_pct"] < RECOMMEND_RB_PCT].sort_values("RB_pct")
+    return (f"- {where}: {len(robust)} methods keep RB >= {RECOMMEND_RB_PCT:g} %; the most "
+            f"accurate are {', '.join(_label(n) for n in near['algorithm'])} (1/rho "
+            f"{format_number(near['accuracy'].min())}-{format_number(best['accuracy'])})"
+            + (f"; least robust: {_worst(fragile)}" if not fragile.empty else "") + ".")
+
+
+def _worst(rows: pd.DataFrame, n: int = 3) -> str:
+    """The ``n`` least robust methods of ``rows`` (sorted by RB), with their RB %."""
+    return ", ".join(f"{_label(r.algorithm)} (RB {r.RB_pct:.3g} %)"
+                     for r in rows.head(n).itertuples())
+
+
+def gyro_line(summary: pd.DataFrame | None) -> str:
+    """The "gyro available" row: on the gyro sweep's narrowest manoeuvre at the largest gyro
+    noise, the most robust gyro-aided method beside the most robust magnetometer-only one."""
+    if summary is None or summary.empty or "coverage" not in summary:
+        return ""
+    hard = summary[(summary["coverage"] == summary["coverage"].iloc[-1])
+                   & (summary["gyro_noise"] == summary["gyro_noise"].max())]
+    hard = hard[[_family(n) != "variant" for n in hard["algorithm"]]]
+    gyro = hard[[_needs_gyro(n) for n in hard["algorithm"]]]
+    mag = hard[[not _needs_gyro(n) for n in hard["algorithm"]]]
+    if gyro.empty or mag.empty:
+        return ""
+    g = gyro.sort_values(["RB_pct", "accuracy"], ascending=False).iloc[0]
+    m = mag.sort_values(["RB_pct", "accuracy"], ascending=False).iloc[0]
+    better = (g["RB_pct"], g["accuracy"]) > (m["RB_pct"], m["accuracy"])
+    return (f"- **Gyro available** (gyro sweep, the '{g['coverage']}' manoeuvre, gyro noise "
+            f"{g['gyro_noise']:g} rad/s, {int(hard['n'].max())} runs): the best gyro-aided "
+            f"method is {_label(g['algorithm'])} (RB {g['RB_pct']:.3g} %, 1/rho "
+            f"{format_number(g['accuracy'])}), the best magnetometer-only one "
+            f"{_label(m['algorithm'])} (RB {m['RB_pct']:.3g} %, 1/rho "
+            f"{format_number(m['accuracy'])}): "
+            + ("the gyro helps here." if better else
+               "the gyro adds nothing here; use it where the manoeuvre cannot be varied."))
 
 
 def _ranking(table: pd.DataFrame, column: str) -> str:
@@ -747,7 +833,8 @@ def build_report(results_dir: Path | str) -> str:
            "Nikitas and Sotiriadis, *Magnetic Field Sensors' Calibration: Algorithms' Overview "
            "and Comparison*, Sensors 2021 (the review), and Wu and Shi, *On Calibration of "
            "Three-axis Magnetometer*, IEEE Sensors J. 2015.", ""]
-    advice = recommendations(baseline, summaries.get("coverage"))
+    advice = recommendations(baseline, summaries.get("coverage"),
+                             {**summaries, "gyro": _load(results_dir, "gyro")})
     if advice:
         out += ["## In short: which method to use", "", *advice, ""]
     if baseline is not None:
