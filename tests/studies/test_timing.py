@@ -104,3 +104,14 @@ def test_tau_weights_every_dataset_once_however_often_it_was_repeated(monkeypatc
     assert row["tau_s"] == pytest.approx((1e-4 + 1e-2) / 2)     # not the median of all calls
     assert row["median_s"] == pytest.approx((1e-4 + 1e-2) / 2)  # median of two datasets
     assert row["speed_hz"] == pytest.approx(1 / row["tau_s"])
+
+
+def test_a_method_with_no_tau_leaves_the_machine_factor_alone():
+    # A method whose every call failed has tau NaN in both passes (seen: twostep_no_svd at the
+    # baseline); it must not turn the common ratio, and so every relative verdict, into NaN.
+    a, b = passes({"magical": [1e-3], "ali": [4e-3], "bad": [np.nan]},
+                  {"magical": [1.2e-3], "ali": [4.8e-3], "bad": [np.nan]})
+    out = timing.compare_timings(a, b).set_index("algorithm")
+    assert out["common_ratio"].iloc[0] == pytest.approx(1.2)
+    assert out.loc[["magical", "ali"], "agree_relative"].all()
+    assert out.loc["bad", "cells"] == 0 and not out.loc["bad", "agree"]

@@ -263,6 +263,8 @@ def compare_timings(first: pd.DataFrame, second: pd.DataFrame,
     both = first[keys + ["tau_s"]].merge(second[keys + ["tau_s"]], on=keys,
                                          suffixes=("_first", "_second"))
     both["ratio"] = both["tau_s_second"] / both["tau_s_first"]
+    # A cell with no normally ended call in a pass has no tau (NaN): nothing to compare.
+    both = both[np.isfinite(both["ratio"])]
     # A change of the whole machine's speed between the passes (another tenant, a frequency
     # step) moves every method by one factor; dividing it out shows whether the methods'
     # relative speeds, which every speed verdict rests on, still agree.
