@@ -739,9 +739,10 @@ def stress_line(summary: pd.DataFrame | None, column: str, title: str, figure: s
     best = robust.iloc[0]
     near = robust[robust["accuracy"] >= 0.9 * best["accuracy"]]
     fragile = rows[rows["RB_pct"] < RECOMMEND_RB_PCT].sort_values("RB_pct")
+    lo, hi = format_number(near["accuracy"].min()), format_number(best["accuracy"])
     return (f"- {where}: {len(robust)} methods keep RB >= {RECOMMEND_RB_PCT:g} %; the most "
             f"accurate are {', '.join(_label(n) for n in near['algorithm'])} (1/rho "
-            f"{format_number(near['accuracy'].min())}-{format_number(best['accuracy'])})"
+            f"{lo if lo == hi else f'{lo}-{hi}'})"
             + (f"; least robust: {_worst(fragile)}" if not fragile.empty else "") + ".")
 
 
@@ -773,7 +774,7 @@ def gyro_line(summary: pd.DataFrame | None) -> str:
             f"{_label(m['algorithm'])} (RB {m['RB_pct']:.3g} %, 1/rho "
             f"{format_number(m['accuracy'])}): "
             + ("the gyro helps here." if better else
-               "the gyro adds nothing here; use it where the manoeuvre cannot be varied."))
+               "no gain from the gyro here over the best magnetometer-only fit."))
 
 
 def _ranking(table: pd.DataFrame, column: str) -> str:
