@@ -43,3 +43,22 @@ def test_section_sets_the_variants_beside_the_paper_and_reads_the_p0_sweep(tmp_p
     assert "35.3 / 91.6 %" in text and "3.31e+03 / 100 %" in text
     assert "28.6 / 66.7 %" in text                                # 1/0.035, 2 of 3 at delta 1
     assert "closest to the paper's 3.31e+03 is s = 3e-06 (3e+03)" in text
+
+
+def test_best_fit_names_the_closest_hypothesis_and_whether_it_fits_both_numbers():
+    import pandas as pd
+
+    from magbench.report.variants import best_fit
+
+    table = pd.DataFrame([
+        {"algorithm": "twostep", "delta": 1.0, "n": 250, "RB_pct": 100.0, "accuracy_sq": 2.4e5},
+        {"algorithm": "twostep_no_svd", "delta": 1.0, "n": 250, "RB_pct": 86.0,
+         "accuracy_sq": 31.5},
+        {"algorithm": "twostep_no_svd", "delta": 0.9, "n": 250, "RB_pct": 91.0,
+         "accuracy_sq": 34.0}])
+    line = best_fit(table, ["twostep", "twostep_no_svd"], 35.3, 91.6)
+    assert "at delta = 0.9 (34 / 91 %" in line and line.count("It fits both numbers") == 1
+    far = table[table["delta"] == 1.0]
+    line = best_fit(far, ["twostep", "twostep_no_svd"], 35.3, 91.6)
+    assert "at delta = 1 (31.5 / 86 %" in line and "It does not fit both numbers" in line
+    assert best_fit(table, ["nobody"], 35.3, 91.6) == ""

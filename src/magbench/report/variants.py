@@ -17,7 +17,7 @@ from magbench.core.reference import paper_values
 from magbench.report.format import format_number, md_table
 from magbench.report.format import label as method_label
 
-__all__ = ["HYPOTHESES", "squared_form_table", "variants_report_section"]
+__all__ = ["HYPOTHESES", "best_fit", "squared_form_table", "variants_report_section"]
 
 #: Rows of the section: (method, paper key, what it tests).
 HYPOTHESES = [
@@ -29,6 +29,9 @@ HYPOTHESES = [
 ]
 #: Robustness thresholds of eq. (76) shown: the paper does not give delta.
 DELTAS = (1.0, 0.9, 0.5)
+#: A hypothesis "fits" a Table 2 entry when, at one delta, its accuracy is within this factor
+#: of the paper's and its RB % within this many binomial standard errors of the paper's.
+FIT_FACTOR, FIT_SE = 1.25, 2.0
 
 
 def squared_form_table(trials: pd.DataFrame, deltas: tuple[float, ...] = DELTAS
@@ -47,6 +50,34 @@ def squared_form_table(trials: pd.DataFrame, deltas: tuple[float, ...] = DELTAS
                          "RB_pct": 100.0 * ok.mean(),
                          "accuracy_sq": 1.0 / sq[ok].mean() if ok.any() else np.nan})
     return pd.DataFrame(rows)
+
+
+def best_fit(table: pd.DataFrame, names: list[str], accuracy: float, rb_pct: float) -> str:
+    """One sentence: which of ``names`` (at which delta) comes closest to a Table 2 entry, how
+    close, and whether it fits both numbers (within ``FIT_FACTOR`` and ``FIT_SE``).
+
+    Closeness is the accuracy's distance in decades plus the RB % distance in binomial
+    standard errors (of the paper's RB at this run's n) divided by 10, so a decade weighs as
+    much as 10 standard errors.
+    """
+    rows = table[table["algorithm"].isin(names) & table["accuracy_sq"].notna()].copy()
+    if rows.empty:
+        return ""
+    p = min(max(rb_pct / 100.0, 1e-3), 1 - 1e-3)
+    se = 100.0 * np.sqrt(p * (1 - p) / rows["n"].astype(float))
+    rows["decades"] = np.abs(np.log10(rows["accuracy_sq"] / accuracy))
+    rows["z"] = (rows["RB_pct"] - rb_pct) / se
+    rows["score"] = rows["decades"] + np.abs(rows["z"]) / 10.0
+    best = rows.sort_values("score").iloc[0]
+    fits = best["decades"] <= np.log10(FIT_FACTOR) and abs(best["z"]) <= FIT_SE
+    return (f"Closest to the paper's {format_number(accuracy)} / {format_number(rb_pct)} %: "
+            f"{method_label(best['algorithm'])} at delta = {best['delta']:g} "
+            f"({format_number(best['accuracy_sq'])} / {format_number(best['RB_pct'])} %: "
+            f"accuracy x{best['accuracy_sq'] / accuracy:.2g} of the paper's, RB "
+            f"{best['z']:+.1f} standard errors). "
+            + ("It fits both numbers" if fits else "It does not fit both numbers")
+            + f" (criterion: accuracy within x{FIT_FACTOR:g}, RB within {FIT_SE:g} standard "
+            "errors, at one delta).")
 
 
 def _p0_rows(summary: pd.DataFrame, paper: dict) -> list[str]:
@@ -100,6 +131,12 @@ def variants_report_section(results_dir: Path | str) -> str:
            f"Squared-form accuracy 1/mean(J_h^2 + J_T^2) / RB % over {n} baseline trials, "
            "meaningful runs by eq. (76) at three thresholds delta (the paper does not give "
            "delta), beside the review's Table 2:", "", md_table(pd.DataFrame(rows))]
+    for key in dict.fromkeys(k for _, k, _ in HYPOTHESES):
+        names = [n for n, k, _ in HYPOTHESES if k == key]
+        line = best_fit(table, names, float(paper[key]["accuracy"]),
+                        float(paper[key]["robustness_pct"]))
+        if line:
+            out += ["", f"{key}: {line}"]
     p0 = results_dir / "p0" / "summary.csv"
     if p0.exists():
         out += _p0_rows(pd.read_csv(p0), paper)
