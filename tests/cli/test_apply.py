@@ -75,6 +75,8 @@ def test_one_sample_without_header_is_corrected(tmp_path):
     (["calibration={mirror}", "file={rec}"], "A is not symmetric positive definite"),
     (["calibration={cal}", "file={tmp}/none.csv"], "file {tmp}/none.csv not found"),
     (["calibration={cal}", "file={rec}", "columns=[mx,my,bz]"], "missing column(s) 'bz'"),
+    (["calibration={cal}", "file={rec}", "columns=mx"],
+     "columns must be a list of three names or positions"),
     (["calibration={xyz}", "file={rec}"], "missing column(s) 'X', 'Y', 'Z'"),
     (["calibration={cal}", "file={rec}", "out={tmp}"], "is a folder; expected the name of the CSV"),
 ])

@@ -19,9 +19,9 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import DictConfig
 
-from magbench.cli.config import UsageError, writable_folder
+from magbench.cli.config import UsageError, check_columns, writable_folder
 from magbench.core.exports import from_json_dict
 from magbench.core.files import write_csv_atomic
 from magbench.core.model import Calibration
@@ -65,16 +65,6 @@ def corrected_frame(rec: Recording, cal: Calibration, names: list[str]) -> pd.Da
     return frame
 
 
-def _columns(cfg: DictConfig, recorded: list | None) -> list | None:
-    columns = cfg.get("columns")
-    if columns is None:
-        return recorded
-    if OmegaConf.is_list(columns):
-        return list(OmegaConf.to_container(columns))
-    raise UsageError(f"columns must be a list of three names or positions, e.g. "
-                     f"columns=[mx,my,mz] or columns=[0,1,2], got {columns!r}")
-
-
 def run_apply(cfg: DictConfig) -> int:
     """The ``apply`` command; a bad file or value raises :class:`UsageError`."""
     if not cfg.get("calibration"):
@@ -87,7 +77,7 @@ def run_apply(cfg: DictConfig) -> int:
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         try:
-            rec = read_samples(path, _columns(cfg, recorded), min_samples=1, check=False)
+            rec = read_samples(path, check_columns(cfg, recorded), min_samples=1, check=False)
         except ValueError as exc:
             raise UsageError(str(exc)) from None
     for w in caught:

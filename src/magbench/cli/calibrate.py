@@ -33,10 +33,11 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import DictConfig
 
 from magbench.cli.config import (
     UsageError,
+    check_columns,
     check_common,
     check_integer,
     check_options,
@@ -59,16 +60,6 @@ __all__ = ["MIN_COVERAGE", "calibration_json", "default_out", "run_calibrate"]
 #: coverage now falls back to the sphere model instead of a full fit (a hemisphere of real
 #: data can measure 0.28).
 MIN_COVERAGE = 0.2
-
-
-def _columns(cfg: DictConfig) -> list | None:
-    columns = cfg.get("columns")
-    if columns is None:
-        return None
-    if OmegaConf.is_list(columns):
-        return list(OmegaConf.to_container(columns))
-    raise UsageError(f"columns must be a list of three names or positions, e.g. "
-                     f"columns=[mx,my,mz] or columns=[0,1,2], got {columns!r}")
 
 
 def _candidates(cfg: DictConfig, rec_has_gyro: bool) -> list[str]:
@@ -197,7 +188,7 @@ def run_calibrate(cfg: DictConfig) -> int:
                          f"{preprocess!r}")
     max_samples = check_integer(cfg.get("max_samples", DEFAULT_MAX_SAMPLES), "max_samples", 8)
     n_boot = check_integer(cfg.get("bootstrap", 50), "bootstrap", 0, 10_000)
-    columns = _columns(cfg)
+    columns = check_columns(cfg)
     name = cfg.get("method")
     if name is not None and str(name) not in methods():
         raise UsageError(f"unknown method {name!r}; expected one of: {', '.join(methods())}")

@@ -25,7 +25,7 @@ from magbench.studies.real import DEFAULT_MAX_SAMPLES, PREPROCESSING, RealStudy
 from magbench.studies.review import POINT_COLUMNS, OptionAxis, ReviewStudy, point_with
 from magbench.studies.wushi import ML, NM, WuShiStudy
 
-__all__ = ["KINDS", "UsageError", "check_common", "check_integer", "check_number",
+__all__ = ["KINDS", "UsageError", "check_columns", "check_common", "check_integer", "check_number",
            "check_options", "compose_config", "config_dir", "gyro_study", "real_study",
            "review_study", "selected_algorithms", "study_for", "writable_folder",
            "wushi_study"]
@@ -80,6 +80,18 @@ def check_integer(value: object, what: str, low: int, high: int | None = None) -
 #: The most trials a sweep accepts: its work units are listed in memory before the run (a
 #: million trials of eight points is 8e6 units, about 1 GB), and 250 is the review's size.
 MAX_TRIALS = 1_000_000
+
+
+def check_columns(cfg: DictConfig, default: list | None = None) -> list | None:
+    """The ``columns`` key of calibrate and apply: three names or 0-based positions, or
+    ``default`` when unset (calibrate: find them; apply: those the calibration recorded)."""
+    columns = cfg.get("columns")
+    if columns is None:
+        return default
+    if OmegaConf.is_list(columns):
+        return list(OmegaConf.to_container(columns))
+    raise UsageError(f"columns must be a list of three names or positions, e.g. "
+                     f"columns=[mx,my,mz] or columns=[0,1,2], got {columns!r}")
 
 
 def check_number(value: object, what: str, ok: Callable[[float], bool], expected: str) -> float:
