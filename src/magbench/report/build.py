@@ -15,7 +15,7 @@ import pandas as pd
 from magbench.core.files import write_text_atomic
 from magbench.core.metrics import accuracy_cost
 from magbench.core.reference import paper_values
-from magbench.methods.registry import get_method
+from magbench.methods.registry import Method, get_method
 from magbench.report.format import format_number
 from magbench.report.format import label as _label
 from magbench.report.format import md_table as _md_table
@@ -624,18 +624,26 @@ def sweep_tables(summary: pd.DataFrame, x: str, trials: pd.DataFrame | None = No
 RECOMMEND_RB_PCT, RECOMMEND_EFFICIENCY = 99.0, 0.9
 
 
-def _family(name: str) -> str:
+def _spec(name: str) -> Method | None:
     try:
-        return get_method(name).family
+        return get_method(name)
     except ValueError:
-        return "extra"          # a plugin's method that is not registered in this process
+        return None             # a plugin's method that is not registered in this process
+
+
+def _family(name: str) -> str:
+    spec = _spec(name)
+    return "extra" if spec is None else spec.family
 
 
 def _needs_gyro(name: str) -> bool:
-    try:
-        return get_method(name).needs_gyro
-    except ValueError:
-        return False
+    spec = _spec(name)
+    return spec is not None and spec.needs_gyro
+
+
+def _advisable(rows: pd.DataFrame) -> pd.DataFrame:
+    """``rows`` without the review's printed variants (benchmark rows, never advice)."""
+    return rows[[_family(n) != "variant" for n in rows["algorithm"]]]
 
 
 def recommendations(baseline: pd.DataFrame | None, coverage: pd.DataFrame | None,
@@ -649,7 +657,7 @@ def recommendations(baseline: pd.DataFrame | None, coverage: pd.DataFrame | None
     summaries = summaries or {}
     lines = []
     if baseline is not None:
-        b = baseline[[_family(n) != "variant" for n in baseline["algorithm"]]]
+        b = _advisable(baseline)
         good = b[(b["RB_pct"] >= RECOMMEND_RB_PCT)
                  & (b.get("efficiency", pd.Series(1.0, index=b.index)) >= RECOMMEND_EFFICIENCY)]
         if not good.empty:
@@ -672,7 +680,7 @@ def recommendations(baseline: pd.DataFrame | None, coverage: pd.DataFrame | None
                 "fail its robustness test at the baseline.")
     if coverage is not None:
         c = with_coverage_column(coverage)
-        c = c[[_family(n) != "variant" for n in c["algorithm"]]]
+        c = _advisable(c)
         # Partial but wide: caps of a hemisphere or more, and every band.
         wide = c[((c["coverage"] != "full sphere") & (c["cap_deg"] >= 90)) | (c["band_deg"] < 90)]
         robust = [cov for cov, rows in wide.groupby("coverage", sort=False)
@@ -726,7 +734,7 @@ def stress_line(summary: pd.DataFrame | None, column: str, title: str, figure: s
     if summary is None or summary.empty or column not in summary:
         return ""
     rows = _hardest(summary, column)
-    rows = rows[[_family(n) != "variant" for n in rows["algorithm"]]]
+    rows = _advisable(rows)
     if rows.empty:
         return ""
     value = rows[column].iloc[0]
@@ -759,7 +767,7 @@ def gyro_line(summary: pd.DataFrame | None) -> str:
         return ""
     hard = summary[(summary["coverage"] == summary["coverage"].iloc[-1])
                    & (summary["gyro_noise"] == summary["gyro_noise"].max())]
-    hard = hard[[_family(n) != "variant" for n in hard["algorithm"]]]
+    hard = _advisable(hard)
     gyro = hard[[_needs_gyro(n) for n in hard["algorithm"]]]
     mag = hard[[not _needs_gyro(n) for n in hard["algorithm"]]]
     if gyro.empty or mag.empty:
