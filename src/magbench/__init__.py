@@ -9,11 +9,29 @@ Overview and Comparison", Sensors 2021, 21, 5288, and goes beyond it.
 >>> field = magbench.MagCalibrator("fang").fit(samples).transform(samples)  # doctest: +SKIP
 """
 
-from magbench.core.model import Calibration, CalibrationFailed
-from magbench.methods.api import calibrate
-from magbench.methods.estimator import MagCalibrator
+from importlib import import_module
+
+# Eager, because ``magbench.methods`` is both this function and a subpackage: importing the
+# subpackage binds its name here, and only an import that runs after it can rebind the function.
 from magbench.methods.registry import get_method, methods, register
 
 __all__ = ["Calibration", "CalibrationFailed", "MagCalibrator", "calibrate", "get_method",
            "methods", "register"]
 __version__ = "0.1.0"
+
+#: Where the other public names live. They are imported on first use (PEP 562), so that
+#: ``python -m magbench`` can start calibrate's picture process before pandas loads.
+_PUBLIC = {"Calibration": "magbench.core.model", "CalibrationFailed": "magbench.core.model",
+           "calibrate": "magbench.methods.api", "MagCalibrator": "magbench.methods.estimator"}
+
+
+def __getattr__(name: str) -> object:
+    if name in _PUBLIC:
+        value = getattr(import_module(_PUBLIC[name]), name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module 'magbench' has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted([*globals(), *_PUBLIC])

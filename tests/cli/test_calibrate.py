@@ -16,6 +16,7 @@ from magbench.core.geometry import fibonacci_sphere
 from magbench.core.model import Calibration
 from magbench.methods.registry import get_method
 from magbench.sources.recordings import DATA_ENV
+from magbench.studies.calibration import FIRST_ROUND
 
 T_TRUE = np.array([[520.0, 20.0, -8.0], [0.0, 470.0, 15.0], [0.0, 0.0, 610.0]])
 H_TRUE = np.array([900.0, -350.0, 120.0])          # counts; offset larger than the radius
@@ -120,7 +121,7 @@ def test_a_60_degree_cap_warns_and_names_the_gap(tmp_path, capsys):
 
 def test_all_methods_are_ranked_and_the_simplest_of_the_tie_is_chosen(tmp_path, capsys):
     path = save(tmp_path / "rec.csv", recording())
-    assert calibrate(f"file={path}", f"out={tmp_path / 'o'}") == 0
+    assert calibrate(f"file={path}", "candidates=all", f"out={tmp_path / 'o'}") == 0
     ranking = pd.read_csv(tmp_path / "o" / "ranking.csv")
     names = set(ranking["algorithm"])
     assert "magical" in names and "sar_ls" not in names                  # no gyro in the file
@@ -144,6 +145,36 @@ def test_all_methods_are_ranked_and_the_simplest_of_the_tie_is_chosen(tmp_path, 
     assert chosen["n_iter"] == 0 or (tie["n_iter"] > 0).all()
     assert "any of" in data["choice"] or len(tie) == 1
     assert f"chosen {data['method']}: the simplest of the tie" in capsys.readouterr().out
+
+
+def test_the_second_round_is_skipped_on_a_full_sphere_with_the_same_choice(tmp_path, capsys):
+    path = save(tmp_path / "rec.csv", recording())
+    assert calibrate(f"file={path}", f"out={tmp_path / 'auto'}") == 0
+    out = capsys.readouterr().out
+    assert calibrate(f"file={path}", "candidates=all", f"out={tmp_path / 'all'}") == 0
+    auto, every = (json.loads((tmp_path / f / "calibration.json").read_text())
+                   for f in ("auto", "all"))
+    fitted = set(pd.read_csv(tmp_path / "auto" / "ranking.csv")["algorithm"])
+    assert fitted == set(FIRST_ROUND)                      # the iterative ones were not fitted
+    assert "not fitted: " in out and "magical" in out.split("not fitted: ")[1].split("\n")[0]
+    assert auto["method"] == every["method"] and auto["A"] == every["A"]
+
+
+def test_a_short_recording_fits_the_second_round_and_says_why(tmp_path, capsys):
+    # 24 samples: 12 per half leave the 9-parameter closed forms overfitted out of sample
+    path = save(tmp_path / "short.csv", recording(24, sigma=8.0, seed=3))
+    assert calibrate(f"file={path}", "bootstrap=0", f"out={tmp_path / 'o'}") == 0
+    out = capsys.readouterr().out
+    fitted = set(pd.read_csv(tmp_path / "o" / "ranking.csv")["algorithm"])
+    assert "second round fitted: " in out
+    assert {"magical", "dorveaux", "crassidis"} <= fitted
+
+
+def test_a_candidates_list_fits_only_those(tmp_path):
+    path = save(tmp_path / "rec.csv", recording())
+    assert calibrate(f"file={path}", "candidates=[fang,sphere]", "bootstrap=0",
+                     f"out={tmp_path / 'o'}") == 0
+    assert set(pd.read_csv(tmp_path / "o" / "ranking.csv")["algorithm"]) == {"fang", "sphere"}
 
 
 def test_a_printed_variant_still_runs_when_named(tmp_path):
@@ -187,6 +218,9 @@ def test_nan_rows_give_a_warning_line_and_are_dropped(tmp_path, capsys):
     (["file={few}", "method=twostep"], "has 5 usable samples; at least 10 are needed"),
     (["file={flat}"], "nearly coplanar"),
     (["file={rec}", "preprocess=bogus"], "preprocess must be one of none, scale, centre"),
+    (["file={rec}", "candidates=[fang,bogus]"], "candidates: unknown method(s) bogus"),
+    (["file={rec}", "candidates=some"], "candidates must be auto, all or a list"),
+    (["file={rec}", "candidates=[fang]", "method=fang"], "give either method=NAME"),
 ])
 def test_errors_are_one_line_with_status_2(args, message, tmp_path, capsys):
     rec = save(tmp_path / "rec.csv", recording())

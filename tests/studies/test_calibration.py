@@ -191,3 +191,43 @@ def test_a_refused_fit_passes_the_choice_to_the_next_of_the_tie():
     note = ranked.set_index("algorithm").loc[first["algorithm"], "note"]
     assert note == "refused: test refusal"
     assert f"chosen {second['algorithm']}" in how
+
+
+def test_the_choice_does_not_depend_on_fit_times():
+    import pandas as pd
+
+    from magbench.studies.calibration import choose
+    from magbench.studies.real import evaluate_recording, recording_summary
+
+    rec = synthetic(600)
+    trials = pd.DataFrame(evaluate_recording(rec, ["ellipsoid", "fang", "twostep"],
+                                             ["centre"]))
+    summary = recording_summary(trials)
+    choices = set()
+    for times in ([1e-3, 2e-3, 3e-3], [3e-3, 2e-3, 1e-3]):
+        timed = summary.assign(time_s=times)
+        _, tie, chosen, _ = choose(timed, trials, rec, 30.0)
+        assert len(tie) > 1                              # the three closed forms tie here
+        choices.add(chosen["algorithm"])
+    assert len(choices) == 1                             # the same file, the same choice
+    ranked = choose(summary, trials, rec, 30.0)[0]
+    closed = ranked[ranked["tie"] & (ranked["n_iter"] == 0)]     # TWOSTEP iterates
+    assert len(closed) == 2
+    assert choices == {closed["algorithm"].iloc[0]}       # the better held out of the two
+
+
+@pytest.mark.parametrize("case", ["chosen", "none", "gap", "minimiser_out"])
+def test_second_round_reason(case):
+    from magbench.core.verdict import MAX_GAP_DEG
+    from magbench.studies.calibration import FIRST_ROUND, second_round_reason
+
+    row = {"algorithm": "ellipsoid"}
+    tie, chosen, gap = ["ellipsoid", "wu_shi_nm"], row, 10.0
+    if case == "none":
+        chosen = None
+    elif case == "gap":
+        gap = MAX_GAP_DEG + 1
+    elif case == "minimiser_out":
+        tie = ["ellipsoid", "fang"]
+    reason = second_round_reason(tie, chosen, gap, FIRST_ROUND)
+    assert (reason == "") == (case == "chosen")

@@ -6,8 +6,11 @@ on all samples and on each half in time, the honest choice with ties, trimming a
 chosen fit, refusal of collapsed fits, verdict and intervals; its module notes say how each is
 decided); this command reads the file, prints the ranked table and the verdict, and writes.
 The candidates are the registered methods except the review's printed variants (family
-``variant``: benchmark-only, wrong as printed) and, without gyro data, the gyro-aided ones;
-``method=NAME`` runs any one.
+``variant``: benchmark-only, wrong as printed) and, without gyro data, the gyro-aided ones.
+By default (``candidates=auto``) they are fitted in two rounds: the closed forms and Wu-Shi NM
+first, the iterative rest only when they could change the choice (the rule is in
+:mod:`magbench.studies.calibration`, step 3); ``candidates=all`` fits every one in one round,
+``candidates=[a,b]`` only those, and ``method=NAME`` runs any one.
 
 The chosen (or the named) calibration is written in the safe gauge of
 :mod:`magbench.core.gauge`: the correction a firmware applies is ``m = A (y - b)`` with
@@ -33,7 +36,7 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
-from omegaconf import DictConfig
+from omegaconf import DictConfig, OmegaConf
 
 from magbench.cli.config import (
     UsageError,
@@ -43,16 +46,24 @@ from magbench.cli.config import (
     check_options,
     writable_folder,
 )
+from magbench.cli.picture import PictureWorker, draw_picture
 from magbench.core.exports import ardupilot_param_file, ardupilot_params, c_header, to_json_dict
 from magbench.core.files import write_csv_atomic, write_text_atomic
 from magbench.core.gauge import safe_gauge
 from magbench.core.model import Calibration
-from magbench.figures.real import calibration_picture
-from magbench.figures.style import save_figure
 from magbench.methods.registry import get_method, methods
 from magbench.sources.recordings import Recording, read_samples
-from magbench.studies.calibration import CalibrationResult, calibrate_recording, estimate
+from magbench.studies.calibration import (
+    FIRST_ROUND,
+    CalibrationResult,
+    calibrate_recording,
+    estimate,
+)
 from magbench.studies.real import DEFAULT_MAX_SAMPLES, PREPROCESSING, applicability
+
+#: Why the first round's choice stands when the second round is not fitted (one phrase).
+FIRST_ROUND_WHY = ("Wu-Shi NM, which minimises J_r itself, ties the best, and coverage needs no "
+                   "cap-robust method")
 
 __all__ = ["MIN_COVERAGE", "calibration_json", "default_out", "run_calibrate"]
 
@@ -62,13 +73,40 @@ __all__ = ["MIN_COVERAGE", "calibration_json", "default_out", "run_calibrate"]
 MIN_COVERAGE = 0.2
 
 
-def _candidates(cfg: DictConfig, rec_has_gyro: bool) -> list[str]:
+def _candidates(cfg: DictConfig, rec_has_gyro: bool) -> tuple[list[str], list[str]]:
+    """The first and second round of candidates (``second_round`` of
+    :func:`~magbench.studies.calibration.calibrate_recording`) from ``method`` and
+    ``candidates``."""
     name = cfg.get("method")
     if name is not None:
-        return [str(name)]
+        return [str(name)], []
+    chosen = cfg.get("candidates", "auto")
+    if chosen not in ("auto", "all"):
+        return list(chosen), []
     # The printed variants reproduce the review's misprints: benchmark rows, never a user's fit.
-    return [m for m in methods() if get_method(m).family != "variant"
-            and (rec_has_gyro or not get_method(m).needs_gyro)]
+    every = [m for m in methods() if get_method(m).family != "variant"
+             and (rec_has_gyro or not get_method(m).needs_gyro)]
+    if chosen == "all":
+        return every, []
+    return ([m for m in every if m in FIRST_ROUND],
+            [m for m in every if m not in FIRST_ROUND])
+
+
+def _check_candidates(cfg: DictConfig) -> None:
+    """``candidates``: auto, all or a list of registered methods (exit 2 otherwise)."""
+    value = cfg.get("candidates", "auto")
+    if value in ("auto", "all"):
+        return
+    names = list(OmegaConf.to_container(value)) if OmegaConf.is_list(value) else None
+    if not names or not all(isinstance(n, str) for n in names):
+        raise UsageError(f"candidates must be auto, all or a list of method names, e.g. "
+                         f"candidates=[fang,magical], got {value!r}")
+    unknown = [n for n in names if n not in methods()]
+    if unknown:
+        raise UsageError(f"candidates: unknown method(s) {', '.join(unknown)}; expected names "
+                         f"from: {', '.join(methods())}")
+    if cfg.get("method") is not None:
+        raise UsageError("give either method=NAME (one method) or candidates=[...], not both")
 
 
 def default_out(path: Path) -> Path:
@@ -174,8 +212,13 @@ def _table(ranked: pd.DataFrame) -> str:
     return "\n".join(lines)
 
 
-def run_calibrate(cfg: DictConfig) -> int:
-    """The ``calibrate`` command; a bad file or value raises :class:`UsageError`."""
+def run_calibrate(cfg: DictConfig, picture: PictureWorker | None = None) -> int:
+    """The ``calibrate`` command; a bad file or value raises :class:`UsageError`.
+
+    ``picture``: a started :class:`~magbench.cli.picture.PictureWorker` draws
+    ``calibration.png`` in parallel (:func:`magbench.cli.main.main` starts one); without it
+    the picture is drawn here. The file is the same either way.
+    """
     start = time.perf_counter()
     common = check_common(cfg)
     if not cfg.get("file"):
@@ -192,6 +235,7 @@ def run_calibrate(cfg: DictConfig) -> int:
     name = cfg.get("method")
     if name is not None and str(name) not in methods():
         raise UsageError(f"unknown method {name!r}; expected one of: {', '.join(methods())}")
+    _check_candidates(cfg)
     # Options are checked before the file is read, so a misspelt option is named as such.
     check_options(cfg, [str(name)] if name is not None else methods())
     need = get_method(str(name)).min_samples if name else min(
@@ -204,8 +248,8 @@ def run_calibrate(cfg: DictConfig) -> int:
             raise UsageError(str(exc)) from None
     for w in caught:
         print(f"magbench: warning: {w.message}", file=sys.stderr)
-    candidates = _candidates(cfg, rec.has_gyro)
-    options = check_options(cfg, candidates)
+    candidates, second = _candidates(cfg, rec.has_gyro)
+    options = check_options(cfg, candidates + second)
     thinned = rec.thinned(max_samples)
     if name is not None:
         reason = applicability(str(name), thinned)
@@ -216,7 +260,7 @@ def run_calibrate(cfg: DictConfig) -> int:
               f"(max_samples={max_samples})")
     result = calibrate_recording(thinned, candidates, preprocess=preprocess, options=options,
                                  seed=common["seed"], call_timeout_s=common["call_timeout_s"],
-                                 bootstrap=n_boot)
+                                 bootstrap=n_boot, second_round=second)
     cover = result.coverage
     print(f"{path.name}: {rec.K} samples, preprocessing '{preprocess}'; J_r (eq. 81) in sample "
           "and out of sample (fit on one half in time, tested on the other), held-out worst "
@@ -227,6 +271,11 @@ def run_calibrate(cfg: DictConfig) -> int:
     print(f"coverage: {cover['coverage']:.2f} of the sphere; largest uncovered region "
           f"{cover['largest_gap_deg']:.0f} deg around ({gap_at})")
     print(_table(result.ranked))
+    if result.second_round:
+        print(f"second round fitted: {result.second_round}")
+    elif result.not_fitted:
+        print(f"not fitted: {', '.join(result.not_fitted)} (the first round decides: "
+              f"{FIRST_ROUND_WHY}; candidates=all fits every method)")
     if result.chosen is None:
         raise UsageError("no method produced a calibration that can be written ("
                          + ("no out-of-sample score: name one with method=NAME, or record "
@@ -241,12 +290,19 @@ def run_calibrate(cfg: DictConfig) -> int:
     written = ["calibration.json (m = A (y - b))", *_write_exports(Calibration(T, h), payload,
                                                                   out)]
     write_csv_atomic(result.ranked, out / "ranking.csv")
-    save_figure(_picture(result, payload), out / "calibration.png", dpi=PICTURE_DPI)
+    job = {"path": out / "calibration.png", "dpi": PICTURE_DPI,
+           "kwargs": _picture_arguments(result, payload)}
+    sent = picture is not None and picture.send(job)
     print(f"choice: {result.how}")
     print(f"chosen: {payload['label']} ({payload['model']} model)")
     print("\n".join(_verdict_lines(payload)))
     for warning in payload["warnings"]:
         print(f"magbench: warning: {warning}", file=sys.stderr)
+    problem = picture.wait() if sent else ""
+    if problem:
+        print(f"magbench: note: {problem}; drawing the picture here", file=sys.stderr)
+    if problem or not sent:
+        draw_picture(job)
     print(f"wrote {out}/: {', '.join([*written, 'ranking.csv', 'calibration.png'])} "
           f"(in {time.perf_counter() - start:.2f} s)")
     return 0
@@ -278,7 +334,8 @@ PICTURE_SAMPLES = 1500
 PICTURE_DPI = 90
 
 
-def _picture(result: CalibrationResult, payload: dict):
+def _picture_arguments(result: CalibrationResult, payload: dict) -> dict:
+    """Keyword arguments of :func:`magbench.figures.real.calibration_picture`."""
     A = np.array(payload["A"])
     b = np.array(payload["b"])
     rec: Recording = result.rec
@@ -288,9 +345,9 @@ def _picture(result: CalibrationResult, payload: dict):
     before = y / float(np.mean(np.linalg.norm(y, axis=1)))
     after = (y - b) @ A.T
     where = Path(payload["file"])
-    return calibration_picture(
-        before, after, f"{where.parent.name}/{where.name}: {payload['label']} "
-                       f"({payload['model']} model)",
-        inliers=keep, directions=(rec.y[result.inliers] - b) @ A.T,
-        gap_centre=np.array(result.coverage["gap_centre"]),
-        gap_deg=result.coverage["largest_gap_deg"])
+    return {"before": before, "after": after,
+            "title": f"{where.parent.name}/{where.name}: {payload['label']} "
+                     f"({payload['model']} model)",
+            "inliers": keep, "directions": (rec.y[result.inliers] - b) @ A.T,
+            "gap_centre": np.array(result.coverage["gap_centre"]),
+            "gap_deg": result.coverage["largest_gap_deg"]}

@@ -13,10 +13,14 @@ import signal
 import sys
 import threading
 from collections.abc import Callable, Sequence
+from typing import TYPE_CHECKING
 
-from omegaconf import DictConfig
+# Only the standard library at import: ``calibrate`` starts its picture process
+# (:mod:`magbench.cli.picture`) before the configuration, NumPy and pandas are loaded.
+if TYPE_CHECKING:
+    from omegaconf import DictConfig
 
-from magbench.cli.config import UsageError, compose_config, config_dir
+    from magbench.cli.picture import PictureWorker
 
 __all__ = ["COMMANDS", "main"]
 
@@ -45,10 +49,10 @@ def _report(cfg: DictConfig) -> int:
     return report(cfg)
 
 
-def _calibrate(cfg: DictConfig) -> int:
+def _calibrate(cfg: DictConfig, picture: PictureWorker | None = None) -> int:
     from magbench.cli.calibrate import run_calibrate
 
-    return run_calibrate(cfg)
+    return run_calibrate(cfg, picture=picture)
 
 
 def _apply(cfg: DictConfig) -> int:
@@ -75,8 +79,8 @@ COMMANDS: dict[str, tuple[Callable[..., int], str, str, tuple[str, ...]]] = {
              "scheduler_address", "nominal", "data_dir")),
     "calibrate": (_calibrate, "calibrate your own recording and write the correction",
                   "python -m magbench calibrate file=data.csv",
-                  ("file", "method", "columns", "out", "preprocess", "max_samples", "bootstrap",
-                   "seed",
+                  ("file", "method", "candidates", "columns", "out", "preprocess",
+                   "max_samples", "bootstrap", "seed",
                    "options", "call_timeout_s", "plugins")),
     "apply": (_apply, "correct a recording with a saved calibration.json (m = A (y - b))",
               "python -m magbench apply calibration=cal/calibration.json file=flight.csv "
@@ -98,6 +102,8 @@ COMMANDS: dict[str, tuple[Callable[..., int], str, str, tuple[str, ...]]] = {
 def _key_help() -> dict[str, tuple[str, str]]:
     """``key -> (default, meaning)`` from the comments of ``conf/config.yaml``."""
     out = {}
+    from magbench.cli.config import config_dir
+
     for line in (config_dir() / "config.yaml").read_text().splitlines():
         match = re.match(r"^([A-Za-z_]+):\s*([^#]*?)\s*(?:#\s*(.*))?$", line)
         if match and match.group(1) not in ("defaults",):
@@ -108,6 +114,8 @@ def _key_help() -> dict[str, tuple[str, str]]:
 def sweep_kinds() -> list[tuple[str, str]]:
     """``(name, first comment line)`` of every ``conf/sweep/*.yaml``."""
     out = []
+    from magbench.cli.config import config_dir
+
     for path in sorted((config_dir() / "sweep").glob("*.yaml")):
         first = next((ln.lstrip("# ").strip() for ln in path.read_text().splitlines()
                       if ln.startswith("#") and "@package" not in ln), "")
@@ -212,9 +220,13 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 128 + signal.SIGPIPE
 
 
-def _main(argv: Sequence[str] | None) -> int:
-    from magbench.engine.sweep import FolderBusy, ResultsExist, TooLarge
+def _start_picture() -> PictureWorker | None:
+    from magbench.cli.picture import PictureWorker
 
+    return PictureWorker.start()
+
+
+def _main(argv: Sequence[str] | None) -> int:
     args = list(sys.argv[1:] if argv is None else argv)
     if args and args[0] in ("--version", "-V", "version"):
         from magbench import __version__
@@ -234,11 +246,28 @@ def _main(argv: Sequence[str] | None) -> int:
               f"{', '.join(COMMANDS)} followed by key=value pairs (python -m magbench --help)",
               file=sys.stderr)
         return 2
+    # Started first, so that the picture process imports matplotlib while this one loads the
+    # configuration and fits; closed (stopped, if it was never given a picture) at the end.
+    picture = _start_picture() if command == "calibrate" else None
+    try:
+        return _dispatch(command, args, picture)
+    finally:
+        if picture is not None:
+            picture.close()
+
+
+def _dispatch(command: str, args: list[str], picture: PictureWorker | None) -> int:
+    from magbench.cli.config import UsageError, compose_config
+    from magbench.engine.sweep import FolderBusy, ResultsExist, TooLarge
+
     previous = signal.signal(signal.SIGTERM, _terminate) if _main_thread() else None
     try:
         if command == "reproduce":
             return _reproduce(_plain_keys(args))
-        return COMMANDS[command][0](compose_config(_plain_keys(args)))
+        cfg = compose_config(_plain_keys(args))
+        if picture is not None:
+            return _calibrate(cfg, picture)
+        return COMMANDS[command][0](cfg)
     except (UsageError, FolderBusy, ResultsExist, TooLarge) as exc:
         print(f"magbench: error: {exc}", file=sys.stderr)
         return 2

@@ -1,7 +1,18 @@
 """Calibration methods: the registry, the :func:`calibrate` entry point and the algorithms."""
 
-from magbench.methods.api import calibrate, unit_scale
+from importlib import import_module
+
 from magbench.methods.registry import Method, get_method, methods, register, unregister
 
 __all__ = ["Method", "calibrate", "get_method", "methods", "register", "unit_scale",
            "unregister"]
+
+
+def __getattr__(name: str) -> object:
+    # calibrate and unit_scale load on first use: the API module brings pandas, which
+    # ``python -m magbench`` should not wait for before it starts calibrate's picture process.
+    if name in ("calibrate", "unit_scale"):
+        value = getattr(import_module("magbench.methods.api"), name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module 'magbench.methods' has no attribute {name!r}")

@@ -31,6 +31,15 @@ writes). :func:`calibrate_recording` runs, in order:
 
 3. *Candidates, held out.* Every candidate is fitted on the inliers and on each half in time,
    each half-fit scored on the other half (:func:`magbench.studies.real.evaluate_recording`).
+   With a ``second_round`` (``calibrate``'s default), the candidates are fitted in two rounds:
+   first the closed forms and Wu-Shi NM (:data:`FIRST_ROUND`), then the others only when
+   :func:`second_round_reason` finds that they could change the choice. Wu-Shi NM minimises
+   the NM objective (11), which is ``K`` times J_r (81) itself, so no method fits the data
+   better; another can only do better out of sample, where regularisation beats fitting (a
+   short recording). The second round therefore runs when Wu-Shi NM does not tie the best
+   of the first round, when coverage has a gap beyond
+   :data:`~magbench.core.verdict.MAX_GAP_DEG` (the methods robust on caps are needed), or
+   when nothing in the first round can be chosen.
 4. *The choice* (:func:`choose`). Only methods with an out-of-sample score are ranked. A method
    whose held-out worst-case field error exceeds :data:`WORST_FACTOR` times the smallest
    (plus :data:`WORST_SLACK_PCT` points) is ranked after the others. The best by held-out
@@ -39,7 +48,9 @@ writes). :func:`calibrate_recording` runs, in order:
    J_r differ by at most :data:`TIE_RTOL` (5 %). The tie is reported ("any of ..."), and the
    chosen one is the simplest of it: fewest model parameters
    (:data:`magbench.core.crb.MODEL_PARAMETERS`), then closed form before iterative, then the
-   fastest fit on all samples in this run.
+   best held-out J_r. Fit times are not used: they vary from run to run (by more than the
+   tenth of a millisecond that separates the closed forms), and the same file must give the
+   same choice every time.
 5. *Trimming around the chosen fit.* The chosen method's own norm residuals on every sample
    are trimmed like the sphere fit's (a soft-iron sensor's disturbances can hide in the sphere
    fit's wider residuals); if that changes the inliers, steps 3-5 run again (at most
@@ -71,14 +82,19 @@ from magbench.methods.registry import get_method
 from magbench.sources.recordings import Recording
 from magbench.studies.real import evaluate_recording, fit_recording, recording_summary
 
-__all__ = ["ROBUST_ON_CAPS", "THIN_GAP_DEG", "TIE_RTOL", "WORST_FACTOR", "CalibrationResult",
-           "allowed", "calibrate_recording", "choose", "estimate", "held_out_corrected",
-           "held_out_errors"]
+__all__ = ["FIRST_ROUND", "ROBUST_ON_CAPS", "THIN_GAP_DEG", "TIE_RTOL", "WORST_FACTOR",
+           "CalibrationResult", "allowed", "calibrate_recording", "choose", "estimate",
+           "held_out_corrected", "held_out_errors", "second_round_reason"]
 
 #: Largest uncovered cap (deg) up to which a full model is fitted by :data:`ROBUST_ON_CAPS`.
 THIN_GAP_DEG = 135.0
 #: Full-model methods with RB >= 90 % on 60 deg caps in results/coverage/summary.csv.
 ROBUST_ON_CAPS = ("magical", "fang")
+#: The first round of ``calibrate``'s default candidates (module notes, step 3): the closed
+#: forms of every model and the minimiser of J_r (81), Wu-Shi NM.
+FIRST_ROUND = ("sphere", "twostep_hi", "diagonal", "ellipsoid", "fang", "twostep", "wu_shi_nm")
+#: The method whose objective (Wu and Shi's (11)) is K times J_r (81).
+J_R_MINIMISER = "wu_shi_nm"
 #: Held-out J_r within this relative distance of the best is a tie whatever the bootstrap says.
 TIE_RTOL = 0.05
 #: A held-out worst-case field error above WORST_FACTOR x the smallest + WORST_SLACK_PCT.
@@ -107,6 +123,9 @@ class CalibrationResult:
     intervals: Intervals | None = None
     bootstrap: dict | None = None
     warnings: list[str] = field(default_factory=list)
+    #: Candidates of the second round left unfitted, and why the second round ran ("": not).
+    not_fitted: list[str] = field(default_factory=list)
+    second_round: str = ""
 
     @property
     def outliers(self) -> int:
@@ -243,7 +262,8 @@ def choose(summary: pd.DataFrame, trials: pd.DataFrame, rec: Recording, gap_deg:
     members = out[out["tie"]].copy()
     members["_p"] = [MODEL_PARAMETERS[m] for m in members["model"]]
     members["_it"] = members["n_iter"] > 0
-    order = members.sort_values(["_p", "_it", "time_s"], kind="stable")
+    # members are in ranked order, so equally simple methods keep the best held-out J_r first
+    order = members.sort_values(["_p", "_it"], kind="stable")
     rest = out[(out["_g"] <= 1) & ~out["tie"]]
     chosen, how = None, ""
     for _, r in pd.concat([order, rest]).iterrows():
@@ -260,7 +280,7 @@ def choose(summary: pd.DataFrame, trials: pd.DataFrame, rec: Recording, gap_deg:
                     f"{100 * TIE_RTOL:.0f} %): any of {', '.join(tie)}" if len(tie) > 1 else
                     f"{best['algorithm']} is best by held-out J_r, alone beyond noise")
         how = (f"{tie_text}; chosen {chosen['algorithm']}: the simplest of the tie (fewest "
-               "model parameters, then closed form, then fastest)"
+               "model parameters, then closed form, then the best held-out J_r)"
                if chosen["algorithm"] in tie else
                f"{tie_text}; every method of the tie was refused, chosen "
                f"{chosen['algorithm']}, the next in the ranking")
@@ -305,10 +325,35 @@ def _bootstrap(rec: Recording, method: str, preprocess: str, options: dict, B: i
             "ratio_A_range": [float(rA.min()), float(rA.max())] if rA.size else None}
 
 
+def second_round_reason(tie: Sequence[str], chosen: pd.Series | None, gap_deg: float,
+                        first: Sequence[str]) -> str:
+    """Why the second round of candidates must be fitted, or "" (module notes, step 3).
+
+    Parameters
+    ----------
+    tie, chosen
+        The first round's tie and choice (:func:`choose`).
+    gap_deg : float
+        Largest uncovered cap of the recording.
+    first : sequence of str
+        The methods of the first round.
+    """
+    if chosen is None:
+        return "no method of the first round can be chosen"
+    if gap_deg > MAX_GAP_DEG:
+        return (f"a {gap_deg:.0f} deg gap in coverage: the methods robust on caps "
+                f"({', '.join(ROBUST_ON_CAPS)}) are needed")
+    if J_R_MINIMISER in first and J_R_MINIMISER not in tie:
+        return (f"{J_R_MINIMISER}, which minimises J_r (81) itself, does not tie the best out "
+                "of sample (a short recording, where a regularised fit may do better)")
+    return ""
+
+
 def calibrate_recording(rec: Recording, candidates: Sequence[str], *,
                         preprocess: str = "centre", options: dict | None = None,
                         seed: int = 0, call_timeout_s: float | None = None,
-                        bootstrap: int = 50, rounds: int = 3) -> CalibrationResult:
+                        bootstrap: int = 50, rounds: int = 3,
+                        second_round: Sequence[str] = ()) -> CalibrationResult:
     """Screen, fit, choose, trim and judge (module notes).
 
     Parameters
@@ -323,30 +368,40 @@ def calibrate_recording(rec: Recording, candidates: Sequence[str], *,
         Refits on resampled inliers to check the Fisher intervals (0: none).
     rounds : int
         Largest number of fit-and-trim rounds.
+    second_round : sequence of str
+        Methods fitted only when :func:`second_round_reason` says they could change the
+        choice (module notes, step 3); their names end in ``result.not_fitted`` otherwise.
     """
     options = options or {}
     centre, _, inliers = robust_sphere_fit(rec.y)
     screened = int((~inliers).sum())
     cover = coverage_report(rec.y[inliers] - centre)
     gap = cover["largest_gap_deg"]
-    named = len(candidates) == 1
+    named = len(candidates) == 1 and not second_round
+    names, later, escalated = list(candidates), list(second_round), ""
 
     def refuse(row: pd.Series) -> str:
         return refusal_reason(*estimate(row), work.y, centre)
 
+    def fit(methods: list[str]) -> pd.DataFrame:
+        return pd.DataFrame(evaluate_recording(work, methods, [preprocess], options=options,
+                                               seed=seed, call_timeout_s=call_timeout_s))
+
     fallback = False
     for _ in range(rounds):
         work = rec.rows(np.flatnonzero(inliers))
-        rows = evaluate_recording(work, list(candidates), [preprocess], options=options,
-                                  seed=seed, call_timeout_s=call_timeout_s)
-        trials = pd.DataFrame(rows)
-        summary = recording_summary(trials)
-        ranked, tie, chosen, how = choose(summary, trials, work,
+        trials = fit(names)
+        ranked, tie, chosen, how = choose(recording_summary(trials), trials, work,
                                           0.0 if named else gap, seed=seed, refuse=refuse)
+        if later and (escalated := second_round_reason(tie, chosen, gap, names)):
+            trials = pd.concat([trials, fit(later)], ignore_index=True)
+            names, later = names + later, []
+            ranked, tie, chosen, how = choose(recording_summary(trials), trials, work,
+                                              gap, seed=seed, refuse=refuse)
         if chosen is None and not named and MAX_GAP_DEG < gap <= THIN_GAP_DEG:
             # no robust full-model fit on a thin cap: fall back to the sphere and offset-only
-            ranked, tie, chosen, how = choose(summary, trials, work, 180.0, seed=seed,
-                                              refuse=refuse)
+            ranked, tie, chosen, how = choose(recording_summary(trials), trials, work, 180.0,
+                                              seed=seed, refuse=refuse)
             fallback = True
         if named and chosen is None:
             row = ranked.iloc[0]
@@ -364,7 +419,8 @@ def calibrate_recording(rec: Recording, candidates: Sequence[str], *,
             break
         inliers = new
     result = CalibrationResult(rec, inliers, screened, int((~inliers).sum()) - screened,
-                               centre, cover, ranked, trials, tie, chosen, how)
+                               centre, cover, ranked, trials, tie, chosen, how,
+                               not_fitted=later, second_round=escalated)
     if chosen is None:
         return result
     name = str(chosen["algorithm"])
