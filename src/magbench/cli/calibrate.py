@@ -335,7 +335,7 @@ PICTURE_DPI = 90
 
 
 def _picture_arguments(result: CalibrationResult, payload: dict) -> dict:
-    """Keyword arguments of :func:`magbench.figures.real.calibration_picture`."""
+    """Keyword arguments of :func:`magbench.figures.calibration.calibration_picture`."""
     A = np.array(payload["A"])
     b = np.array(payload["b"])
     rec: Recording = result.rec

@@ -5,7 +5,7 @@ laying out seven axes, which is as long as reading, fitting and choosing on a 10
 recording. :func:`magbench.cli.main.main` therefore starts :class:`PictureWorker` before it
 loads anything else: a fresh interpreter (``python -m magbench.cli.picture``) that imports the
 figure code and waits; ``calibrate`` sends it the arrays of
-:func:`magbench.figures.real.calibration_picture` once the calibration is chosen, and waits
+:func:`magbench.figures.calibration.calibration_picture` once the calibration is chosen, and waits
 for the file before it reports. On two cores the picture then costs only its drawing.
 
 The worker is only a speed-up: if it cannot start, dies or fails, ``calibrate`` draws the
@@ -31,8 +31,8 @@ WAIT_S = 120.0
 
 def draw_picture(job: dict) -> Path:
     """Draw and save one picture: ``job`` holds ``path``, ``dpi`` and the keyword arguments
-    ``kwargs`` of :func:`~magbench.figures.real.calibration_picture`. Returns the path."""
-    from magbench.figures.real import calibration_picture
+    ``kwargs`` of :func:`~magbench.figures.calibration.calibration_picture`. Returns the path."""
+    from magbench.figures.calibration import calibration_picture
     from magbench.figures.style import save_figure
 
     return save_figure(calibration_picture(**job["kwargs"]), job["path"], dpi=job["dpi"])
@@ -96,7 +96,7 @@ class PictureWorker:
 
 def _serve() -> int:
     """The worker: import the figure code, then draw the one picture read from stdin."""
-    import magbench.figures.real  # noqa: F401  (the slow import, while the parent works)
+    import magbench.figures.calibration  # noqa: F401  (the slow import, while the parent works)
 
     try:
         job = pickle.load(sys.stdin.buffer)
