@@ -158,6 +158,9 @@ def test_the_second_round_is_skipped_on_a_full_sphere_with_the_same_choice(tmp_p
     assert fitted == set(FIRST_ROUND)                      # the iterative ones were not fitted
     assert "not fitted: " in out and "magical" in out.split("not fitted: ")[1].split("\n")[0]
     assert auto["method"] == every["method"] and auto["A"] == every["A"]
+    assert set(auto["candidates"]["fitted"]) == set(FIRST_ROUND)
+    assert "magical" in auto["candidates"]["not_fitted"]
+    assert auto["candidates"]["second_round"] is None and every["candidates"]["not_fitted"] == []
 
 
 def test_a_short_recording_fits_the_second_round_and_says_why(tmp_path, capsys):
@@ -167,6 +170,8 @@ def test_a_short_recording_fits_the_second_round_and_says_why(tmp_path, capsys):
     out = capsys.readouterr().out
     fitted = set(pd.read_csv(tmp_path / "o" / "ranking.csv")["algorithm"])
     assert "second round fitted: " in out
+    data = json.loads((tmp_path / "o" / "calibration.json").read_text())
+    assert data["candidates"]["second_round"] and not data["candidates"]["not_fitted"]
     assert {"magical", "dorveaux", "crassidis"} <= fitted
 
 

@@ -68,6 +68,8 @@ def bench_report_section(results_dir: Path | str) -> str:
                          f"{format_number(getattr(r, 'peer_mean_J', np.nan))} | "
                          f"{format_number(getattr(r, 'magbench_mean_J', np.nan))} | "
                          f"{'' if pd.isna(r.note) else r.note} |")
+    if (folder / "calibrate.csv").exists():
+        lines += calibrate_lines(pd.read_csv(folder / "calibrate.csv"))
     if (folder / "parallel.csv").exists():
         par = pd.read_csv(folder / "parallel.csv")
         two = par[par["n_jobs"] == 2].iloc[0]
@@ -76,3 +78,25 @@ def bench_report_section(results_dir: Path | str) -> str:
                   f"with 1 worker and {format_number(two.wall_s)} s with 2 "
                   f"(speed-up {format_number(two.speedup, 3)}x on {os.cpu_count()} cores)."]
     return "\n".join(lines) + "\n"
+
+
+def calibrate_lines(cal: pd.DataFrame) -> list[str]:
+    """The file-to-correction table of ``calibrate.csv`` (markdown lines)."""
+    if "tool" not in cal:                      # written before the peers were timed
+        cal = cal.assign(tool="magbench calibrate")
+    K = int(cal["K"].iloc[0])
+    lines = ["", f"From file to correction on a {K}-sample recording: each tool in a fresh "
+             "interpreter, median of the runs after a warm-up run (`calibrate.csv`). "
+             "`magbench calibrate` runs its default settings: outlier screen, candidates "
+             "fitted on all samples and on each half, the choice, the intervals with their "
+             "bootstrap check, JSON, C header, ArduPilot parameters, ranking and the picture. "
+             "A peer's process is the least a user of it runs: read the file, one fit, save "
+             "the matrix and offset.", "",
+             "| tool | runs | whole process (s) | inside the command (s) |",
+             "|---|---:|---:|---:|"]
+    for tool, runs in cal.groupby("tool", sort=False):
+        inside = runs["command_s"].median()
+        lines.append(f"| {tool} | {len(runs)} | {format_number(runs['process_s'].median(), 3)} "
+                     f"| {'-' if pd.isna(inside) else format_number(inside, 3)} |")
+    return lines
+

@@ -338,14 +338,56 @@ def bench_parallel(trials: int = 250, algorithms: Sequence[str] | None = None,
     return out
 
 
-def bench_calibrate(K: int = 10_000, repeats: int = 3, seed: int = 0) -> pd.DataFrame:
-    """Wall time of ``python -m magbench calibrate`` with the default settings (picture
-    included) on a ``K``-sample synthetic recording with a counts-sized offset.
+#: The peers' side of the end-to-end comparison: what a user of each library runs on a file
+#: (read it, fit, save the correction), as a fresh interpreter like ``magbench calibrate``.
+#: ``{fit}`` must leave the correction's matrix in ``M`` and offset in ``c``.
+PEER_SCRIPT = """import json, sys
+import numpy as np
+{imports}
+y = np.loadtxt(sys.argv[1], delimiter=",", skiprows=1, usecols=(0, 1, 2))
+{fit}
+json.dump({{"M": np.asarray(M).tolist(), "c": np.asarray(c).ravel().tolist()}},
+          open(sys.argv[2], "w"))
+"""
+PEER_FILE_FITS = {  # peer -> (package, imports, fit lines)
+    "navlib.cal_mag_ellipsoid_fit_fang": (
+        "navlib", "from navlib.cal.cal_mag import cal_mag_ellipsoid_fit_fang",
+        "c, M = cal_mag_ellipsoid_fit_fang(y)[:2]"),
+    "navlib.cal_mag_twostep_hsi": (
+        "navlib", "from navlib.cal.cal_mag import cal_mag_twostep_hsi",
+        "c, M = cal_mag_twostep_hsi(y, np.array([1.0, 0.0, 0.0]))[:2]"),
+    "magcal.ellipsoid_fit": (
+        "magcal", "from magcal.core import MagnetometerCalibrator",
+        "p = MagnetometerCalibrator.ellipsoid_fit(None, y)\n"
+        "M, c = p['transform_matrix'], p['center']"),
+}
 
-    Each run is a fresh interpreter after one warm-up run (which fills the numba cache):
-    ``process_s`` is the whole process (interpreter, imports, Hydra's config), ``command_s``
-    what the command itself reports (reading, fitting, choosing, writing and drawing).
+
+def _timed_runs(command: list[str], env: dict, repeats: int) -> list[tuple[float, str]]:
+    """Wall time and stdout of ``repeats`` runs of ``command`` after one warm-up run (which
+    fills the numba and bytecode caches)."""
+    out = []
+    for run in range(repeats + 1):
+        start = time.perf_counter()
+        done = subprocess.run(command, env=env, capture_output=True, text=True, check=True)
+        if run:
+            out.append((time.perf_counter() - start, done.stdout))
+    return out
+
+
+def bench_calibrate(K: int = 10_000, repeats: int = 3, seed: int = 0) -> pd.DataFrame:
+    """Wall time from file to written correction: ``python -m magbench calibrate`` with the
+    default settings (picture included) and each installed peer library, on one ``K``-sample
+    synthetic recording with a counts-sized offset.
+
+    Every run is a fresh interpreter after one warm-up run: ``process_s`` is the whole process
+    (interpreter, imports, configuration, reading, fitting, writing); ``command_s`` what
+    ``calibrate`` itself reports (reading, fitting, choosing, writing and drawing). A peer's
+    process is the least a user of it runs (:data:`PEER_SCRIPT`): NumPy's ``loadtxt``, one fit,
+    the matrix and offset saved as JSON; no choice, verdict, exports or picture.
     """
+    from importlib.util import find_spec
+
     env = {**os.environ, "PYTHONPATH": os.pathsep.join(p for p in sys.path if p)}
     rng = np.random.default_rng(seed)
     m = rng.standard_normal((K, 3))
@@ -359,13 +401,18 @@ def bench_calibrate(K: int = 10_000, repeats: int = 3, seed: int = 0) -> pd.Data
             path, index=False)
         command = [sys.executable, "-m", "magbench", "calibrate", f"file={path}",
                    f"out={Path(tmp) / 'out'}", "progress=false"]
-        for run in range(repeats + 1):
-            start = time.perf_counter()
-            out = subprocess.run(command, env=env, capture_output=True, text=True, check=True)
-            wall = time.perf_counter() - start
-            if run:     # the first run is the warm-up
-                reported = float(out.stdout.rsplit("(in ", 1)[1].split(" s)")[0])
-                rows.append({"K": K, "run": run, "process_s": wall, "command_s": reported})
+        for run, (wall, stdout) in enumerate(_timed_runs(command, env, repeats), 1):
+            reported = float(stdout.rsplit("(in ", 1)[1].split(" s)")[0])
+            rows.append({"tool": "magbench calibrate", "K": K, "run": run, "process_s": wall,
+                         "command_s": reported})
+        for peer, (package, imports, fit) in PEER_FILE_FITS.items():
+            if find_spec(package) is None:
+                continue
+            script = PEER_SCRIPT.format(imports=imports, fit=fit)
+            command = [sys.executable, "-c", script, str(path), str(Path(tmp) / "peer.json")]
+            for run, (wall, _) in enumerate(_timed_runs(command, env, repeats), 1):
+                rows.append({"tool": peer, "K": K, "run": run, "process_s": wall,
+                             "command_s": np.nan})
     return pd.DataFrame(rows)
 
 
@@ -392,9 +439,9 @@ def run_bench(results_dir: Path | str, names: Sequence[str] | None = None,
     write_csv_atomic(peer_install_size(), folder / "peer_install.csv")
     write_csv_atomic(cal := bench_calibrate(), folder / "calibrate.csv")
     if progress:
-        progress(f"calibrate on {cal['K'].iloc[0]} samples (default settings, picture "
-                 f"included): median {cal['command_s'].median():.2f} s in the command, "
-                 f"{cal['process_s'].median():.2f} s for the whole process")
+        for tool, runs in cal.groupby("tool", sort=False):
+            progress(f"file to correction on {runs['K'].iloc[0]} samples, {tool}: median "
+                     f"{runs['process_s'].median():.2f} s for the whole process")
     if parallel_trials:
         write_csv_atomic(bench_parallel(parallel_trials, names), folder / "parallel.csv")
     return folder
