@@ -100,6 +100,20 @@ def test_errors_are_one_line_with_status_2(args, message, tmp_path, capsys):
     assert not (tmp_path / "o.csv").exists()
 
 
+def test_an_existing_output_is_kept_unless_overwrite_is_given(tmp_path, capsys):
+    rec = save(tmp_path / "rec.csv", recording())
+    cal = write_calibration(tmp_path / "c.json")
+    out = tmp_path / "o.csv"
+    out.write_text("keep me\n")
+    assert apply(f"calibration={cal}", f"file={rec}", f"out={out}") == 2
+    assert "exists; choose another name or pass overwrite=true" in capsys.readouterr().err
+    assert out.read_text() == "keep me\n"
+    assert apply(f"calibration={cal}", f"file={rec}", f"out={rec}", "overwrite=true") == 2
+    assert "is the input file" in capsys.readouterr().err
+    assert apply(f"calibration={cal}", f"file={rec}", f"out={out}", "overwrite=true") == 0
+    assert list(pd.read_csv(out).columns) == ["t", "mx", "my", "mz"]
+
+
 def test_apply_is_in_the_help():
     assert "apply      correct a recording with a saved calibration.json" in general_help()
     text = command_help("apply")

@@ -86,6 +86,11 @@ def run_apply(cfg: DictConfig) -> int:
     if out.is_dir():
         raise UsageError(f"out={out} is a folder; expected the name of the CSV file to write, "
                          f"e.g. out={out / 'corrected.csv'}")
+    if out.exists() and out.resolve() == path.resolve():
+        raise UsageError(f"out={out} is the input file; choose another name")
+    if out.exists() and cfg.get("overwrite") is not True:
+        raise UsageError(f"out={out} exists; choose another name or pass overwrite=true to "
+                         "replace it")
     writable_folder(out.parent, "the folder of out")
     # A file without a header has no names to keep: call the axes mx, my, mz.
     names = [f"m{'xyz'[i]}" if c.startswith("column ") else c for i, c in enumerate(rec.columns)]

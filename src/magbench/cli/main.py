@@ -84,7 +84,7 @@ COMMANDS: dict[str, tuple[Callable[..., int], str, str, tuple[str, ...]]] = {
                    "options", "call_timeout_s", "plugins")),
     "apply": (_apply, "correct a recording with a saved calibration.json (m = A (y - b))",
               "python -m magbench apply calibration=cal/calibration.json file=flight.csv "
-              "out=flight-corrected.csv", ("calibration", "file", "columns", "out")),
+              "out=flight-corrected.csv", ("calibration", "file", "columns", "out", "overwrite")),
     "reproduce": (_reproduce, "every sweep at its committed size, then the report (make "
                   "reproduce); per-step times to results/bench/reproduce_times.csv",
                   "python -m magbench reproduce",
