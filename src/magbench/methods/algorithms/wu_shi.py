@@ -17,10 +17,10 @@ from dataclasses import dataclass
 from functools import partial
 
 import numpy as np
-from numba import njit
 
 from magbench.core.model import Calibration, CalibrationFailed
 from magbench.methods.algorithms._common import row_norms
+from magbench.methods.algorithms._jit import njit
 from magbench.methods.algorithms._wu_shi_init import UPPER_COLS, UPPER_ROWS, initial_estimate
 from magbench.methods.registry import register
 
@@ -48,7 +48,7 @@ class State:
 _UR, _UC = UPPER_ROWS, UPPER_COLS
 
 
-@njit(cache=True, error_model="numpy")
+@njit
 def _residuals(y: np.ndarray, T: np.ndarray, h: np.ndarray, m: np.ndarray) -> np.ndarray:
     """``r_k = u_k - T m_k`` with ``u_k = y_k - h`` (Appendix A.2), shape ``(K, 3)``."""
     K = y.shape[0]
@@ -86,7 +86,7 @@ def lagrangian(y: np.ndarray, s: State, objective_value: float | None = None) ->
     return obj + float(s.lam @ (np.einsum("ij,ij->i", s.m, s.m) - 1.0))
 
 
-@njit(cache=True, error_model="numpy")
+@njit
 def _gradient_from(r: np.ndarray, T: np.ndarray, m: np.ndarray, lam: np.ndarray
                    ) -> tuple[np.ndarray, np.ndarray]:
     """:func:`gradient` from the residuals ``r`` of :func:`_residuals`."""
@@ -105,7 +105,7 @@ def _gradient_from(r: np.ndarray, T: np.ndarray, m: np.ndarray, lam: np.ndarray
     return g_g, g_l
 
 
-@njit(cache=True, error_model="numpy")
+@njit
 def _gradient(y: np.ndarray, T: np.ndarray, h: np.ndarray, m: np.ndarray, lam: np.ndarray
               ) -> tuple[np.ndarray, np.ndarray]:
     return _gradient_from(_residuals(y, T, h, m), T, m, lam)
@@ -119,7 +119,7 @@ def gradient(y: np.ndarray, s: State) -> tuple[np.ndarray, np.ndarray]:
     return _gradient(*_arrays(y, s))
 
 
-@njit(cache=True, error_model="numpy")
+@njit
 def _coupling(T: np.ndarray, m: np.ndarray, r: np.ndarray, k: int, C: np.ndarray) -> None:
     """Write the T rows of sample k's coupling block ``H_Tm_k`` (A7) into ``C`` (6x3).
 
@@ -134,7 +134,7 @@ def _coupling(T: np.ndarray, m: np.ndarray, r: np.ndarray, k: int, C: np.ndarray
             C[e, c] = 2.0 * m[k, b] * T[a, c] - (2.0 * r[k, a] if b == c else 0.0)
 
 
-@njit(cache=True, error_model="numpy")
+@njit
 def _global_block(T: np.ndarray, m: np.ndarray) -> np.ndarray:
     """The global block ``[[H_TT, H_Th], [H_Th^T, H_hh]]`` of the Hessian (A5), 9x9."""
     K = m.shape[0]
@@ -159,7 +159,7 @@ def _global_block(T: np.ndarray, m: np.ndarray) -> np.ndarray:
     return A
 
 
-@njit(cache=True, error_model="numpy")
+@njit
 def _hessian_blocks(y: np.ndarray, T: np.ndarray, h: np.ndarray, m: np.ndarray
                     ) -> tuple[np.ndarray, np.ndarray]:
     K = y.shape[0]
@@ -192,7 +192,7 @@ def hessian_blocks(y: np.ndarray, s: State) -> tuple[np.ndarray, np.ndarray]:
     return _hessian_blocks(*_arrays(y, s)[:4])
 
 
-@njit(cache=True, error_model="numpy")
+@njit
 def _p_inv(V: np.ndarray, d: np.ndarray, p: np.ndarray) -> np.ndarray:
     """``P_k^-1 p_k = V diag(d_k) V^T p_k`` for ``(K, 3)`` p (see :func:`_newton`)."""
     K = p.shape[0]
@@ -205,7 +205,7 @@ def _p_inv(V: np.ndarray, d: np.ndarray, p: np.ndarray) -> np.ndarray:
     return x
 
 
-@njit(cache=True, error_model="numpy")
+@njit
 def _bordered_solve(V: np.ndarray, d: np.ndarray, w: np.ndarray, inv_gamma: np.ndarray,
                     p: np.ndarray, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """``[x; mu] = D_k^-1 [p_k; q_k]`` for ``(K, 3)`` p and ``(K,)`` q (see :func:`_newton`)."""
@@ -219,7 +219,7 @@ def _bordered_solve(V: np.ndarray, d: np.ndarray, w: np.ndarray, inv_gamma: np.n
     return x, mu
 
 
-@njit(cache=True, error_model="numpy")
+@njit
 def _newton(y: np.ndarray, T: np.ndarray, h: np.ndarray, m: np.ndarray, lam: np.ndarray
             ) -> tuple[int, np.ndarray, np.ndarray]:
     """The step of :func:`newton_step`; status 0, or 1 (singular ``D_k``), 2 (singular S).
