@@ -35,9 +35,14 @@ def quadric_design(y: np.ndarray) -> np.ndarray:
     ``Y^T Y`` has a three-dimensional null space of skew-symmetric ``A`` whose eigenvectors
     carry no information, and step 2 of Algorithm 6 would return one of them.)
     """
-    quad = y[:, UPPER_ROWS] * y[:, UPPER_COLS]
-    quad[:, UPPER_ROWS != UPPER_COLS] *= 2.0
-    return np.hstack([quad, y, np.ones((y.shape[0], 1))])
+    Y = np.empty((y.shape[0], 10), order="F")   # filled in place, a column at a time
+    for col, (a, b) in enumerate(UPPER):
+        np.multiply(y[:, a], y[:, b], out=Y[:, col])
+        if a != b:
+            Y[:, col] *= 2.0
+    Y[:, 6:9] = y
+    Y[:, 9] = 1.0
+    return Y
 
 
 def quadric_null_vector(Y: np.ndarray, method: str = "svd") -> np.ndarray:

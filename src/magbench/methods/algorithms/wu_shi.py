@@ -193,30 +193,34 @@ def hessian_blocks(y: np.ndarray, s: State) -> tuple[np.ndarray, np.ndarray]:
 
 
 @njit
-def _p_inv(V: np.ndarray, d: np.ndarray, p: np.ndarray) -> np.ndarray:
-    """``P_k^-1 p_k = V diag(d_k) V^T p_k`` for ``(K, 3)`` p (see :func:`_newton`)."""
-    K = p.shape[0]
-    x = np.zeros((K, 3))
-    for k in range(K):
-        for j in range(3):
-            t = (p[k, 0] * V[0, j] + p[k, 1] * V[1, j] + p[k, 2] * V[2, j]) * d[k, j]
-            for i in range(3):
-                x[k, i] += t * V[i, j]
-    return x
+def _p_inv(V: np.ndarray, d0: float, d1: float, d2: float, p0: float, p1: float, p2: float
+           ) -> tuple[float, float, float]:
+    """``P_k^-1 p_k = V diag(d_k) V^T p_k`` for one sample (see :func:`_newton`)."""
+    t0 = (p0 * V[0, 0] + p1 * V[1, 0] + p2 * V[2, 0]) * d0
+    t1 = (p0 * V[0, 1] + p1 * V[1, 1] + p2 * V[2, 1]) * d1
+    t2 = (p0 * V[0, 2] + p1 * V[1, 2] + p2 * V[2, 2]) * d2
+    return (t0 * V[0, 0] + t1 * V[0, 1] + t2 * V[0, 2],
+            t0 * V[1, 0] + t1 * V[1, 1] + t2 * V[1, 2],
+            t0 * V[2, 0] + t1 * V[2, 1] + t2 * V[2, 2])
 
 
 @njit
-def _bordered_solve(V: np.ndarray, d: np.ndarray, w: np.ndarray, inv_gamma: np.ndarray,
-                    p: np.ndarray, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``[x; mu] = D_k^-1 [p_k; q_k]`` for ``(K, 3)`` p and ``(K,)`` q (see :func:`_newton`)."""
-    K = p.shape[0]
-    x = _p_inv(V, d, p)
-    mu = np.empty(K)
-    for k in range(K):
-        mu[k] = (w[k, 0] * p[k, 0] + w[k, 1] * p[k, 1] + w[k, 2] * p[k, 2] - q[k]) * inv_gamma[k]
-        for i in range(3):
-            x[k, i] -= w[k, i] * mu[k]
-    return x, mu
+def _bordered_solve(V: np.ndarray, d: np.ndarray, w: np.ndarray, inv_gamma: np.ndarray, k: int,
+                    p0: float, p1: float, p2: float, q: float
+                    ) -> tuple[float, float, float, float]:
+    """``[x; mu] = D_k^-1 [p_k; q_k]`` for sample k (see :func:`_newton`)."""
+    x0, x1, x2 = _p_inv(V, d[k, 0], d[k, 1], d[k, 2], p0, p1, p2)
+    w0, w1, w2 = w[k, 0], w[k, 1], w[k, 2]
+    mu = (w0 * p0 + w1 * p1 + w2 * p2 - q) * inv_gamma[k]
+    return x0 - w0 * mu, x1 - w1 * mu, x2 - w2 * mu, mu
+
+
+@njit
+def _coupled_step(C: np.ndarray, T2: np.ndarray, dg: np.ndarray, j: int) -> float:
+    """Entry j of ``B_k^T dg`` (``m_k`` rows): ``C_k`` (6x3) and the h rows ``2 T``."""
+    return (C[0, j] * dg[0] + C[1, j] * dg[1] + C[2, j] * dg[2] + C[3, j] * dg[3]
+            + C[4, j] * dg[4] + C[5, j] * dg[5] + T2[0, j] * dg[6] + T2[1, j] * dg[7]
+            + T2[2, j] * dg[8])
 
 
 @njit
@@ -236,21 +240,28 @@ def _newton(y: np.ndarray, T: np.ndarray, h: np.ndarray, m: np.ndarray, lam: np.
     g_g, g_l = _gradient_from(r, T, m, lam)
     A = _global_block(T, m)
     eigval, V = np.linalg.eigh(T.T @ T)
+    # One pass over the samples per stage, each sample's small solves in scalars.
     d = np.empty((K, 3))
-    for k in range(K):
-        for i in range(3):
-            d[k, i] = 1.0 / (2.0 * eigval[i] + 2.0 * lam[k])
-    w = _p_inv(V, d, 2.0 * m)
+    w = np.empty((K, 3))
     inv_gamma = np.empty(K)
+    finite = True
     for k in range(K):
-        inv_gamma[k] = 1.0 / (2.0 * m[k, 0] * w[k, 0] + 2.0 * m[k, 1] * w[k, 1]
-                              + 2.0 * m[k, 2] * w[k, 2])
-    if not (np.all(np.isfinite(d)) and np.all(np.isfinite(inv_gamma))):
+        d0 = 1.0 / (2.0 * eigval[0] + 2.0 * lam[k])
+        d1 = 1.0 / (2.0 * eigval[1] + 2.0 * lam[k])
+        d2 = 1.0 / (2.0 * eigval[2] + 2.0 * lam[k])
+        w0, w1, w2 = _p_inv(V, d0, d1, d2, 2.0 * m[k, 0], 2.0 * m[k, 1], 2.0 * m[k, 2])
+        ig = 1.0 / (2.0 * m[k, 0] * w0 + 2.0 * m[k, 1] * w1 + 2.0 * m[k, 2] * w2)
+        d[k, 0], d[k, 1], d[k, 2] = d0, d1, d2
+        w[k, 0], w[k, 1], w[k, 2] = w0, w1, w2
+        inv_gamma[k] = ig
+        finite = finite and np.isfinite(d0) and np.isfinite(d1) and np.isfinite(d2) \
+            and np.isfinite(ig)
+    if not finite:
         return 1, np.zeros(9), np.zeros((K, 4))
     # S = A - sum_k C_k M_k C_k^T with M_k = P_k^-1 - w_k w_k^T / gamma_k (3x3, symmetric).
     # The h rows of every C_k are the same 2 T (A7), so only the T rows (6x3) vary with k:
     # S_TT -= sum_k C_Tk M_k C_Tk^T, S_Th -= (sum_k C_Tk M_k) 2 T^T, S_hh -= 2T (sum_k M_k) 2T^T.
-    x0, _ = _bordered_solve(V, d, w, inv_gamma, g_l[:, :3].copy(), g_l[:, 3].copy())
+    # x0_k = D_k^-1 g_k enters the reduced right-hand side.
     S_TT = np.zeros((6, 6))
     sum_CM = np.zeros((6, 3))
     sum_M = np.zeros((3, 3))
@@ -278,7 +289,8 @@ def _newton(y: np.ndarray, T: np.ndarray, h: np.ndarray, m: np.ndarray, lam: np.
         sum_M[1, 1] += M11
         sum_M[1, 2] += M12
         sum_M[2, 2] += M22
-        x00, x01, x02 = x0[k, 0], x0[k, 1], x0[k, 2]
+        x00, x01, x02, _ = _bordered_solve(V, d, w, inv_gamma, k, g_l[k, 0], g_l[k, 1],
+                                           g_l[k, 2], g_l[k, 3])
         sum_x0[0] += x00
         sum_x0[1] += x01
         sum_x0[2] += x02
@@ -316,18 +328,14 @@ def _newton(y: np.ndarray, T: np.ndarray, h: np.ndarray, m: np.ndarray, lam: np.
     if not np.all(np.isfinite(S)) or np.linalg.cond(S) > MAX_CONDITION:
         return 2, np.zeros(9), np.zeros((K, 4))
     dg = np.linalg.solve(S, reduced_rhs)
-    p = np.empty((K, 3))
+    dl = np.empty((K, 4))
     for k in range(K):
         _coupling(T, m, r, k, C)
-        for j in range(3):
-            p[k, j] = g_l[k, j] - (C[0, j] * dg[0] + C[1, j] * dg[1] + C[2, j] * dg[2]
-                                   + C[3, j] * dg[3] + C[4, j] * dg[4]
-                                   + C[5, j] * dg[5] + T2[0, j] * dg[6]
-                                   + T2[1, j] * dg[7] + T2[2, j] * dg[8])
-    dm, dlam = _bordered_solve(V, d, w, inv_gamma, p, g_l[:, 3].copy())
-    dl = np.empty((K, 4))
-    dl[:, :3] = dm
-    dl[:, 3] = dlam
+        p0 = g_l[k, 0] - _coupled_step(C, T2, dg, 0)
+        p1 = g_l[k, 1] - _coupled_step(C, T2, dg, 1)
+        p2 = g_l[k, 2] - _coupled_step(C, T2, dg, 2)
+        dl[k, 0], dl[k, 1], dl[k, 2], dl[k, 3] = _bordered_solve(V, d, w, inv_gamma, k, p0, p1,
+                                                                 p2, g_l[k, 3])
     return 0, dg, dl
 
 
