@@ -11,6 +11,7 @@ from magbench.core.metrics import (
     real_cost,
     summarize,
     trivial_cost,
+    trivial_estimate,
 )
 
 
@@ -78,3 +79,13 @@ def test_summarize_counts_only_meaningful_runs():
     assert s.loc["a", "speed_hz"] == pytest.approx(5.0)
     assert s.loc["b", "RB_pct"] == 0.0 and np.isnan(s.loc["b", "rho"])
     assert s.loc["b", "n"] == 2 and s.loc["b", "n_meaningful"] == 0
+
+
+def test_trivial_estimate_is_mean_and_mean_distance_with_its_real_cost():
+    y = np.array([[3.0, 1, 0], [-1, 1, 0], [1, 3, 0], [1, -1, 0], [1, 1, 3], [1, 1, -3]])
+    T, h, J = trivial_estimate(y)
+    r = 14.0 / 6.0                          # distances 2, 2, 2, 2, 3, 3 from the mean
+    assert np.allclose(h, [1.0, 1.0, 0.0]) and np.allclose(T, r * np.eye(3))
+    assert J == pytest.approx(real_cost(y, T, h), rel=1e-12)
+    centred = y - h
+    assert trivial_estimate(y, h, centred)[2] == J

@@ -48,6 +48,17 @@ def test_is_finite_flags_nan_and_singular():
     assert not Calibration(np.diag([1.0, 1.0, 0.0]), np.zeros(3)).is_finite
 
 
+@pytest.mark.parametrize(("smallest", "finite"), [(1.0, True), (1e-6, True), (2e-12, True),
+                                                  (5e-13, False), (1e-13, False)])
+def test_is_finite_is_the_condition_number_rule(smallest, finite):
+    """cond(T) < 1e12, whichever of the scalar bound and np.linalg.cond decides."""
+    rng = np.random.default_rng(0)
+    Q = np.linalg.qr(rng.normal(size=(3, 3)))[0]
+    T = Q @ np.diag([1.0, 0.5, smallest])
+    assert Calibration(T, np.zeros(3)).is_finite is finite
+    assert Calibration(T, [0.0, np.inf, 0.0]).is_finite is False
+
+
 @pytest.mark.parametrize(
     ("samples", "message"),
     [

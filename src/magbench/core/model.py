@@ -14,6 +14,7 @@ that ``T`` carries removed.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -78,8 +79,17 @@ class Calibration:
     @property
     def is_finite(self) -> bool:
         """True when T and h are finite and T is numerically invertible."""
-        if not (np.all(np.isfinite(self.T)) and np.all(np.isfinite(self.h))):
+        (a, b, c), (d, e, f), (g, p, q) = self.T.tolist()
+        if not all(math.isfinite(v) for v in (a, b, c, d, e, f, g, p, q, *self.h.tolist())):
             return False
+        # cond(T) = s_max / s_min <= ||T||_F^3 / |det T|, since s_min = |det T| / (s_max s_mid)
+        # >= |det T| / s_max^2 and s_max <= ||T||_F: a bound from scalar arithmetic that
+        # settles every well-conditioned T (cond below ~1e5) without the SVD of np.linalg.cond.
+        # Its margin (1e11, not 1e12) covers the rounding of det near the threshold.
+        det = a * (e * q - f * p) - b * (d * q - f * g) + c * (d * p - e * g)
+        frob = math.sqrt(a * a + b * b + c * c + d * d + e * e + f * f + g * g + p * p + q * q)
+        if frob ** 3 < 1e11 * abs(det):
+            return True
         return bool(np.linalg.cond(self.T) < 1e12)
 
     def apply(self, samples: np.ndarray) -> np.ndarray:
@@ -201,13 +211,16 @@ def as_samples(samples: object, *, min_samples: int = 1, name: str = "samples") 
                          f"got shape {y.shape}")
     if y.shape[0] < min_samples:
         raise ValueError(f"{name} has K={y.shape[0]} rows; at least {min_samples} are needed")
-    bad = ~np.isfinite(y).all(axis=1)
-    if bad.any():
+    # max and min propagate NaN and reach +-inf, so finite extremes prove every value finite
+    # (one pass each instead of a (K, 3) mask); the mask is built only to name bad rows.
+    top, bottom = (float(np.max(y)), float(np.min(y))) if y.size else (0.0, 0.0)
+    if not (math.isfinite(top) and math.isfinite(bottom)):
+        bad = ~np.isfinite(y).all(axis=1)
         rows = np.flatnonzero(bad)
         shown = ", ".join(str(r) for r in rows[:5]) + (", ..." if rows.size > 5 else "")
         raise ValueError(f"{name} contains NaN or infinite values in {rows.size} row(s) "
                          f"(rows {shown}); drop or repair them before calibrating")
-    check_magnitude(y, name)
+    check_magnitude(y, name, top=max(top, -bottom))
     return y
 
 
@@ -216,10 +229,19 @@ def as_samples(samples: object, *, min_samples: int = 1, name: str = "samples") 
 MAGNITUDE_RANGE = (1e-150, 1e150)
 
 
-def check_magnitude(y: np.ndarray, name: str = "samples") -> None:
+def check_magnitude(y: np.ndarray, name: str = "samples", *, top: float | None = None) -> None:
     """Refuse samples whose magnitude no fit can square in float64 (one clear line).
 
     All-zero samples pass here; :func:`magbench.methods.api.unit_scale` names them.
+
+    Parameters
+    ----------
+    y : ndarray
+        The samples.
+    name : str
+        What to call them in the error message.
+    top : float, optional
+        The largest absolute value of ``y``, if the caller has it already (:func:`as_samples`).
 
     Raises
     ------
@@ -227,8 +249,9 @@ def check_magnitude(y: np.ndarray, name: str = "samples") -> None:
         If the largest absolute value is above 1e150 or below 1e-150 (but not zero).
     """
     low, high = MAGNITUDE_RANGE
-    # max and -min instead of abs: no temporary copy of a long recording.
-    top = max(float(np.max(y)), -float(np.min(y))) if y.size else 0.0
+    if top is None:
+        # max and -min instead of abs: no temporary copy of a long recording.
+        top = max(float(np.max(y)), -float(np.min(y))) if y.size else 0.0
     if top > high or 0.0 < top < low:
         raise ValueError(f"{name} reach a largest magnitude of {top:.3g}, outside the range "
                          f"magbench can calibrate ({low:g} to {high:g}, where squares stay "

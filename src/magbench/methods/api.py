@@ -14,7 +14,7 @@ import math
 
 import numpy as np
 
-from magbench.core.metrics import real_cost, trivial_estimate
+from magbench.core.metrics import real_cost, sample_mean, trivial_estimate
 from magbench.core.model import Calibration, CalibrationFailed, as_samples
 from magbench.methods.registry import get_method
 
@@ -30,7 +30,8 @@ def unit_scale(y: np.ndarray) -> float:
     review's setting) pass through bit for bit, and data in any unit (counts, nT, gauss) reach
     the methods at the scale their tolerances and initial guesses assume.
     """
-    rms = float(np.sqrt(np.mean(np.einsum("ij,ij->i", y, y))))
+    flat = np.ravel(y)
+    rms = math.sqrt(float(flat @ flat) / y.shape[0]) if y.shape[0] else 0.0
     if not rms > 0.0 or not math.isfinite(rms):
         raise ValueError("samples are all zero (or overflow); a magnetic field of non-zero "
                          "magnitude is expected")
@@ -53,13 +54,27 @@ def _distinct_rows(y: np.ndarray) -> int:
     return 1 + int(np.count_nonzero(np.any(rows[1:] != rows[:-1], axis=1)))
 
 
-def _check_geometry(y: np.ndarray, min_samples: int) -> None:
-    """Reject data from which no 3-D ellipsoid can be determined (one clear line each)."""
+def _check_geometry(y: np.ndarray, min_samples: int, centred: np.ndarray | None = None) -> None:
+    """Reject data from which no 3-D ellipsoid can be determined (one clear line each).
+
+    ``centred`` is ``y`` minus its mean, if the caller has it already.
+    """
     distinct = _distinct_rows(y)
     if distinct < min_samples:
         raise ValueError(f"samples hold only {distinct} distinct measurements; at least "
                          f"{min_samples} are needed")
-    spread = np.linalg.svd(y - y.mean(axis=0), compute_uv=False)
+    yc = y - sample_mean(y) if centred is None else centred
+    # Screen first: the eigenvalues of the Gram matrix G = Yc^T Yc are the squared singular
+    # values, and lambda_min / lambda_max >= det G / (trace G)^3 (lambda_min >= det / trace^2,
+    # lambda_max <= trace). Above 1e-6 the smallest singular value is at least 1e-3 of the
+    # largest, far from the 1e-9 thresholds below, whatever the rounding of G (~1e-13 of
+    # trace^3), so the SVD is needed only for nearly flat data and keeps its exact meaning.
+    (g00, g01, g02), (_, g11, g12), (_, _, g22) = (yc.T @ yc).tolist()
+    det = (g00 * (g11 * g22 - g12 * g12) - g01 * (g01 * g22 - g12 * g02)
+           + g02 * (g01 * g12 - g11 * g02))
+    if det >= 1e-6 * (g00 + g11 + g22) ** 3 > 0.0:
+        return
+    spread = np.linalg.svd(yc, compute_uv=False)
     if spread[2] <= 1e-9 * spread[0]:
         shape = "collinear" if spread[1] <= 1e-9 * spread[0] else "coplanar"
         raise ValueError(f"samples are {shape} (singular values of the centred data "
@@ -109,7 +124,10 @@ def calibrate(samples: object, method: str, *, angular_rate: object = None,
         # its data must reach it unscaled.
         scale = 1.0
     y = y / scale
-    _check_geometry(y, spec.min_samples)
+    # The centred samples serve both the geometry check and the trivial estimate's J_r.
+    mean = sample_mean(y)
+    centred = y - mean
+    _check_geometry(y, spec.min_samples, centred)
     if spec.randomized and not isinstance(options.get("rng"), np.random.Generator):
         options["rng"] = np.random.default_rng(options.get("rng", 0))
     extra: dict[str, object] = {}
@@ -128,7 +146,7 @@ def calibrate(samples: object, method: str, *, angular_rate: object = None,
                                 f"({cal.message or 'no message'})")
     converged, message = cal.converged, cal.message
     if converged:
-        fit_cost, trivial = _residual_against_trivial(y, cal, spec.model)
+        fit_cost, trivial = _residual_against_trivial(y, cal, spec.model, mean, centred)
         if fit_cost > trivial * (1 + 1e-9) + 1e-12:
             converged = False
             message = (f"{method}: residual J_r (81) {fit_cost:.3g} is above the trivial "
@@ -138,17 +156,19 @@ def calibrate(samples: object, method: str, *, angular_rate: object = None,
                        cal.gyro_bias)
 
 
-def _residual_against_trivial(y: np.ndarray, cal: Calibration,
-                              model: str) -> tuple[float, float]:
+def _residual_against_trivial(y: np.ndarray, cal: Calibration, model: str,
+                              mean: np.ndarray | None = None,
+                              centred: np.ndarray | None = None) -> tuple[float, float]:
     """J_r (81) of ``cal`` and of the trivial estimate on the same samples.
 
     A method that claims convergence must fit the data at least as well as no fit at all
     (:func:`magbench.core.metrics.trivial_estimate`); a bias-only method, whose scale is an
     input, is held to the trivial centre at its own scale. The tolerance (1e-9 relative,
     1e-12 absolute: a field error of 1e-6) keeps exact fits of noise-free data, whose costs
-    are both rounding, from being flagged.
+    are both rounding, from being flagged. ``mean`` and ``centred`` (``y - mean``) are passed
+    on to the trivial estimate when the caller has them.
     """
-    T0, h0 = trivial_estimate(y)
+    _, h0, trivial = trivial_estimate(y, mean, centred)
     if model == "bias":
-        T0 = cal.T
-    return real_cost(y, cal.T, cal.h), real_cost(y, T0, h0)
+        trivial = real_cost(y, cal.T, h0)
+    return real_cost(y, cal.T, cal.h), trivial

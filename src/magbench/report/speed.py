@@ -47,7 +47,8 @@ def bench_report_section(results_dir: Path | str) -> str:
         first = pd.read_csv(folder / "first_calls.csv")
         lines += ["", "First call in a fresh process (not in the medians above): with an empty "
                   "numba cache the method's loops are compiled; with the on-disk cache they are "
-                  "loaded, which every sweep worker pays once.", "",
+                  "loaded, which every sweep worker pays once. Both include importing numba, "
+                  "which the first compiled loop called in a process does.", "",
                   "| method | compile (ms) | cached first call (ms) | next call (ms) |",
                   "|---|---:|---:|---:|"]
         for r in first.itertuples(index=False):

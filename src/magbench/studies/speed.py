@@ -130,7 +130,9 @@ def bench_first_calls(names: Sequence[str],
     the first compiles the method's loops (``compile_s``, what a machine pays once after
     installing or changing the code), the second loads them from the on-disk cache
     (``cached_first_s``, what every sweep worker pays once). ``import_s`` is the import of the
-    methods (numba included); ``second_s`` is the following, steady-state call.
+    methods, which no longer imports numba: numba is imported by the first call of a compiled
+    loop (``methods/algorithms/_jit.py``), so for a numba method both first-call columns include
+    numba's import (~0.1 s). ``second_s`` is the following, steady-state call.
     """
     env = {**os.environ, "PYTHONPATH": os.pathsep.join(p for p in sys.path if p)}
     for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):

@@ -1,9 +1,8 @@
 """Small numerical pieces shared by several methods.
 
-The iterative methods run their loops compiled with numba, as
-``@njit(cache=True, error_model="numpy")``: the machine code is cached on disk next to the source,
-so a process compiles, or loads, each loop once, and a division by zero gives inf or NaN as in
-NumPy (the methods' failure checks expect that) instead of raising ZeroDivisionError.
+The iterative methods run their loops compiled with numba, declared with
+:func:`magbench.methods.algorithms._jit.njit` (numba's ``njit(cache=True, error_model="numpy")``,
+with numba imported on the first call of a compiled loop, not on import).
 :func:`fit_affine` is written as explicit loops so that it can be called from those compiled
 loops as well as from Python.
 """
@@ -11,10 +10,11 @@ loops as well as from Python.
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+
+from magbench.methods.algorithms._jit import njit
 
 
-@njit(cache=True, error_model="numpy")
+@njit
 def fit_affine(X: np.ndarray, Y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Least-squares ``A, b`` minimising ``sum_k ||A x_k + b - y_k||^2``.
 

@@ -9,8 +9,9 @@ is the unit-sphere image, and ``R = chol(A)``, ``h = -A^-1 b / 2``.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
-from scipy.linalg import solve_triangular
 
 from magbench.core.model import CalibrationFailed
 
@@ -34,9 +35,14 @@ def quadric_design(y: np.ndarray) -> np.ndarray:
     ``Y^T Y`` has a three-dimensional null space of skew-symmetric ``A`` whose eigenvectors
     carry no information, and step 2 of Algorithm 6 would return one of them.)
     """
-    quad = y[:, UPPER_ROWS] * y[:, UPPER_COLS]
-    quad[:, UPPER_ROWS != UPPER_COLS] *= 2.0
-    return np.hstack([quad, y, np.ones((y.shape[0], 1))])
+    Y = np.empty((y.shape[0], 10), order="F")   # filled in place, a column at a time
+    for col, (a, b) in enumerate(UPPER):
+        np.multiply(y[:, a], y[:, b], out=Y[:, col])
+        if a != b:
+            Y[:, col] *= 2.0
+    Y[:, 6:9] = y
+    Y[:, 9] = 1.0
+    return Y
 
 
 def quadric_null_vector(Y: np.ndarray, method: str = "svd") -> np.ndarray:
@@ -52,15 +58,40 @@ def quadric_null_vector(Y: np.ndarray, method: str = "svd") -> np.ndarray:
         ``"eigh"`` is the paper's literal form, the eigen-decomposition of ``Y^T Y``.
     """
     if method == "svd":
-        return np.linalg.svd(Y, full_matrices=False)[2][-1]
+        # Y = Q R (Householder, backward stable) has the right singular vectors of R: the SVD
+        # of the 10x10 R instead of the (K, 10) Y, whose left singular vectors numpy would
+        # compute and discard (half the cost of a K = 10 000 fit).
+        return np.linalg.svd(np.linalg.qr(Y, mode="r"))[2][-1]
     if method == "eigh":
         return np.linalg.eigh(Y.T @ Y)[1][:, 0]
     raise ValueError(f"method must be 'svd' or 'eigh', got {method!r}")
 
 
 def upper_inverse(U: np.ndarray) -> np.ndarray:
-    """Inverse of an upper-triangular 3x3 matrix, exactly upper triangular."""
-    return solve_triangular(U, np.eye(3), lower=False)
+    """Inverse of an upper-triangular 3x3 matrix, exactly upper triangular.
+
+    Back substitution ``U X = I`` column by column, written out: the LAPACK call it replaces
+    (``scipy.linalg.solve_triangular``) cost more in call overhead than in arithmetic and made
+    importing the methods import scipy. It raises as that call did.
+
+    Raises
+    ------
+    ValueError
+        If ``U`` holds NaN or infinite values.
+    numpy.linalg.LinAlgError
+        If a diagonal entry is zero.
+    """
+    (u00, u01, u02), (_, u11, u12), (_, _, u22) = np.asarray(U, dtype=float).tolist()
+    if not all(math.isfinite(v) for v in (u00, u01, u02, u11, u12, u22)):
+        raise ValueError("array must not contain infs or NaNs")
+    for i, diagonal in enumerate((u00, u11, u22)):
+        if diagonal == 0.0:
+            raise np.linalg.LinAlgError(f"singular matrix: resolution failed at diagonal {i}")
+    i00, i11, i22 = 1.0 / u00, 1.0 / u11, 1.0 / u22
+    i12 = -(u12 * i22) / u11
+    i01 = -(u01 * i11) / u00
+    i02 = -(u01 * i12 + u02 * i22) / u00
+    return np.array([[i00, i01, i02], [0.0, i11, i12], [0.0, 0.0, i22]])
 
 
 def initial_estimate(samples: np.ndarray, *, null_vector: str = "svd", t0_form: str = "inverse",

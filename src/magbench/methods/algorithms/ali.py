@@ -69,9 +69,9 @@ the default 0.25 (and 92 % meaningful at beta = 0.5 against 72 % with 0.5).
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
 
 from magbench.core.model import Calibration
+from magbench.methods.algorithms._jit import njit
 from magbench.methods.registry import register
 
 #: (inertia w, cognitive c1, social c2, default velocity clamp) of the two PSO settings.
@@ -99,7 +99,7 @@ def monomials(samples: np.ndarray) -> np.ndarray:
                             2 * y2 * y3, 2 * y1, 2 * y2, 2 * y3, np.ones_like(y1)])
 
 
-@njit(cache=True, error_model="numpy")
+@njit
 def quadric_coefficients(swarm: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Unscaled quadric coefficients of every particle and ``det(T)^2``.
 
@@ -142,7 +142,7 @@ def quadric_coefficients(swarm: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return c, det2
 
 
-@njit(cache=True, error_model="numpy")
+@njit
 def swarm_fitness(swarm: np.ndarray, Rt: np.ndarray, d: np.ndarray, floor: float
                   ) -> np.ndarray:
     """J (45) of every particle by the QR reduction of the module notes; ``inf`` if T is singular.
@@ -188,7 +188,7 @@ class SwarmFitness:
                              self.floor)
 
 
-@njit(cache=True, error_model="numpy")
+@njit
 def swarm_step(x: np.ndarray, v: np.ndarray, p: np.ndarray, p_fit: np.ndarray,
                g: np.ndarray, g_fit: float, r: np.ndarray, w: float, c1: float, c2: float,
                clamp: float, low: np.ndarray, high: np.ndarray, Rt: np.ndarray,
@@ -324,7 +324,7 @@ def fit(samples: np.ndarray, *, rng: np.random.Generator, n_particles: int = 40,
 _STOP_CAP, _STOP_TOL, _STOP_STAGNATION = 0, 1, 2
 
 
-@njit(cache=True, error_model="numpy")
+@njit
 def run_swarm(rng: np.random.Generator, x: np.ndarray, v: np.ndarray, p: np.ndarray,
               p_fit: np.ndarray, g: np.ndarray, g_fit: float, w: float, c1: float, c2: float,
               clamp: float, low: np.ndarray, high: np.ndarray, Rt: np.ndarray, d: np.ndarray,

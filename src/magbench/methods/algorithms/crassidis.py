@@ -24,10 +24,10 @@ from __future__ import annotations
 from functools import partial
 
 import numpy as np
-from numba import njit
 
 from magbench.core.geometry import sphere_fit
 from magbench.core.model import Calibration, CalibrationFailed
+from magbench.methods.algorithms._jit import njit
 from magbench.methods.algorithms._twostep_model import (
     SYM_COLS,
     SYM_ROWS,
@@ -178,7 +178,7 @@ def run_filter(y: np.ndarray, theta: np.ndarray, P: np.ndarray, sigma: float,
     return theta, P
 
 
-@njit(cache=True, error_model="numpy")
+@njit
 def _filter_loop(y: np.ndarray, G: np.ndarray, minus_2G: np.ndarray, theta: np.ndarray,
                  P: np.ndarray, a: float, c: float, passes: int) -> None:
     """The per-sample updates (18) of :func:`run_filter`, compiled; ``theta, P`` in place.

@@ -8,14 +8,14 @@ their own normalised directions (25), applies it (26) and accumulates it into th
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
 
 from magbench.core.model import Calibration
 from magbench.methods.algorithms._common import fit_affine
+from magbench.methods.algorithms._jit import njit
 from magbench.methods.registry import register
 
 
-@njit(cache=True, error_model="numpy")
+@njit
 def iterate(y: np.ndarray, max_iter: int, tol: float
             ) -> tuple[np.ndarray, np.ndarray, int, float]:
     """Algorithm 3's loop (24)-(29), compiled: the accumulated map ``A~, B~`` (28).

@@ -8,14 +8,14 @@ field directions fixed, and the re-normalisation of the directions ``m_k = T^-1 
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
 
 from magbench.core.model import Calibration
 from magbench.methods.algorithms._common import fit_affine
+from magbench.methods.algorithms._jit import njit
 from magbench.methods.registry import register
 
 
-@njit(cache=True, error_model="numpy")
+@njit
 def cost(m_tilde: np.ndarray) -> float:
     """J(T, h) of eq. (65): ``sum_k (||m~_k||^2 - 1)^2``."""
     total = 0.0
@@ -25,7 +25,7 @@ def cost(m_tilde: np.ndarray) -> float:
     return total
 
 
-@njit(cache=True, error_model="numpy")
+@njit
 def iterate(y: np.ndarray, max_iter: int, tol: float, rtol: float, xtol: float = 0.0
             ) -> tuple[np.ndarray, np.ndarray, int, bool, float]:
     """Algorithm 7's loop (59)-(65), compiled.

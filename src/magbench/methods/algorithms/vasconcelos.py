@@ -27,10 +27,10 @@ from __future__ import annotations
 from functools import partial
 
 import numpy as np
-from numba import njit
 
 from magbench.core.model import Calibration, CalibrationFailed
 from magbench.methods.algorithms._common import row_norms
+from magbench.methods.algorithms._jit import njit
 from magbench.methods.registry import register
 
 SAFEGUARDS = ("none", "lm")
@@ -161,7 +161,7 @@ def gradient_hessian(x: np.ndarray, y: np.ndarray,
                              np.ascontiguousarray(y, dtype=np.float64), float(sigma))
 
 
-@njit(cache=True, error_model="numpy")
+@njit
 def _gradient_hessian(T_hat: np.ndarray, h: np.ndarray, y: np.ndarray,
                       sigma: float) -> tuple[float, np.ndarray, np.ndarray]:
     # One compiled pass over the samples accumulates the sums that (A1)-(A3) need, with
