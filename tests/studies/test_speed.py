@@ -91,6 +91,29 @@ def test_install_size_of_a_missing_peer_is_recorded_as_unknown(monkeypatch):
 
 
 def test_bench_calibrate_reads_the_commands_own_time_from_fresh_processes():
+    from importlib.util import find_spec
+
     out = bench.bench_calibrate(K=300, repeats=1)
-    assert out[["K", "run"]].values.tolist() == [[300, 1]]
-    assert 0 < out["command_s"].iloc[0] < out["process_s"].iloc[0]
+    ours = out[out["tool"] == "magbench calibrate"]
+    assert ours[["K", "run"]].values.tolist() == [[300, 1]]
+    assert 0 < ours["command_s"].iloc[0] < ours["process_s"].iloc[0]
+    installed = [p for p, (pkg, _, _) in bench.PEER_FILE_FITS.items() if find_spec(pkg)]
+    peers = out[out["tool"] != "magbench calibrate"]
+    assert peers["tool"].tolist() == installed                  # one run each, in order
+    assert (peers["process_s"] > 0).all() and peers["command_s"].isna().all()
+
+
+def test_the_peer_script_reads_the_file_fits_and_saves(tmp_path):
+    import json
+    import subprocess
+    import sys
+
+    y = np.random.default_rng(0).standard_normal((50, 3)) + [5.0, -2.0, 1.0]
+    pd.DataFrame(y, columns=["mx", "my", "mz"]).assign(t=0.0).to_csv(tmp_path / "f.csv",
+                                                                     index=False)
+    script = bench.PEER_SCRIPT.format(imports="", fit="c = y.mean(axis=0); M = 2 * np.eye(3)")
+    subprocess.run([sys.executable, "-c", script, str(tmp_path / "f.csv"),
+                    str(tmp_path / "o.json")], check=True)
+    saved = json.loads((tmp_path / "o.json").read_text())
+    np.testing.assert_allclose(saved["c"], y.mean(axis=0), rtol=1e-12)
+    assert saved["M"] == (2 * np.eye(3)).tolist()

@@ -7,6 +7,7 @@ needs no ``+``).
 
 from __future__ import annotations
 
+import gc
 import os
 import re
 import signal
@@ -210,7 +211,14 @@ def _plain_keys(args: list[str]) -> list[str]:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Entry point of ``python -m magbench`` and the ``magbench`` script."""
+    """Entry point of ``python -m magbench`` and the ``magbench`` script.
+
+    Called as a process's entry point (``argv`` None: the arguments are ``sys.argv``), it
+    freezes the garbage collector's objects when the command is done, so that the
+    interpreter's exit does not collect the ~70 000 objects of pandas, Hydra and the study
+    once more (0.1 s of ``calibrate``'s 1 s, measured). Called with ``argv`` (tests, a host
+    program), it does not: frozen objects are never collected.
+    """
     try:
         return _main(argv)
     except BrokenPipeError:
@@ -218,6 +226,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         # Point stdout at /dev/null so the interpreter's final flush cannot raise again.
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 128 + signal.SIGPIPE
+    finally:
+        if argv is None:
+            gc.freeze()
 
 
 def _start_picture() -> PictureWorker | None:

@@ -16,6 +16,7 @@ the end of its input and exits.
 
 from __future__ import annotations
 
+import gc
 import os
 import pickle
 import subprocess
@@ -103,6 +104,7 @@ def _serve() -> int:
     except EOFError:
         return 0          # the command ended without a picture to draw
     draw_picture(job)
+    gc.freeze()           # the parent waits for this exit: skip the final walk of matplotlib
     return 0
 
 
