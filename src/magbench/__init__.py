@@ -11,9 +11,9 @@ Overview and Comparison", Sensors 2021, 21, 5288, and goes beyond it.
 
 from importlib import import_module
 
-# Eager, because ``magbench.methods`` is both this function and a subpackage: importing the
-# subpackage binds its name here, and only an import that runs after it can rebind the function.
-from magbench.methods.registry import get_method, methods, register
+# ``methods`` is the subpackage, which is callable: ``magbench.methods()`` lists the names.
+from magbench import methods
+from magbench.methods.registry import get_method, register
 
 __all__ = ["Calibration", "CalibrationFailed", "MagCalibrator", "calibrate", "get_method",
            "methods", "register"]

@@ -73,3 +73,17 @@ def test_duplicates_and_zeros_are_rejected(nominal):
 def test_registering_twice_is_an_error():
     with pytest.raises(ValueError, match="registered twice"):
         register("magical", label="x", min_samples=4)(lambda y: None)
+
+
+def test_the_methods_package_is_callable_and_importable_by_dotted_path():
+    import subprocess
+    import sys
+
+    code = ("import magbench, sys; names = magbench.methods(); "
+            "import magbench.methods.algorithms.wu_shi as w; "
+            "from magbench.methods.registry import methods; "
+            "print(names == methods(), w.__name__, 'pandas' in sys.modules)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         check=True).stdout.split()
+    # the list of names, the subpackage by its dotted path, and pandas still not loaded
+    assert out == ["True", "magbench.methods.algorithms.wu_shi", "False"]
