@@ -20,10 +20,9 @@ import pytest
 
 from magbench.cli import main
 from magbench.core.geometry import fibonacci_sphere
-from magbench.methods.registry import _REGISTRY, unregister
+from tests.engine.conftest import FAULTY
 
 REPO = Path(__file__).resolve().parents[2]
-FAULTY = "tests.plugins.faulty"
 
 
 def recordings(root: Path) -> Path:
@@ -55,16 +54,6 @@ def kind_args(kind: str, tmp_path: Path) -> tuple[list[str], str, str]:
 
 
 KINDS = ["review", "gyro", "wushi", "real"]
-
-
-@pytest.fixture
-def faulty():
-    import tests.plugins.faulty  # noqa: F401
-
-    yield
-    for name in [n for n in _REGISTRY if n.startswith("faulty_")]:
-        unregister(name)
-    sys.modules.pop(FAULTY, None)
 
 
 def table(folder: Path, name: str) -> pd.DataFrame:
