@@ -13,23 +13,11 @@ import pandas as pd
 import pytest
 
 from magbench.engine.sweep import run_study
-from magbench.methods.registry import _REGISTRY, unregister
 from magbench.sources.synthetic import Point
 from magbench.studies.review import ReviewStudy, read_trials
+from tests.engine.conftest import FAULTY
 
 REPO = Path(__file__).resolve().parents[2]
-FAULTY = "tests.plugins.faulty"
-
-
-@pytest.fixture
-def faulty():
-    """Register the fault-injecting methods for one test, and remove them afterwards."""
-    import tests.plugins.faulty  # noqa: F401
-
-    yield
-    for name in [n for n in _REGISTRY if n.startswith("faulty_")]:
-        unregister(name)
-    sys.modules.pop(FAULTY, None)
 
 
 def run_sweep(study: ReviewStudy, out_dir, **kw) -> tuple[pd.DataFrame, pd.DataFrame]:
@@ -126,9 +114,7 @@ def test_a_killed_sweep_leaves_no_worker_process_behind(tmp_path):
 
 def test_dask_backend_gives_the_same_rows(tmp_path):
     pytest.importorskip("distributed")
-    # No 0.5 s limit here: a compiled method's first call in a fresh Dask worker imports numba
-    # and loads its cached loop (0.4-0.5 s with two threads at once), which is not a hang.
-    s = spec(["magical", "dorveaux"], trials=6, plugins=(), call_timeout_s=60)
+    s = spec(["magical", "dorveaux"], trials=6, plugins=())
     local, _ = run_sweep(s, tmp_path / "local", n_jobs=1, chunk_size=2)
     dask, _ = run_sweep(s, tmp_path / "dask", n_jobs=2, chunk_size=2, backend="dask")
     pd.testing.assert_frame_equal(local.drop(columns="time_s"), dask.drop(columns="time_s"))

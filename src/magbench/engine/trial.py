@@ -155,8 +155,10 @@ def run_method(name: str, fit: Callable[[dict], Calibration], *,
         Never raises for a failure of the method: any ``Exception`` becomes the reason.
     """
     opts = dict(options or {})
-    if get_method(name).randomized and "rng" not in opts:
+    spec = get_method(name)
+    if spec.randomized and "rng" not in opts:
         opts["rng"] = rng(seed, *stream, name, *stream_tail)
+    spec.prepare()          # numba's import is a worker's start-up, not part of the timed call
     start = time.perf_counter()
     try:
         with time_limit(call_timeout_s):

@@ -41,6 +41,13 @@ class Method:
     paper_key: str | None = None
     model: str = "full"
 
+    def prepare(self) -> None:
+        """Load what the method's first call would load, so that a timed call does not pay
+        it: numba and the compiled loops, for a method that has them (nothing otherwise)."""
+        from magbench.methods.algorithms._jit import load_for
+
+        load_for(self.fit)
+
     def option_names(self) -> list[str]:
         """Keyword options the method's ``fit`` accepts (its tuning values)."""
         return list(_keyword_only(self.fit))

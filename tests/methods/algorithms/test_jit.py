@@ -41,3 +41,18 @@ def test_a_compiled_loop_calling_another_works_after_the_lazy_import():
         "print(before, after, accuracy_cost(cal.T, cal.h, d.T, d.h)[0])")
     assert before == "True" and after == "True"
     assert float(J) < 1e-6
+
+
+def test_prepare_loads_numba_for_a_compiled_method_only():
+    """What the engine calls before timing a call: a closed form loads nothing, a compiled
+    method (here a printed variant, registered as a partial) loads numba and rebinds every
+    placeholder, so that its callees are dispatchers before any thread compiles."""
+    closed, compiled, rebound = run_fresh(
+        "import sys\n"
+        "from magbench.methods.registry import get_method\n"
+        "get_method('fang').prepare()\n"
+        "closed = 'numba' in sys.modules\n"
+        "get_method('wu_shi_printed').prepare()\n"
+        "from magbench.methods.algorithms import _common, _jit\n"
+        "print(closed, 'numba' in sys.modules, not isinstance(_common.fit_affine, _jit.LazyLoop))")
+    assert (closed, compiled, rebound) == ("False", "True", "True")

@@ -19,10 +19,11 @@ after that are compiled directly.
 from __future__ import annotations
 
 import functools
+import threading
 from collections.abc import Callable
 from typing import Any
 
-__all__ = ["OPTIONS", "LazyLoop", "njit"]
+__all__ = ["OPTIONS", "LazyLoop", "load", "load_for", "njit"]
 
 #: The one set of options every compiled loop uses.
 OPTIONS: dict[str, Any] = {"cache": True, "error_model": "numpy"}
@@ -30,6 +31,10 @@ OPTIONS: dict[str, Any] = {"cache": True, "error_model": "numpy"}
 _pending: list[LazyLoop] = []
 _namespaces: list[dict[str, Any]] = []
 _numba_jit: Callable[..., Any] | None = None
+#: True once every placeholder is rebound; set last, under the lock, so that no thread calls a
+#: dispatcher whose callees are still placeholders in a module's globals.
+_ready = False
+_lock = threading.Lock()
 
 
 class LazyLoop:
@@ -44,17 +49,34 @@ class LazyLoop:
         functools.update_wrapper(self, py_func)
 
     def __call__(self, *args: Any) -> Any:
-        if self.dispatcher is None:
-            _materialise()
+        if not _ready:
+            load()
         return self.dispatcher(*args)
 
     def __repr__(self) -> str:
         return f"<LazyLoop {self.py_func.__module__}.{self.py_func.__qualname__}>"
 
 
+def load() -> None:
+    """Import numba, create every pending loop's dispatcher and rebind the placeholders (once;
+    safe from several threads)."""
+    with _lock:
+        if not _ready:
+            _materialise()
+
+
+def load_for(fit: Callable[..., Any]) -> None:
+    """:func:`load`, if the module of ``fit`` (a method's fit function, or a partial of one)
+    refers to a compiled loop: what its first call would do, done beforehand."""
+    while isinstance(fit, functools.partial):
+        fit = fit.func
+    if not _ready and any(isinstance(value, LazyLoop)
+                          for value in getattr(fit, "__globals__", {}).values()):
+        load()
+
+
 def _materialise() -> None:
-    """Import numba, create every pending loop's dispatcher and rebind the placeholders."""
-    global _numba_jit
+    global _numba_jit, _ready
     if _numba_jit is None:
         from numba import njit as numba_njit
 
@@ -66,6 +88,7 @@ def _materialise() -> None:
         for name, value in list(namespace.items()):
             if isinstance(value, LazyLoop) and value.dispatcher is not None:
                 namespace[name] = value.dispatcher
+    _ready = True
 
 
 def njit(py_func: Callable[..., Any]) -> Any:
