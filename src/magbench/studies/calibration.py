@@ -387,21 +387,23 @@ def calibrate_recording(rec: Recording, candidates: Sequence[str], *,
         return pd.DataFrame(evaluate_recording(work, methods, [preprocess], options=options,
                                                seed=seed, call_timeout_s=call_timeout_s))
 
+    def rank(trials: pd.DataFrame, gap_deg: float) -> tuple:
+        return choose(recording_summary(trials), trials, work, gap_deg, seed=seed,
+                      refuse=refuse)
+
+    limit = 0.0 if named else gap
     fallback = False
     for _ in range(rounds):
         work = rec.rows(np.flatnonzero(inliers))
         trials = fit(names)
-        ranked, tie, chosen, how = choose(recording_summary(trials), trials, work,
-                                          0.0 if named else gap, seed=seed, refuse=refuse)
+        ranked, tie, chosen, how = rank(trials, limit)
         if later and (escalated := second_round_reason(tie, chosen, gap, names)):
             trials = pd.concat([trials, fit(later)], ignore_index=True)
             names, later = names + later, []
-            ranked, tie, chosen, how = choose(recording_summary(trials), trials, work,
-                                              gap, seed=seed, refuse=refuse)
+            ranked, tie, chosen, how = rank(trials, limit)
         if chosen is None and not named and MAX_GAP_DEG < gap <= THIN_GAP_DEG:
             # no robust full-model fit on a thin cap: fall back to the sphere and offset-only
-            ranked, tie, chosen, how = choose(recording_summary(trials), trials, work, 180.0,
-                                              seed=seed, refuse=refuse)
+            ranked, tie, chosen, how = rank(trials, 180.0)
             fallback = True
         if named and chosen is None:
             row = ranked.iloc[0]
