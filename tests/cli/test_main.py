@@ -118,3 +118,45 @@ def test_a_bad_option_axis_stops_with_one_line_and_status_2(vary, message, tmp_p
     err = capsys.readouterr().err
     assert err.startswith("magbench: error: ") and message in err and err.count("\n") == 1
     assert not (tmp_path / "p0").exists()
+
+
+# A process entry point: main() reads sys.argv and ends the process itself (end_process).
+_ENTRY = """
+import atexit, sys, threading, time
+atexit.register(lambda: print("atexit ran", flush=True))
+if sys.argv[1] == "thread":
+    threading.Thread(target=lambda: (time.sleep(0.3), print("thread finished"))).start()
+sys.argv = ["magbench", "--version"]
+from magbench.cli.main import main
+raise SystemExit(main())
+"""
+
+
+@pytest.mark.parametrize("case", ["alone", "thread"])
+def test_a_process_ends_with_its_output_and_exit_functions(case):
+    import sys
+
+    done = subprocess.run([sys.executable, "-c", _ENTRY, case], capture_output=True,
+                          text=True, timeout=60)
+    assert done.returncode == 0 and done.stderr == ""
+    lines = done.stdout.splitlines()
+    assert lines[0].startswith("magbench ") and "atexit ran" in lines
+    # another thread alive: the normal exit waits for it before the exit functions
+    assert ("thread finished" in lines) == (case == "thread")
+
+
+def test_end_process_returns_while_another_thread_runs():
+    import gc
+    import threading
+
+    from magbench.cli.main import end_process
+
+    stop = threading.Event()
+    other = threading.Thread(target=stop.wait)
+    other.start()
+    try:
+        assert end_process(0) is None     # still here: the process was not ended
+    finally:
+        gc.unfreeze()                     # end_process froze the test process's objects
+        stop.set()
+        other.join()

@@ -70,6 +70,21 @@ def test_duplicates_and_zeros_are_rejected(nominal):
         magbench.calibrate(np.outer(np.linspace(1, 2, 10), [1.0, 2.0, 3.0]), "magical")
 
 
+def test_distinct_rows_counts_as_unique_does_and_may_stop_at_enough():
+    from magbench.methods.api import _distinct_rows
+
+    rng = np.random.default_rng(3)
+    y = np.round(rng.standard_normal((400, 3)), 1)      # many repeated first coordinates
+    y = np.vstack([y, y[:50], -0.0 * y[:1] + 0.0])       # repeated rows and a signed zero
+    exact = np.unique(y, axis=0).shape[0]
+    assert _distinct_rows(y) == exact
+    assert _distinct_rows(y, enough=exact + 1) == exact  # not enough: the exact count
+    firsts = np.unique(y[:, 0]).size
+    assert firsts < exact
+    assert _distinct_rows(y, enough=10) == firsts >= 10  # enough: a lower bound, no lexsort
+    assert _distinct_rows(np.repeat(y[:3], 4, axis=0), enough=4) == 3
+
+
 def test_registering_twice_is_an_error():
     with pytest.raises(ValueError, match="registered twice"):
         register("magical", label="x", min_samples=4)(lambda y: None)

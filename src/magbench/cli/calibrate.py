@@ -56,6 +56,7 @@ from magbench.sources.recordings import Recording, read_samples
 from magbench.studies.calibration import (
     FIRST_ROUND,
     CalibrationResult,
+    bootstrap_check,
     calibrate_recording,
     estimate,
 )
@@ -263,7 +264,7 @@ def run_calibrate(cfg: DictConfig, picture: PictureWorker | None = None) -> int:
               f"(max_samples={max_samples})")
     result = calibrate_recording(thinned, candidates, preprocess=preprocess, options=options,
                                  seed=common["seed"], call_timeout_s=common["call_timeout_s"],
-                                 bootstrap=n_boot, second_round=second)
+                                 bootstrap=0, second_round=second)
     cover = result.coverage
     print(f"{path.name}: {rec.K} samples, preprocessing '{preprocess}'; J_r (eq. 81) in sample "
           "and out of sample (fit on one half in time, tested on the other), held-out worst "
@@ -288,14 +289,17 @@ def run_calibrate(cfg: DictConfig, picture: PictureWorker | None = None) -> int:
     out = writable_folder(cfg.out if cfg.get("out") else default_out(path), "out")
     payload = calibration_json(result, file=str(path), columns=list(rec.columns),
                                n_file=rec.K, preprocess=preprocess)
+    job = {"path": out / "calibration.png", "dpi": PICTURE_DPI,
+           "kwargs": _picture_arguments(result, payload)}
+    sent = picture is not None and picture.send(job)
+    # After the picture is handed over, so that its drawing and the refits overlap.
+    result.bootstrap = payload["bootstrap"] = bootstrap_check(
+        result, n_boot, preprocess=preprocess, options=options, seed=common["seed"])
     T, h = estimate(result.chosen)
     write_text_atomic(json.dumps(payload, indent=2) + "\n", out / "calibration.json")
     written = ["calibration.json (m = A (y - b))", *_write_exports(Calibration(T, h), payload,
                                                                   out)]
     write_csv_atomic(result.ranked, out / "ranking.csv")
-    job = {"path": out / "calibration.png", "dpi": PICTURE_DPI,
-           "kwargs": _picture_arguments(result, payload)}
-    sent = picture is not None and picture.send(job)
     print(f"choice: {result.how}")
     print(f"chosen: {payload['label']} ({payload['model']} model)")
     print("\n".join(_verdict_lines(payload)))

@@ -16,7 +16,6 @@ the end of its input and exits.
 
 from __future__ import annotations
 
-import gc
 import os
 import pickle
 import subprocess
@@ -104,8 +103,10 @@ def _serve() -> int:
     except EOFError:
         return 0          # the command ended without a picture to draw
     draw_picture(job)
-    gc.freeze()           # the parent waits for this exit: skip the final walk of matplotlib
-    return 0
+    # The parent waits for this process to end: skip the interpreter's tear-down of matplotlib
+    # (the picture is written and closed; nothing else is buffered but stderr).
+    sys.stderr.flush()
+    os._exit(0)
 
 
 if __name__ == "__main__":

@@ -38,18 +38,24 @@ def unit_scale(y: np.ndarray) -> float:
     return 2.0 ** round(math.log2(rms))
 
 
-def _distinct_rows(y: np.ndarray) -> int:
+def _distinct_rows(y: np.ndarray, enough: int | None = None) -> int:
     """Number of distinct rows of ``y``, as ``np.unique(y, axis=0).shape[0]`` counts them.
 
     Sorting the rows lexicographically and comparing neighbours by value is the same count
     (0.0 equals -0.0 in both) at a tenth of the cost of ``np.unique(axis=0)``, which every
     call paid (0.19 ms at K = 300, a third of a fast method's time).
+
+    With ``enough``, the count may stop once ``enough`` distinct rows are certain: the result
+    is then the number of distinct first coordinates, a lower bound that is at least
+    ``enough``. That is all the geometry check asks, and it spares data with repeated rows
+    (the bootstrap's resamples) the lexicographic sort: 0.3 instead of 2.4 ms at K = 10 000.
     """
     if y.shape[0] == 0:
         return 0
     first = np.sort(y[:, 0])
-    if np.all(first[1:] != first[:-1]):
-        return y.shape[0]  # the first coordinates alone are all different (measured data)
+    firsts = 1 + int(np.count_nonzero(first[1:] != first[:-1]))
+    if firsts == y.shape[0] or (enough is not None and firsts >= enough):
+        return firsts  # measured data: the first coordinates alone tell enough rows apart
     rows = y[np.lexsort(y.T[::-1])]
     return 1 + int(np.count_nonzero(np.any(rows[1:] != rows[:-1], axis=1)))
 
@@ -59,7 +65,7 @@ def _check_geometry(y: np.ndarray, min_samples: int, centred: np.ndarray | None 
 
     ``centred`` is ``y`` minus its mean, if the caller has it already.
     """
-    distinct = _distinct_rows(y)
+    distinct = _distinct_rows(y, enough=min_samples)
     if distinct < min_samples:
         raise ValueError(f"samples hold only {distinct} distinct measurements; at least "
                          f"{min_samples} are needed")

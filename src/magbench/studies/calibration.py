@@ -83,7 +83,8 @@ from magbench.sources.recordings import Recording
 from magbench.studies.real import evaluate_recording, fit_recording, recording_summary
 
 __all__ = ["FIRST_ROUND", "ROBUST_ON_CAPS", "THIN_GAP_DEG", "TIE_RTOL", "WORST_FACTOR",
-           "CalibrationResult", "allowed", "calibrate_recording", "choose", "estimate",
+           "CalibrationResult", "allowed", "bootstrap_check", "calibrate_recording", "choose",
+           "estimate",
            "held_out_corrected", "held_out_errors", "second_round_reason"]
 
 #: Largest uncovered cap (deg) up to which a full model is fitted by :data:`ROBUST_ON_CAPS`.
@@ -126,6 +127,8 @@ class CalibrationResult:
     #: Candidates of the second round left unfitted, and why the second round ran ("": not).
     not_fitted: list[str] = field(default_factory=list)
     second_round: str = ""
+    #: The samples the chosen method was last fitted on (what :func:`bootstrap_check` resamples).
+    work: Recording | None = None
 
     @property
     def outliers(self) -> int:
@@ -325,6 +328,36 @@ def _bootstrap(rec: Recording, method: str, preprocess: str, options: dict, B: i
             "ratio_A_range": [float(rA.min()), float(rA.max())] if rA.size else None}
 
 
+def bootstrap_check(result: CalibrationResult, B: int, *, preprocess: str = "centre",
+                    options: dict | None = None, seed: int = 0) -> dict | None:
+    """The bootstrap check of :func:`calibrate_recording`'s choice (module notes, step 7).
+
+    ``calibrate_recording(..., bootstrap=B)`` runs it; ``bootstrap=0`` leaves it to the caller,
+    which may then do other work first (``calibrate`` hands its picture to a second process
+    before it, so that the two overlap). The same arguments give the same answer either way.
+
+    Parameters
+    ----------
+    result : CalibrationResult
+        What :func:`calibrate_recording` returned.
+    B : int
+        Refits on samples drawn with replacement (0: none).
+    preprocess, options, seed
+        As given to :func:`calibrate_recording`.
+
+    Returns
+    -------
+    dict or None
+        The bootstrap / Fisher half-width ratios; None without a choice, without ``B``, or
+        when fewer than ``max(10, B // 2)`` refits succeeded.
+    """
+    if not B or result.chosen is None or result.intervals is None or result.work is None:
+        return None
+    name = str(result.chosen["algorithm"])
+    return _bootstrap(result.work, name, preprocess, dict((options or {}).get(name) or {}), B,
+                      seed, result.intervals)
+
+
 def second_round_reason(tie: Sequence[str], chosen: pd.Series | None, gap_deg: float,
                         first: Sequence[str]) -> str:
     """Why the second round of candidates must be fitted, or "" (module notes, step 3).
@@ -422,7 +455,7 @@ def calibrate_recording(rec: Recording, candidates: Sequence[str], *,
         inliers = new
     result = CalibrationResult(rec, inliers, screened, int((~inliers).sum()) - screened,
                                centre, cover, ranked, trials, tie, chosen, how,
-                               not_fitted=later, second_round=escalated)
+                               not_fitted=later, second_round=escalated, work=work)
     if chosen is None:
         return result
     name = str(chosen["algorithm"])
@@ -433,9 +466,8 @@ def calibrate_recording(rec: Recording, candidates: Sequence[str], *,
                                              held_out=False))
     model = get_method(name).model
     result.intervals = fisher_intervals(work.y, T, h, model)
-    if bootstrap:
-        result.bootstrap = _bootstrap(work, name, preprocess, dict(options.get(name) or {}),
-                                      bootstrap, seed, result.intervals)
+    result.bootstrap = bootstrap_check(result, bootstrap, preprocess=preprocess,
+                                       options=options, seed=seed)
     if cover["warning"]:
         result.warnings.append(cover["warning"])
     if not named and gap > MAX_GAP_DEG:
