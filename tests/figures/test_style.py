@@ -44,3 +44,19 @@ def test_registered_methods_without_a_fixed_entry_get_distinct_styles():
     finally:
         for name in names:
             unregister(name)
+
+
+def test_save_figure_compression_changes_the_size_not_the_pixels(tmp_path):
+    import matplotlib.image as mpimg
+    import numpy as np
+
+    from magbench.figures.style import new_figure, save_figure
+
+    fig = new_figure(4, 3)
+    ax = fig.add_subplot()
+    ax.plot(np.random.default_rng(0).standard_normal((500, 2)), ".")
+    ax.set_title("compression")
+    default = save_figure(fig, tmp_path / "default.png", dpi=80)
+    fast = save_figure(fig, tmp_path / "fast.png", dpi=80, compress_level=1)
+    assert np.array_equal(mpimg.imread(default), mpimg.imread(fast))
+    assert fast.stat().st_size > default.stat().st_size

@@ -290,7 +290,7 @@ def run_calibrate(cfg: DictConfig, picture: PictureWorker | None = None) -> int:
     payload = calibration_json(result, file=str(path), columns=list(rec.columns),
                                n_file=rec.K, preprocess=preprocess)
     job = {"path": out / "calibration.png", "dpi": PICTURE_DPI,
-           "kwargs": _picture_arguments(result, payload)}
+           "compress_level": PICTURE_COMPRESSION, "kwargs": _picture_arguments(result, payload)}
     sent = picture is not None and picture.send(job)
     # After the picture is handed over, so that its drawing and the refits overlap.
     result.bootstrap = payload["bootstrap"] = bootstrap_check(
@@ -339,6 +339,8 @@ def _write_exports(cal: Calibration, payload: dict, out: Path) -> list[str]:
 PICTURE_SAMPLES = 1500
 #: Resolution of the picture (the sweeps' figures use 110; PNG encoding grows with its square).
 PICTURE_DPI = 90
+#: zlib level of the picture's PNG: 1 encodes in a third of the default's 55 ms, 18 % larger.
+PICTURE_COMPRESSION = 1
 
 
 def _picture_arguments(result: CalibrationResult, payload: dict) -> dict:

@@ -30,12 +30,14 @@ WAIT_S = 120.0
 
 
 def draw_picture(job: dict) -> Path:
-    """Draw and save one picture: ``job`` holds ``path``, ``dpi`` and the keyword arguments
-    ``kwargs`` of :func:`~magbench.figures.calibration.calibration_picture`. Returns the path."""
+    """Draw and save one picture: ``job`` holds ``path``, ``dpi``, optionally the PNG
+    ``compress_level``, and the keyword arguments ``kwargs`` of
+    :func:`~magbench.figures.calibration.calibration_picture`. Returns the path."""
     from magbench.figures.calibration import calibration_picture
     from magbench.figures.style import save_figure
 
-    return save_figure(calibration_picture(**job["kwargs"]), job["path"], dpi=job["dpi"])
+    return save_figure(calibration_picture(**job["kwargs"]), job["path"], dpi=job["dpi"],
+                       compress_level=job.get("compress_level"))
 
 
 class PictureWorker:

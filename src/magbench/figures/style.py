@@ -100,9 +100,15 @@ def new_figure(width: float, height: float, **kwargs: object) -> Figure:
     return Figure(figsize=(width, height), **{"layout": "constrained", **kwargs})
 
 
-def save_figure(fig: Figure, path: Path | str, dpi: int = DPI) -> Path:
-    """Render ``fig`` to PNG at ``path`` atomically (temporary file, then rename)."""
+def save_figure(fig: Figure, path: Path | str, dpi: int = DPI,
+                compress_level: int | None = None) -> Path:
+    """Render ``fig`` to PNG at ``path`` atomically (temporary file, then rename).
+
+    ``compress_level`` is zlib's, 0-9 (None: Pillow's default, 6); lower is faster and larger,
+    with the same pixels.
+    """
     path = Path(path)
+    extra = {} if compress_level is None else {"pil_kwargs": {"compress_level": compress_level}}
     with atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=dpi, format="png")
+        fig.savefig(tmp, dpi=dpi, format="png", **extra)
     return path
