@@ -87,7 +87,8 @@ def calibrate_lines(cal: pd.DataFrame) -> list[str]:
         cal = cal.assign(tool="magbench calibrate")
     K = int(cal["K"].iloc[0])
     lines = ["", f"From file to correction on a {K}-sample recording: each tool in a fresh "
-             "interpreter, median of the runs after a warm-up run (`calibrate.csv`). "
+             "interpreter, one warm-up run each, then the tools take turns; median of the runs "
+             "(`calibrate.csv`). "
              "`magbench calibrate` runs its default settings: outlier screen, candidates "
              "fitted on all samples and on each half, the choice, the intervals with their "
              "bootstrap check, JSON, C header, ArduPilot parameters, ranking and the picture. "

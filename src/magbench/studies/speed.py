@@ -365,28 +365,25 @@ PEER_FILE_FITS = {  # peer -> (package, imports, fit lines)
 }
 
 
-def _timed_runs(command: list[str], env: dict, repeats: int) -> list[tuple[float, str]]:
-    """Wall time and stdout of ``repeats`` runs of ``command`` after one warm-up run (which
-    fills the numba and bytecode caches)."""
-    out = []
-    for run in range(repeats + 1):
-        start = time.perf_counter()
-        done = subprocess.run(command, env=env, capture_output=True, text=True, check=True)
-        if run:
-            out.append((time.perf_counter() - start, done.stdout))
-    return out
+def _timed_run(command: list[str], env: dict) -> tuple[float, str]:
+    """Wall time and stdout of one run of ``command``."""
+    start = time.perf_counter()
+    done = subprocess.run(command, env=env, capture_output=True, text=True, check=True)
+    return time.perf_counter() - start, done.stdout
 
 
-def bench_calibrate(K: int = 10_000, repeats: int = 3, seed: int = 0) -> pd.DataFrame:
+def bench_calibrate(K: int = 10_000, repeats: int = 5, seed: int = 0) -> pd.DataFrame:
     """Wall time from file to written correction: ``python -m magbench calibrate`` with the
     default settings (picture included) and each installed peer library, on one ``K``-sample
     synthetic recording with a counts-sized offset.
 
-    Every run is a fresh interpreter after one warm-up run: ``process_s`` is the whole process
-    (interpreter, imports, configuration, reading, fitting, writing); ``command_s`` what
-    ``calibrate`` itself reports (reading, fitting, choosing, writing and drawing). A peer's
-    process is the least a user of it runs (:data:`PEER_SCRIPT`): NumPy's ``loadtxt``, one fit,
-    the matrix and offset saved as JSON; no choice, verdict, exports or picture.
+    Every run is a fresh interpreter: ``process_s`` is the whole process (interpreter,
+    imports, configuration, reading, fitting, writing); ``command_s`` what ``calibrate`` itself
+    reports (reading, fitting, choosing, writing and drawing). A peer's process is the least a
+    user of it runs (:data:`PEER_SCRIPT`): NumPy's ``loadtxt``, one fit, the matrix and offset
+    saved as JSON; no choice, verdict, exports or picture. Each tool runs once as a warm-up
+    (filling the numba and bytecode caches), then the tools take turns ``repeats`` times, so
+    that a machine that slows down mid-way slows every tool alike.
     """
     from importlib.util import find_spec
 
@@ -401,20 +398,23 @@ def bench_calibrate(K: int = 10_000, repeats: int = 3, seed: int = 0) -> pd.Data
         path = Path(tmp) / "synthetic.csv"
         pd.DataFrame(y, columns=["mx", "my", "mz"]).assign(t=np.arange(K) * 0.01).to_csv(
             path, index=False)
-        command = [sys.executable, "-m", "magbench", "calibrate", f"file={path}",
-                   f"out={Path(tmp) / 'out'}", "progress=false"]
-        for run, (wall, stdout) in enumerate(_timed_runs(command, env, repeats), 1):
-            reported = float(stdout.rsplit("(in ", 1)[1].split(" s)")[0])
-            rows.append({"tool": "magbench calibrate", "K": K, "run": run, "process_s": wall,
-                         "command_s": reported})
+        tools = {"magbench calibrate": [sys.executable, "-m", "magbench", "calibrate",
+                                        f"file={path}", f"out={Path(tmp) / 'out'}",
+                                        "progress=false"]}
         for peer, (package, imports, fit) in PEER_FILE_FITS.items():
-            if find_spec(package) is None:
-                continue
-            script = PEER_SCRIPT.format(imports=imports, fit=fit)
-            command = [sys.executable, "-c", script, str(path), str(Path(tmp) / "peer.json")]
-            for run, (wall, _) in enumerate(_timed_runs(command, env, repeats), 1):
-                rows.append({"tool": peer, "K": K, "run": run, "process_s": wall,
-                             "command_s": np.nan})
+            if find_spec(package) is not None:
+                script = PEER_SCRIPT.format(imports=imports, fit=fit)
+                tools[peer] = [sys.executable, "-c", script, str(path),
+                               str(Path(tmp) / "peer.json")]
+        for command in tools.values():
+            _timed_run(command, env)                              # warm-up
+        for run in range(1, repeats + 1):
+            for tool, command in tools.items():
+                wall, stdout = _timed_run(command, env)
+                reported = (float(stdout.rsplit("(in ", 1)[1].split(" s)")[0])
+                            if tool == "magbench calibrate" else np.nan)
+                rows.append({"tool": tool, "K": K, "run": run, "process_s": wall,
+                             "command_s": reported})
     return pd.DataFrame(rows)
 
 
