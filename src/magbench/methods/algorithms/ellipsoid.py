@@ -148,7 +148,10 @@ def fit(samples: np.ndarray, *, constraint: str = "trace") -> Calibration:
     y = samples - centre
     A, b, c = fit_trace_normalised(y) if constraint == "trace" else fit_unit_normalised(y)
     h, M, T = quadric_to_calibration(A, b, c)
-    residual = np.einsum("ij,jk,ik->i", y - h, M, y - h) - 1.0
+    # (y - h) M as one product, then row sums: a three-operand einsum loops in C over all
+    # index triples (0.8 of 4.7 ms at K = 10 000, for the message alone).
+    d = y - h
+    residual = np.einsum("ij,ij->i", d @ M, d) - 1.0
     return Calibration(T, h + centre, 0, True,
                        f"{constraint}-normalised quadric; RMS of (y-h)^T M (y-h) - 1: "
                        f"{np.sqrt(np.mean(residual ** 2)):.3g}")
