@@ -107,28 +107,30 @@ def lagrangian(y: np.ndarray, s: State, objective_value: float | None = None) ->
 
 
 @njit
-def _gradient_from(r: np.ndarray, T: np.ndarray, m: np.ndarray, lam: np.ndarray
-                   ) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`gradient` from the residuals ``r`` of :func:`_residuals`."""
+def _gradient_from(r: np.ndarray, T: np.ndarray, m: np.ndarray, lam: np.ndarray,
+                   g_l: np.ndarray) -> np.ndarray:
+    """:func:`gradient` from the residuals ``r`` of :func:`_residuals`: returns the global
+    entries and writes the local ones, transposed, into ``g_l (4, K)``."""
     K = r.shape[0]
     g_g = np.zeros(9)
-    g_l = np.empty((K, 4))
     for k in range(K):
         for e in range(6):                                         # J_T (A4)
             g_g[e] += -2.0 * r[k, _UR[e]] * m[k, _UC[e]]
         for a in range(3):                                         # J_h
             g_g[6 + a] += -2.0 * r[k, a]
         for j in range(3):                                         # -2 T^T r_k + 2 lam_k m_k
-            g_l[k, j] = -2.0 * (r[k, 0] * T[0, j] + r[k, 1] * T[1, j] + r[k, 2] * T[2, j]) \
+            g_l[j, k] = -2.0 * (r[k, 0] * T[0, j] + r[k, 1] * T[1, j] + r[k, 2] * T[2, j]) \
                 + 2.0 * lam[k] * m[k, j]
-        g_l[k, 3] = m[k, 0] ** 2 + m[k, 1] ** 2 + m[k, 2] ** 2 - 1.0
-    return g_g, g_l
+        g_l[3, k] = m[k, 0] ** 2 + m[k, 1] ** 2 + m[k, 2] ** 2 - 1.0
+    return g_g
 
 
 @njit
 def _gradient(y: np.ndarray, T: np.ndarray, h: np.ndarray, m: np.ndarray, lam: np.ndarray
               ) -> tuple[np.ndarray, np.ndarray]:
-    return _gradient_from(_residuals(y, T, h, m), T, m, lam)
+    g_l = np.empty((4, y.shape[0]))
+    g_g = _gradient_from(_residuals(y, T, h, m), T, m, lam, g_l)
+    return g_g, g_l.T.copy()
 
 
 def gradient(y: np.ndarray, s: State) -> tuple[np.ndarray, np.ndarray]:
@@ -237,11 +239,20 @@ def _bordered_solve(V: tuple, d0: float, d1: float, d2: float, ig: float, w0: fl
     return x0 - w0 * mu, x1 - w1 * mu, x2 - w2 * mu, mu
 
 
+#: Rows of :func:`_newton`'s work array (times K samples).
+WORK_ROWS = 21
+
+
 @njit
-def _newton(r: np.ndarray, T: np.ndarray, m: np.ndarray, lam: np.ndarray
+def _newton(r: np.ndarray, T: np.ndarray, m: np.ndarray, lam: np.ndarray, work: np.ndarray
             ) -> tuple[int, np.ndarray, np.ndarray]:
     """The step of :func:`newton_step` from the residuals ``r`` of :func:`_residuals`: status 0,
-    or 1 (singular ``D_k``), 2 (singular S); ``dg``; ``dl`` transposed, shape ``(4, K)``.
+    or 1 (singular ``D_k``), 2 (singular S); ``dg``; ``dl`` transposed, shape ``(4, K)``, a view
+    of ``work``.
+
+    ``work (WORK_ROWS, K)`` holds the per-sample arrays; refine passes the same one at every
+    iteration, so that an iteration takes no new memory from the system (fresh pages cost more
+    than the arithmetic that fills them).
 
     ``D_k^-1`` for all k at once, ``D_k = [[P_k, a_k], [a_k^T, 0]]``, ``P_k = 2 T^T T +
     2 lam_k I``, ``a_k = 2 m_k``: all ``P_k`` share the eigenvectors V of ``T^T T``, so
@@ -257,20 +268,21 @@ def _newton(r: np.ndarray, T: np.ndarray, m: np.ndarray, lam: np.ndarray
     complement) stays sequential in k, in its order.
     """
     K = r.shape[0]
-    g_g, g_l = _gradient_from(r, T, m, lam)
+    g_l = work[0:4]                         # rows of the local gradient (A6)
+    g_g = _gradient_from(r, T, m, lam, g_l)
     A = _global_block(T, m)
     eigval, V = np.linalg.eigh(T.T @ T)
     Vt = (V[0, 0], V[0, 1], V[0, 2], V[1, 0], V[1, 1], V[1, 2], V[2, 0], V[2, 1], V[2, 2])
     e0, e1, e2 = 2.0 * eigval[0], 2.0 * eigval[1], 2.0 * eigval[2]
     # m and r one row per component: the vectorised passes load them contiguously.
-    mt = np.empty((3, K))
-    rt = np.empty((3, K))
+    mt = work[4:7]
+    rt = work[7:10]
     for k in range(K):
         for a in range(3):
             mt[a, k] = m[k, a]
             rt[a, k] = r[k, a]
     m0, m1, m2, r0, r1, r2 = mt[0], mt[1], mt[2], rt[0], rt[1], rt[2]
-    dw = np.empty((7, K))                   # rows d_k (3), 1 / gamma_k, w_k (3)
+    dw = work[10:17]                        # rows d_k (3), 1 / gamma_k, w_k (3)
     d0, d1, d2, ig, w0, w1, w2 = dw[0], dw[1], dw[2], dw[3], dw[4], dw[5], dw[6]
     finite = True
     for k in range(K):
@@ -284,7 +296,7 @@ def _newton(r: np.ndarray, T: np.ndarray, m: np.ndarray, lam: np.ndarray
         # x - x is 0 for finite x and NaN otherwise: a test without a branch, which vectorises.
         finite &= (d0[k] - d0[k]) + (d1[k] - d1[k]) + (d2[k] - d2[k]) + (ig[k] - ig[k]) == 0.0
     if not finite:
-        return 1, np.zeros(9), np.zeros((4, K))
+        return 1, np.zeros(9), work[17:21]
     # S = A - sum_k C_k M_k C_k^T with M_k = P_k^-1 - w_k w_k^T / gamma_k (3x3, symmetric).
     # The h rows of every C_k are the same 2 T (A7), so only the T rows (6x3) vary with k:
     # S_TT -= sum_k C_Tk M_k C_Tk^T, S_Th -= (sum_k C_Tk M_k) 2 T^T, S_hh -= 2T (sum_k M_k) 2T^T.
@@ -315,8 +327,8 @@ def _newton(r: np.ndarray, T: np.ndarray, m: np.ndarray, lam: np.ndarray
         sum_M[1, 1] += M11
         sum_M[1, 2] += M12
         sum_M[2, 2] += M22
-        x00, x01, x02, _ = _bordered_solve(Vt, dk0, dk1, dk2, igk, wk0, wk1, wk2, g_l[k, 0],
-                                           g_l[k, 1], g_l[k, 2], g_l[k, 3])
+        x00, x01, x02, _ = _bordered_solve(Vt, dk0, dk1, dk2, igk, wk0, wk1, wk2, g_l[0, k],
+                                           g_l[1, k], g_l[2, k], g_l[3, k])
         sum_x0[0] += x00
         sum_x0[1] += x01
         sum_x0[2] += x02
@@ -352,7 +364,7 @@ def _newton(r: np.ndarray, T: np.ndarray, m: np.ndarray, lam: np.ndarray
         for b in range(3):
             S[6 + a, 6 + b] -= hMh[a, b]
     if not np.all(np.isfinite(S)) or np.linalg.cond(S) > MAX_CONDITION:
-        return 2, np.zeros(9), np.zeros((4, K))
+        return 2, np.zeros(9), work[17:21]
     dg = np.linalg.solve(S, reduced_rhs)
     # dl_k = D_k^-1 (g_k - B_k^T dg). The m_k rows of B_k^T dg are C_k^T dg_T + (2 T)^T dg_h,
     # with C_k's entries (_coupling) written out, (a, b) = UPPER[e], C_k[e, c] =
@@ -364,12 +376,8 @@ def _newton(r: np.ndarray, T: np.ndarray, m: np.ndarray, lam: np.ndarray
                                                    T2[2, 2])
     g0, g1, g2, g3, g4, g5, g6, g7, g8 = (dg[0], dg[1], dg[2], dg[3], dg[4], dg[5], dg[6],
                                           dg[7], dg[8])
-    gt = np.empty((4, K))
-    for k in range(K):
-        for j in range(4):
-            gt[j, k] = g_l[k, j]
-    q0, q1, q2, q3 = gt[0], gt[1], gt[2], gt[3]
-    dl = np.empty((4, K))
+    q0, q1, q2, q3 = g_l[0], g_l[1], g_l[2], g_l[3]
+    dl = work[17:21]
     dl0, dl1, dl2, dl3 = dl[0], dl[1], dl[2], dl[3]
     for k in range(K):
         b0, b1, b2 = 2.0 * m0[k], 2.0 * m1[k], 2.0 * m2[k]
@@ -409,15 +417,16 @@ def newton_step(y: np.ndarray, s: State) -> tuple[np.ndarray, np.ndarray]:
         If a per-sample block or the reduced 9x9 system is singular.
     """
     y, T, h, m, lam = _arrays(y, s)
-    dg, dl = _checked_step(_residuals(y, T, h, m), T, m, lam)
+    work = np.empty((WORK_ROWS, y.shape[0]))
+    dg, dl = _checked_step(_residuals(y, T, h, m), T, m, lam, work)
     return dg, np.ascontiguousarray(dl.T)
 
 
-def _checked_step(r: np.ndarray, T: np.ndarray, m: np.ndarray, lam: np.ndarray
-                  ) -> tuple[np.ndarray, np.ndarray]:
+def _checked_step(r: np.ndarray, T: np.ndarray, m: np.ndarray, lam: np.ndarray,
+                  work: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """:func:`_newton`, raising :class:`CalibrationFailed` for its failure statuses; ``dl`` is
     returned transposed, shape ``(4, K)``."""
-    status, dg, dl = _newton(r, T, m, lam)
+    status, dg, dl = _newton(r, T, m, lam, work)
     if status == 1:
         raise CalibrationFailed("Gauss-Newton: a per-sample Hessian block [[2T^T T + "
                                 "2 lambda_k I, 2 m_k], [2 m_k^T, 0]] is singular")
@@ -533,10 +542,11 @@ def refine(samples: np.ndarray, T0: np.ndarray, h0: np.ndarray, *, max_iter: int
     # serve both its objective and the next Newton step.
     y, T, h, m, lam = _arrays(samples, s)
     r = _residuals(y, T, h, m)
+    work = np.empty((WORK_ROWS, y.shape[0]))
     history = [_sum_of_squares(r)]
     previous = lagrangian(samples, s, history[0])
     for it in range(1, max_iter + 1):
-        dg, dl = _checked_step(r, T, m, lam)
+        dg, dl = _checked_step(r, T, m, lam, work)
         finite, size, step = _advance(y, T, h, m, lam, dg, dl, r)
         if not finite:
             raise CalibrationFailed(f"Gauss-Newton diverged (non-finite iterate at "
