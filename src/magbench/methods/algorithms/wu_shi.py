@@ -148,7 +148,8 @@ def _coupling(T: np.ndarray, m: np.ndarray, r: np.ndarray, k: int, C: np.ndarray
     ``H_Tm_k = 2 ((m_k kron I) T - I kron r_k)``: entry ``(T_ab, m_c)`` is
     ``2 m_b T_ac - 2 r_a delta_bc``. The h rows, ``H_hm_k = 2 T``, are the same for every k.
     :func:`_newton` builds it per sample where it is used instead of storing all K blocks:
-    a ``(K, 9, 3)`` array's memory traffic cost more than its arithmetic.
+    a ``(K, 9, 3)`` array's memory traffic cost more than its arithmetic. (Its last pass writes
+    the same entries out as scalars, ``- 0.0`` dropped where ``b != c``: ``x - 0.0 == x``.)
     """
     for e in range(6):
         a, b = _UR[e], _UC[e]
