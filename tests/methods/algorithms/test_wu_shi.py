@@ -125,6 +125,27 @@ def test_converged_point_satisfies_the_first_order_conditions(nominal):
     assert history[-1] == pytest.approx(wu_shi.objective(nominal.y, s), rel=1e-12)
 
 
+@pytest.mark.parametrize("t0_form", ["inverse", "chol"])
+def test_refine_in_place_equals_the_state_by_state_iteration_bit_for_bit(nominal, t0_form):
+    # refine updates x in place (_advance) and reuses each x's residuals; the public path
+    # builds a new State per step (apply_step, newton_step, objective). Same arithmetic, so the
+    # same bits; and refine leaves its inputs alone.
+    y = nominal.y.copy()
+    T0, h0 = initial_estimate(y, t0_form=t0_form)
+    inputs = (y.copy(), T0.copy(), h0.copy())
+    cal, history = wu_shi.refine(y, T0, h0, rtol=0.0, xtol=0.0, max_iter=6)
+    for given, kept in zip((y, T0, h0), inputs, strict=True):
+        np.testing.assert_array_equal(given, kept)
+    s = wu_shi.initial_state(y, T0, h0)
+    steps = [wu_shi.objective(y, s)]
+    for _ in range(6):
+        s = wu_shi.apply_step(s, *wu_shi.newton_step(y, s))
+        steps.append(wu_shi.objective(y, s))
+    assert history.tobytes() == np.array(steps).tobytes()
+    assert cal.T.tobytes() == s.T.tobytes() and cal.h.tobytes() == s.h.tobytes()
+    assert history[-1] != history[-2]                 # six real steps, not a fixed point
+
+
 def test_a_perturbed_start_converges_to_the_same_estimate(nominal):
     # Wu and Shi's Figure 6: the ML estimate does not diverge within a 5 % initial error.
     T0, h0 = initial_estimate(nominal.y)
