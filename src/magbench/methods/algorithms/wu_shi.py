@@ -545,7 +545,7 @@ def refine(samples: np.ndarray, T0: np.ndarray, h0: np.ndarray, *, max_iter: int
     r = _residuals(y, T, h, m)
     work = np.empty((WORK_ROWS, y.shape[0]))
     history = [_sum_of_squares(r)]
-    previous = lagrangian(samples, s, history[0])
+    previous = history[0] + _constraint_term(m, lam)           # the Lagrangian (52)
     for it in range(1, max_iter + 1):
         dg, dl = _checked_step(r, T, m, lam, work)
         finite, size, step = _advance(y, T, h, m, lam, dg, dl, r)
