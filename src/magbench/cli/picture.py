@@ -4,7 +4,8 @@ Drawing ``calibration.png`` costs about half a second, most of it importing matp
 laying out seven axes, which is as long as reading, fitting and choosing on a 10 000-sample
 recording. :func:`magbench.cli.main.main` therefore starts :class:`PictureWorker` before it
 loads anything else: a fresh interpreter (``python -m magbench.cli.picture``) that imports the
-figure code and waits; ``calibrate`` sends it the arrays of
+figure code, builds the picture's axes (:func:`~magbench.figures.calibration.picture_layout`)
+and waits; ``calibrate`` sends it the arrays of
 :func:`magbench.figures.calibration.calibration_picture` once the calibration is chosen, and waits
 for the file before it reports. On two cores the picture then costs only its drawing.
 
@@ -22,6 +23,10 @@ import subprocess
 import sys
 import tempfile
 from pathlib import Path
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from magbench.figures.calibration import PictureLayout
 
 __all__ = ["PictureWorker", "draw_picture"]
 
@@ -29,15 +34,16 @@ __all__ = ["PictureWorker", "draw_picture"]
 WAIT_S = 120.0
 
 
-def draw_picture(job: dict) -> Path:
+def draw_picture(job: dict, layout: PictureLayout | None = None) -> Path:
     """Draw and save one picture: ``job`` holds ``path``, ``dpi``, optionally the PNG
     ``compress_level``, and the keyword arguments ``kwargs`` of
-    :func:`~magbench.figures.calibration.calibration_picture`. Returns the path."""
+    :func:`~magbench.figures.calibration.calibration_picture`, drawn on ``layout`` if given
+    (the same pixels). Returns the path."""
     from magbench.figures.calibration import calibration_picture
     from magbench.figures.style import save_figure
 
-    return save_figure(calibration_picture(**job["kwargs"]), job["path"], dpi=job["dpi"],
-                       compress_level=job.get("compress_level"))
+    return save_figure(calibration_picture(**job["kwargs"], layout=layout), job["path"],
+                       dpi=job["dpi"], compress_level=job.get("compress_level"))
 
 
 class PictureWorker:
@@ -97,14 +103,17 @@ class PictureWorker:
 
 
 def _serve() -> int:
-    """The worker: import the figure code, then draw the one picture read from stdin."""
-    import magbench.figures.calibration  # noqa: F401  (the slow import, while the parent works)
+    """The worker: import the figure code and build the picture's axes, then draw the one
+    picture read from stdin."""
+    # The slow import and the axes (a quarter of the drawing), while the parent fits.
+    from magbench.figures.calibration import picture_layout
 
+    layout = picture_layout()
     try:
         job = pickle.load(sys.stdin.buffer)
     except EOFError:
         return 0          # the command ended without a picture to draw
-    draw_picture(job)
+    draw_picture(job, layout)
     # The parent waits for this process to end: skip the interpreter's tear-down of matplotlib
     # (the picture is written and closed; nothing else is buffered but stderr).
     sys.stderr.flush()
