@@ -17,6 +17,7 @@ the end of its input and exits.
 
 from __future__ import annotations
 
+import gc
 import os
 import pickle
 import subprocess
@@ -105,6 +106,9 @@ class PictureWorker:
 def _serve() -> int:
     """The worker: import the figure code and build the picture's axes, then draw the one
     picture read from stdin."""
+    # A short life that draws one picture: no cyclic collection, which would walk
+    # matplotlib's objects again and again (a tenth of the import time).
+    gc.disable()
     # The slow import and the axes (a quarter of the drawing), while the parent fits.
     from magbench.figures.calibration import picture_layout
 
