@@ -372,7 +372,7 @@ def _timed_run(command: list[str], env: dict) -> tuple[float, str]:
     return time.perf_counter() - start, done.stdout
 
 
-def bench_calibrate(K: int = 10_000, repeats: int = 5, seed: int = 0) -> pd.DataFrame:
+def bench_calibrate(K: int = 10_000, repeats: int = 9, seed: int = 0) -> pd.DataFrame:
     """Wall time from file to written correction: ``python -m magbench calibrate`` with the
     default settings (picture included) and each installed peer library, on one ``K``-sample
     synthetic recording with a counts-sized offset.
