@@ -17,6 +17,8 @@ import threading
 from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING
 
+from magbench.cli.process import configure_process
+
 # Only the standard library at import: ``calibrate`` starts its picture process
 # (:mod:`magbench.cli.picture`) before the configuration, NumPy and pandas are loaded.
 if TYPE_CHECKING:
@@ -218,6 +220,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     the process as soon as the command is done (:func:`end_process`). Called with ``argv``
     (tests, a host program), it returns the exit status.
     """
+    if argv is None:
+        configure_process()       # BLAS threads and malloc, before NumPy is imported
     start_up = argv is None and gc.isenabled()
     if start_up:
         # The imports and Hydra's compose make a few hundred thousand objects that live until

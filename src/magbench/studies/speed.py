@@ -418,6 +418,14 @@ def bench_calibrate(K: int = 10_000, repeats: int = 9, seed: int = 0) -> pd.Data
     return pd.DataFrame(rows)
 
 
+def malloc_thresholds() -> str:
+    """glibc's malloc thresholds the timings ran with, from the environment that
+    ``python -m magbench`` sets (:mod:`magbench.cli.process`): ``"mmap <a>, trim <b>"`` in
+    bytes, or ``"default"`` (glibc's 128 KiB, adjusted as it goes)."""
+    mmap, trim = (os.environ.get(v) for v in ("MALLOC_MMAP_THRESHOLD_", "MALLOC_TRIM_THRESHOLD_"))
+    return f"mmap {mmap or 'default'}, trim {trim or 'default'}" if mmap or trim else "default"
+
+
 def run_bench(results_dir: Path | str, names: Sequence[str] | None = None,
               sizes: Sequence[int] = SIZES, parallel_trials: int = 250,
               progress: Callable[[str], None] | None = print) -> Path:
@@ -433,9 +441,17 @@ def run_bench(results_dir: Path | str, names: Sequence[str] | None = None,
         # machine, which looked like nonlinear growth with K (TWOSTEP 110x from 1000 to 10000).
         progress(f"warning: BLAS threads {threads!r}, not 1: large-K timings include thread "
                  "start-up (python -m magbench sets 1 unless OPENBLAS_NUM_THREADS is set)")
+    malloc = malloc_thresholds()
+    if malloc == "default" and progress:
+        # glibc's defaults hand large arrays back to the kernel after every call: at K = 10 000
+        # the NumPy-heavy methods took 1.4-1.6x longer, growing faster than K
+        progress("warning: glibc's default malloc thresholds: large-K timings include page "
+                 "faults (python -m magbench sets MALLOC_MMAP_THRESHOLD_ and "
+                 "MALLOC_TRIM_THRESHOLD_)")
     write_csv_atomic(bench_first_calls(names, progress=progress), folder / "first_calls.csv")
     calls = bench_calls(names, sizes, progress=progress)
     calls["blas_threads"] = threads
+    calls["malloc"] = malloc
     write_csv_atomic(calls, folder / "calls.csv")
     write_csv_atomic(bench_peers(), folder / "peers.csv")
     write_csv_atomic(peer_install_size(), folder / "peer_install.csv")
