@@ -216,9 +216,11 @@ def _plain_keys(args: list[str]) -> list[str]:
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of ``python -m magbench`` and the ``magbench`` script.
 
-    Called as a process's entry point (``argv`` None: the arguments are ``sys.argv``), it ends
+    Called as a process's entry point (``argv`` None: the arguments are ``sys.argv``), it makes
+    the process settings first (:func:`~magbench.cli.process.configure_process`: one BLAS
+    thread, glibc's malloc thresholds), starts up without cyclic garbage collection, and ends
     the process as soon as the command is done (:func:`end_process`). Called with ``argv``
-    (tests, a host program), it returns the exit status.
+    (tests, a host program), it changes none of these and returns the exit status.
     """
     if argv is None:
         configure_process()       # BLAS threads and malloc, before NumPy is imported
