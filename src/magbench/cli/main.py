@@ -105,9 +105,9 @@ COMMANDS: dict[str, tuple[Callable[..., int], str, str, tuple[str, ...]]] = {
 
 def _key_help() -> dict[str, tuple[str, str]]:
     """``key -> (default, meaning)`` from the comments of ``conf/config.yaml``."""
-    out = {}
     from magbench.cli.config import config_dir
 
+    out = {}
     for line in (config_dir() / "config.yaml").read_text().splitlines():
         match = re.match(r"^([A-Za-z_]+):\s*([^#]*?)\s*(?:#\s*(.*))?$", line)
         if match and match.group(1) not in ("defaults",):
@@ -117,9 +117,9 @@ def _key_help() -> dict[str, tuple[str, str]]:
 
 def sweep_kinds() -> list[tuple[str, str]]:
     """``(name, first comment line)`` of every ``conf/sweep/*.yaml``."""
-    out = []
     from magbench.cli.config import config_dir
 
+    out = []
     for path in sorted((config_dir() / "sweep").glob("*.yaml")):
         first = next((ln.lstrip("# ").strip() for ln in path.read_text().splitlines()
                       if ln.startswith("#") and "@package" not in ln), "")

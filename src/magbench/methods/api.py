@@ -60,27 +60,26 @@ def _distinct_rows(y: np.ndarray, enough: int | None = None) -> int:
     return 1 + int(np.count_nonzero(np.any(rows[1:] != rows[:-1], axis=1)))
 
 
-def _check_geometry(y: np.ndarray, min_samples: int, centred: np.ndarray | None = None) -> None:
+def _check_geometry(y: np.ndarray, min_samples: int, centred: np.ndarray) -> None:
     """Reject data from which no 3-D ellipsoid can be determined (one clear line each).
 
-    ``centred`` is ``y`` minus its mean, if the caller has it already.
+    ``centred`` is ``y`` minus its mean (:func:`calibrate` has it for the trivial estimate too).
     """
     distinct = _distinct_rows(y, enough=min_samples)
     if distinct < min_samples:
         raise ValueError(f"samples hold only {distinct} distinct measurements; at least "
                          f"{min_samples} are needed")
-    yc = y - sample_mean(y) if centred is None else centred
     # Screen first: the eigenvalues of the Gram matrix G = Yc^T Yc are the squared singular
     # values, and lambda_min / lambda_max >= det G / (trace G)^3 (lambda_min >= det / trace^2,
     # lambda_max <= trace). Above 1e-6 the smallest singular value is at least 1e-3 of the
     # largest, far from the 1e-9 thresholds below, whatever the rounding of G (~1e-13 of
     # trace^3), so the SVD is needed only for nearly flat data and keeps its exact meaning.
-    (g00, g01, g02), (_, g11, g12), (_, _, g22) = (yc.T @ yc).tolist()
+    (g00, g01, g02), (_, g11, g12), (_, _, g22) = (centred.T @ centred).tolist()
     det = (g00 * (g11 * g22 - g12 * g12) - g01 * (g01 * g22 - g12 * g02)
            + g02 * (g01 * g12 - g11 * g02))
     if det >= 1e-6 * (g00 + g11 + g22) ** 3 > 0.0:
         return
-    spread = np.linalg.svd(yc, compute_uv=False)
+    spread = np.linalg.svd(centred, compute_uv=False)
     if spread[2] <= 1e-9 * spread[0]:
         shape = "collinear" if spread[1] <= 1e-9 * spread[0] else "coplanar"
         raise ValueError(f"samples are {shape} (singular values of the centred data "
@@ -162,9 +161,8 @@ def calibrate(samples: object, method: str, *, angular_rate: object = None,
                        cal.gyro_bias)
 
 
-def _residual_against_trivial(y: np.ndarray, cal: Calibration, model: str,
-                              mean: np.ndarray | None = None,
-                              centred: np.ndarray | None = None) -> tuple[float, float]:
+def _residual_against_trivial(y: np.ndarray, cal: Calibration, model: str, mean: np.ndarray,
+                              centred: np.ndarray) -> tuple[float, float]:
     """J_r (81) of ``cal`` and of the trivial estimate on the same samples.
 
     A method that claims convergence must fit the data at least as well as no fit at all
@@ -172,7 +170,7 @@ def _residual_against_trivial(y: np.ndarray, cal: Calibration, model: str,
     input, is held to the trivial centre at its own scale. The tolerance (1e-9 relative,
     1e-12 absolute: a field error of 1e-6) keeps exact fits of noise-free data, whose costs
     are both rounding, from being flagged. ``mean`` and ``centred`` (``y - mean``) are passed
-    on to the trivial estimate when the caller has them.
+    on to the trivial estimate.
     """
     _, h0, trivial = trivial_estimate(y, mean, centred)
     if model == "bias":
