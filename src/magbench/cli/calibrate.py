@@ -86,7 +86,8 @@ def _candidates(cfg: DictConfig, rec_has_gyro: bool) -> tuple[list[str], list[st
         return list(chosen), []
     # The printed variants reproduce the review's misprints: benchmark rows, never a user's fit.
     every = [m for m in methods() if get_method(m).family != "variant"
-             and (rec_has_gyro or not get_method(m).needs_gyro)]
+             and (get_method(m).magnetometer_only
+                  or (rec_has_gyro and not get_method(m).needs_accel))]
     if chosen == "all":
         return every, []
     return ([m for m in every if m in FIRST_ROUND],

@@ -115,12 +115,14 @@ def selected_algorithms(cfg: DictConfig, include_gyro: bool = False) -> list[str
     """The method names of ``algorithms=`` ('all' or a list), checked against the registry.
 
     'all' means every magnetometer-only method, plus the gyro-aided ones with
-    ``include_gyro`` (for data that have angular rate: the gyro sweep, real recordings).
+    ``include_gyro`` (for data that have angular rate: the gyro sweep, real recordings); the
+    alignment methods, which need an accelerometer, only when named.
     """
     known = methods()
     chosen = _plain(cfg.algorithms)
     if chosen == "all":
-        return [m for m in known if include_gyro or not get_method(m).needs_gyro]
+        return [m for m in known if get_method(m).magnetometer_only
+                or (include_gyro and not get_method(m).needs_accel)]
     chosen = [chosen] if isinstance(chosen, str) else list(chosen or [])
     unknown = [a for a in chosen if a not in known]
     if unknown or not chosen:

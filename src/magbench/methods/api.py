@@ -88,7 +88,8 @@ def _check_geometry(y: np.ndarray, min_samples: int, centred: np.ndarray) -> Non
 
 
 def calibrate(samples: object, method: str, *, angular_rate: object = None,
-              time: object = None, **options: object) -> Calibration:
+              time: object = None, acceleration: object = None,
+              **options: object) -> Calibration:
     """Estimate ``T`` and ``h`` of ``y = T m + h + eps`` from magnetometer samples.
 
     Parameters
@@ -101,13 +102,17 @@ def calibrate(samples: object, method: str, *, angular_rate: object = None,
     angular_rate, time : array_like, optional
         Gyroscope samples ``(K, 3)`` in rad/s and their timestamps ``(K,)`` in seconds, for the
         gyro-aided methods; other methods ignore them.
+    acceleration : array_like, optional
+        Accelerometer samples ``(K, 3)`` (specific force in the IMU's axes, any unit), for the
+        alignment methods; other methods ignore them.
     **options
         The method's tuning values (iteration caps, tolerances, ``rng`` for randomised methods).
 
     Returns
     -------
     Calibration
-        Finite ``T`` (invertible) and ``h``, with the method's iteration count and message.
+        Finite ``T`` (invertible) and ``h``, with the method's iteration count and message;
+        an alignment method also gives the rotation to the IMU (``alignment``).
 
     Raises
     ------
@@ -141,6 +146,11 @@ def calibrate(samples: object, method: str, *, angular_rate: object = None,
             raise ValueError(f"method {method!r} needs angular_rate (K, 3) in rad/s and "
                              "time (K,) in seconds")
         extra = {"angular_rate": angular_rate, "time": time}
+    if spec.needs_accel:
+        if acceleration is None:
+            raise ValueError(f"method {method!r} needs acceleration (K, 3), the accelerometer's "
+                             "samples in the IMU's axes")
+        extra["acceleration"] = acceleration
     try:
         with np.errstate(all="ignore"):
             cal = spec.fit(y, **extra, **options)
@@ -158,7 +168,7 @@ def calibrate(samples: object, method: str, *, angular_rate: object = None,
                        f"estimate's {trivial:.3g} (h = mean, T = r I): not a calibration "
                        f"({message or 'no message'})")
     return Calibration(cal.T * scale, cal.h * scale, cal.n_iter, converged, message,
-                       cal.gyro_bias)
+                       cal.gyro_bias, cal.alignment)
 
 
 def _residual_against_trivial(y: np.ndarray, cal: Calibration, model: str, mean: np.ndarray,
