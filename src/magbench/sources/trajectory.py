@@ -29,7 +29,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from magbench.core.rotations import euler_zyx_to_matrix, rotation_exp
+from magbench.core.rotations import cumulative_product, euler_zyx_to_matrix, rotation_exp
 
 __all__ = ["Trajectory", "random_field", "simulate"]
 
@@ -72,16 +72,6 @@ class Trajectory:
     gyro_bias: np.ndarray
 
 
-def _cumulative_product(steps: np.ndarray) -> np.ndarray:
-    """``P_n = S_0 S_1 ... S_n`` for ``(N, 3, 3)`` steps, by a vectorised doubling scan."""
-    P = steps.copy()
-    shift = 1
-    while shift < len(P):
-        P[shift:] = P[:-shift] @ P[shift:]
-        shift *= 2
-    return P
-
-
 def _random_rate(rng: np.random.Generator, rate_rms: float, axis_weights: np.ndarray,
                  n_harmonics: int, band_hz: tuple[float, float]):
     """A smooth angular velocity ``w(t)``: per axis, a sum of sinusoids with random frequency,
@@ -112,7 +102,7 @@ def _integrate_attitude(rate, t_end: float, n_steps: int, R0: np.ndarray) -> np.
     w1, w2 = rate(t0 + (0.5 - c) * dt), rate(t0 + (0.5 + c) * dt)
     omega = 0.5 * dt * (w1 + w2) + (np.sqrt(3.0) / 12.0) * dt**2 * np.cross(w1, w2)
     steps = np.concatenate([R0[None], rotation_exp(omega)])
-    return _cumulative_product(steps)
+    return cumulative_product(steps)
 
 
 def _euler_pattern(t: np.ndarray, duration: float, tilt_deg: float, turns: float,
