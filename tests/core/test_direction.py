@@ -131,3 +131,30 @@ def test_missing_attitude_rows_are_left_out_and_unknown_metrics_are_nan():
     score = direction_score(m, attitude=q, reference=REFERENCE)
     assert score["heading_rms"] < 1e-10
     assert np.isnan(score["gyro_median"]) and np.isnan(score["dip_spread"])
+
+
+def test_heading_bound_is_met_by_least_squares_with_the_attitude_known():
+    from magbench.core.direction import heading_bound
+
+    rng = np.random.default_rng(8)
+    K, sigma = 150, 0.01
+    q = attitudes(K, seed=9)
+    m0 = REFERENCE / 44.0
+    u = sensor_field(q, np.broadcast_to(m0, (K, 3)))
+    G = np.array([[1.1, 0.03, -0.02], [0.0, 0.95, 0.04], [0.02, -0.01, 1.02]])
+    h = np.array([0.1, -0.05, 0.2])
+    total, share = heading_bound(G, q, m0, sigma)
+    x = np.column_stack([u, np.ones(K)])
+    errors = []
+    for _ in range(300):
+        y = u @ G.T + h + rng.normal(0, sigma, (K, 3))
+        D = np.linalg.lstsq(x, y, rcond=None)[0].T            # [G h], the efficient fit
+        held_out = u @ G.T + h + rng.normal(0, sigma, (K, 3))
+        m = np.linalg.solve(D[:, :3], (held_out - D[:, 3]).T).T
+        errors.append(field_errors(m, q, m0)[0])
+    measured = rms(np.concatenate(errors))
+    assert measured == pytest.approx(total, rel=0.03)
+    # with G = I the floor is the noise across the horizontal field, sigma / cos(inclination)
+    alone, _ = heading_bound(np.eye(3), q, m0, sigma)
+    assert alone == pytest.approx(sigma / np.cos(INC) * np.sqrt(1 + 4 / K), rel=0.02)
+    assert 0 < share < 0.3 * total

@@ -30,12 +30,24 @@ from __future__ import annotations
 
 import numpy as np
 
-from magbench.core.quaternions import quat_about_axis, quat_multiply, quat_rotate
+from magbench.core.quaternions import quat_about_axis, quat_conjugate, quat_multiply, quat_rotate
 from magbench.core.rotations import cumulative_product, rotation_exp
 
-__all__ = ["angles_between", "broad_errors", "dip_angles", "direction_score",
-           "direction_spread", "field_error_quaternion", "field_errors", "gyro_consistency",
-           "mean_direction", "rest_mask", "rms", "world_field"]
+__all__ = [
+    "angles_between",
+    "broad_errors",
+    "dip_angles",
+    "direction_score",
+    "direction_spread",
+    "field_error_quaternion",
+    "field_errors",
+    "gyro_consistency",
+    "heading_bound",
+    "mean_direction",
+    "rest_mask",
+    "rms",
+    "world_field",
+]
 
 _Z = np.array([0.0, 0.0, 1.0])
 
@@ -252,3 +264,50 @@ def direction_score(field: np.ndarray, *, attitude: np.ndarray | None = None,
             dip = np.degrees(dip_angles(acceleration[still], field[still]))
             out.update(dip_median=float(np.median(dip)), dip_spread=float(np.std(dip)))
     return out
+
+
+def heading_bound(G: np.ndarray, attitude: np.ndarray, reference: np.ndarray,
+                  sigma: float) -> tuple[float, float]:
+    """Cramer-Rao-type floor of the RMS heading error of a calibration that knows the attitude.
+
+    With the attitude ``R_k`` and the unit world field ``m0`` known, the model
+    ``y_k = G u_k + h + e_k``, ``u_k = R_k^T m0``, ``e_k ~ N(0, sigma^2 I)`` is linear in
+    ``D = [G h]`` (12 numbers; ``G = T M`` holds the mounting rotation, which the attitude
+    makes identifiable). Its Fisher information gives every row of ``D`` the covariance
+    ``sigma^2 S^-1``, ``S = sum_k x_k x_k^T``, ``x_k = (u_k, 1)``, reached by least squares.
+    The heading of the world field ``R_k G^-1 (y_k - h)`` moves, to first order, by
+    ``v_k . (e_k - dD x_k)`` with ``v_k = G^-T R_k^T p_k / c``, ``p_k`` the horizontal unit
+    vector across the field and ``c`` the horizontal share of the unit field. So
+
+        E[dpsi_k^2] >= sigma^2 |v_k|^2 (1 + x_k^T S^-1 x_k)
+
+    for a sample not used in the fit (the sample's own noise, then the calibration's share).
+
+    Parameters
+    ----------
+    G : ndarray, shape (3, 3)
+        True ``T M``.
+    attitude : ndarray, shape (K, 4)
+        True attitude, sensor (inertial axes) -> world.
+    reference : ndarray, shape (3,)
+        The world field (normalised here).
+    sigma : float
+        Magnetometer noise, in units of the field.
+
+    Returns
+    -------
+    total, calibration : float
+        The bound's RMS over the samples (radians), and the calibration's share alone
+        (``sigma |v_k| sqrt(x_k^T S^-1 x_k)``, RMS).
+    """
+    m0 = _unit(reference)
+    to_sensor = quat_conjugate(attitude)
+    u = quat_rotate(to_sensor, np.broadcast_to(m0, (len(attitude), 3)))
+    x = np.column_stack([u, np.ones(len(u))])
+    leverage = np.einsum("ki,ij,kj->k", x, np.linalg.inv(x.T @ x), x)
+    across = np.cross(_Z, m0)
+    c = np.linalg.norm(across)
+    p = quat_rotate(to_sensor, np.broadcast_to(across / c, u.shape))
+    v = np.linalg.solve(np.asarray(G, dtype=float).T, p.T).T / c
+    v2 = sigma**2 * np.einsum("ki,ki->k", v, v)
+    return float(np.sqrt(np.mean(v2 * (1.0 + leverage)))), float(np.sqrt(np.mean(v2 * leverage)))
