@@ -41,8 +41,8 @@ import numpy as np
 from magbench.core.rotations import skew
 
 __all__ = ["CRB", "MODEL_PARAMETERS", "alignment_covariance", "alignment_rotation",
-           "crb_covariance", "crb_mse", "efficient_expected_J",
-           "fisher_information", "gauge_basis", "model_basis", "parameter_covariance"]
+           "crb_covariance", "crb_mse", "efficient_expected_J", "fisher_information",
+           "gauge_basis", "model_basis", "parameter_covariance", "rotation_covariance"]
 
 #: Free parameters of each model of ``y = T m + h`` (``T`` modulo a rotation for ``full``):
 #: the columns of :func:`model_basis`.
@@ -259,7 +259,13 @@ def alignment_covariance(M: np.ndarray, m_w: np.ndarray, g_w: np.ndarray, Q: np.
     B = np.einsum("kai,a,kaj->kij", Jt, w, Jd)
     C = np.einsum("kai,a,kaj->kij", Jd, w, Jd)
     info = (A - B @ np.linalg.solve(C, np.swapaxes(B, 1, 2))).sum(axis=0)
-    cov_M = np.linalg.inv(info)[:9, :9]
+    return rotation_covariance(M, np.linalg.inv(info)[:9, :9])
+
+
+def rotation_covariance(M: np.ndarray, cov_M: np.ndarray) -> np.ndarray:
+    """Covariance of the rotation vector of :func:`alignment_rotation` given the covariance
+    ``cov_M`` (9x9, row-major) of ``M``: ``G cov_M G^T`` with ``G`` its Jacobian (central
+    differences)."""
     R0 = alignment_rotation(M)
     G = np.zeros((3, 9))
     for j in range(9):

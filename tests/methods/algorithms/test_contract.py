@@ -198,8 +198,7 @@ def method_data(name: str, K: int | None = None, scale: float = 1.0,
     n = slice(None) if K is None else slice(0, K * 6, 6)     # K samples spread over the run
     extra = {"angular_rate": traj.angular_rate[n], "time": traj.t[n]} if spec.needs_gyro else {}
     if spec.needs_accel:
-        # Turning about a fixed point: the accelerometer sees gravity alone, R^T g_w.
-        extra["acceleration"] = traj.R[n][:, 2, :] * 9.81
+        extra["acceleration"] = traj.acceleration[n]
     if "attitude" in spec.option_names():
         extra.update(attitude=traj.R[n], reference_field=traj.m0)
     return traj.y[n] * scale, extra, (traj.T * scale, traj.h * scale)
