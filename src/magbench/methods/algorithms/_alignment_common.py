@@ -21,8 +21,8 @@ import numpy as np
 from magbench.core.model import Calibration, CalibrationFailed
 from magbench.core.rotations import rotation_exp
 
-__all__ = ["check_acceleration", "dip_rotation", "nearest_rotation", "refine_dip_rotation",
-           "static_rows", "symmetric_directions", "unit_rows"]
+__all__ = ["check_acceleration", "check_spread", "dip_rotation", "nearest_rotation",
+           "refine_dip_rotation", "static_rows", "symmetric_directions", "unit_rows"]
 
 
 def check_acceleration(samples: np.ndarray, acceleration: object) -> np.ndarray:
@@ -55,13 +55,45 @@ def unit_rows(x: np.ndarray) -> np.ndarray:
     return x / np.sqrt(np.einsum("ij,ij->i", x, x))[:, None]
 
 
-def static_rows(a: np.ndarray, tol: float) -> np.ndarray:
-    """Indices of the rows whose specific-force norm is within ``tol`` (relative) of the
-    median: there the accelerometer sees gravity, not the motion."""
+def static_rows(a: np.ndarray, tol: float, window: int = 5) -> np.ndarray:
+    """Indices of the rows at rest: the specific-force norm within ``tol`` (relative) of the
+    median, and the row inside a run of ``window`` rows whose every component is steady
+    (standard deviation below ``tol`` times the median norm). A moving device can pass the
+    first test by chance; the second asks that gravity alone is seen for a while."""
     if not tol > 0:
         raise ValueError(f"static_tol must be > 0, got {tol}")
     norm = np.sqrt(np.einsum("ij,ij->i", a, a))
-    return np.flatnonzero(np.abs(norm / np.median(norm) - 1.0) <= tol)
+    scale = float(np.median(norm))
+    steady = np.abs(norm / scale - 1.0) <= tol
+    if a.shape[0] >= window > 1:
+        view = np.lib.stride_tricks.sliding_window_view(a, window, axis=0)   # (K-w+1, 3, w)
+        calm = np.sqrt(np.max(np.var(view, axis=2), axis=1)) <= tol * scale
+        # A row is still when some calm window covers it.
+        steady &= np.convolve(calm.astype(float), np.ones(window))[:a.shape[0]] > 0
+    return np.flatnonzero(steady)
+
+
+def check_spread(up: np.ndarray, min_spread: float) -> None:
+    """Refuse static gravity directions that turn about too few axes to fix a rotation.
+
+    The middle eigenvalue of the directions' covariance must reach ``min_spread`` (0.02:
+    about 8 degrees of spread in a second axis); one pose, or poses about one axis, leave a
+    rotation that the dip constraint cannot see.
+
+    Raises
+    ------
+    CalibrationFailed
+        Naming the spread found.
+    """
+    if up.shape[0] < 4:
+        raise CalibrationFailed(f"alignment: {up.shape[0]} rows at rest are too few (4 "
+                                "needed); hold the device still in several orientations")
+    ev = np.linalg.eigvalsh(np.cov(up.T))
+    if ev[1] < min_spread:
+        raise CalibrationFailed(f"alignment: the {up.shape[0]} rows at rest see gravity from "
+                                f"too few directions (spread eigenvalues {ev[1]:.3g}, "
+                                f"{ev[2]:.3g}; {min_spread:g} needed); too alike to fix the "
+                                "rotation: rest the device in more orientations")
 
 
 def nearest_rotation(M: np.ndarray) -> np.ndarray:

@@ -17,6 +17,7 @@ import numpy as np
 from magbench.core.model import Calibration
 from magbench.methods.algorithms._alignment_common import (
     check_acceleration,
+    check_spread,
     dip_rotation,
     static_rows,
     symmetric_directions,
@@ -29,6 +30,7 @@ from magbench.methods.registry import register
 @register("dip_align", label="Dip alignment", min_samples=10, family="extra",
           needs_accel=True)
 def fit(samples: np.ndarray, *, acceleration: np.ndarray, static_tol: float = 0.05,
+        min_spread: float = 0.02,
         max_iter: int = 2000, tol: float = 1e-24, rtol: float = 1e-12) -> Calibration:
     """Calibrate the magnetometer and align it to the accelerometer by the dip constraint.
 
@@ -41,6 +43,9 @@ def fit(samples: np.ndarray, *, acceleration: np.ndarray, static_tol: float = 0.
     static_tol : float
         Rows whose specific-force norm is within this fraction of the median enter the
         alignment (where the accelerometer sees gravity alone).
+    min_spread : float
+        Smallest middle eigenvalue of the covariance of the static gravity directions
+        (``_alignment_common.check_spread``); below it the rotation is refused.
     max_iter, tol, rtol
         MAG.I.C.AL.'s stopping rule for the magnetometer fit (see ``magical.fit``).
 
@@ -55,6 +60,7 @@ def fit(samples: np.ndarray, *, acceleration: np.ndarray, static_tol: float = 0.
                                          int(max_iter), float(tol), float(rtol), np.inf)
     T_s, m = symmetric_directions(samples, T, h)
     rows = static_rows(a, static_tol)
+    check_spread(unit_rows(a[rows]), min_spread)
     R, c = dip_rotation(m[rows], unit_rows(a[rows]))
     dip = np.degrees(np.arcsin(np.clip(-c, -1.0, 1.0)))
     return Calibration(T_s, h, n_iter, converged,

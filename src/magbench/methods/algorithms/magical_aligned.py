@@ -18,6 +18,7 @@ import numpy as np
 from magbench.core.model import Calibration, CalibrationFailed
 from magbench.methods.algorithms._alignment_common import (
     check_acceleration,
+    check_spread,
     dip_rotation,
     refine_dip_rotation,
     static_rows,
@@ -49,6 +50,7 @@ def gravity_directions(a: np.ndarray, max_iter: int, tol: float, rtol: float) ->
 @register("magical_aligned", label="MAG.I.C.AL. aligned", min_samples=10, family="extra",
           needs_accel=True)
 def fit(samples: np.ndarray, *, acceleration: np.ndarray, static_tol: float = 0.05,
+        min_spread: float = 0.02,
         calibrate_accelerometer: bool = True, max_iter: int = 2000, tol: float = 1e-24,
         rtol: float = 1e-12) -> Calibration:
     """Calibrate the magnetometer (and accelerometer) and align them, MAG.I.C.AL.'s way.
@@ -61,6 +63,9 @@ def fit(samples: np.ndarray, *, acceleration: np.ndarray, static_tol: float = 0.
         Accelerometer samples (specific force, IMU axes, any unit) at the same instants.
     static_tol : float
         Rows whose specific-force norm is within this fraction of the median are static.
+    min_spread : float
+        Smallest middle eigenvalue of the covariance of the static gravity directions
+        (``_alignment_common.check_spread``); below it the rotation is refused.
     calibrate_accelerometer : bool
         True (the methodology): calibrate the accelerometer on the static rows first; False:
         take it as calibrated (a recording with few distinct rests cannot fit it).
@@ -77,6 +82,7 @@ def fit(samples: np.ndarray, *, acceleration: np.ndarray, static_tol: float = 0.
                                          int(max_iter), float(tol), float(rtol), np.inf)
     T_s, m = symmetric_directions(samples, T, h)
     rows = static_rows(a, static_tol)
+    check_spread(unit_rows(a[rows]), min_spread)
     g = (gravity_directions(a[rows], max_iter, tol, rtol) if calibrate_accelerometer
          else unit_rows(a[rows]))
     R0, _ = dip_rotation(m[rows], g)
