@@ -1,0 +1,227 @@
+"""Direction for ``calibrate``: the alignment of a chosen calibration to the inertial sensors,
+its held-out direction consistency, the direction veto and the geomagnetic check.
+
+A calibration chosen on field magnitude (:mod:`magbench.studies.calibration`) fixes ``T`` only up
+to a rotation; its symmetric gauge gives field directions ``A (y - h)``. With inertial columns
+the rotation ``R`` to the IMU's axes is fitted here (:func:`fit_alignment`), from the strongest
+source the recording holds:
+
+* ``attitude`` (a reference orientation, sensor -> world): the rotation and the world field
+  direction that best explain ``R A (y_k - h) = Q_k^T m_w`` (Wahba's problem, alternated with
+  the mean world direction);
+* ``gyro`` and ``accelerometer``: the joint MAP of ``mag_imu_map`` (orientation trajectory
+  unknown), whose field in IMU axes is matched by a rotation (Procrustes);
+* ``accelerometer`` alone, at several rests: the dip constraint of ``dip_align``.
+
+:func:`direction_consistency` scores any calibration on held-out rows by
+:func:`magbench.core.direction.direction_score` (heading and inclination errors and field
+spread with an attitude, gyro consistency, dip spread at rest); :func:`direction_vetoes` names
+the candidates whose direction is worse than the best by more than a tolerance, so that a fit
+that improves magnitude but worsens direction is not chosen; :func:`field_check` sets a fit
+beside the geomagnetic model at the user's site.
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from magbench.core.direction import direction_score, mean_direction, world_field
+from magbench.core.gauge import safe_gauge
+from magbench.core.geomagnetic import UNITS_NT, ExpectedField, Site, expected_field, infer_unit
+from magbench.core.model import Calibration, CalibrationFailed
+from magbench.core.quaternions import quat_to_matrix
+from magbench.methods.algorithms._alignment_common import (
+    check_spread,
+    dip_rotation,
+    nearest_rotation,
+    refine_dip_rotation,
+    static_rows,
+    unit_rows,
+)
+from magbench.methods.api import calibrate
+
+__all__ = ["Inertial", "direction_consistency", "direction_vetoes", "field_check",
+           "fit_alignment"]
+
+
+@dataclass(frozen=True)
+class Inertial:
+    """Inertial streams beside the magnetometer samples, on the same rows (any may be None).
+
+    ``t`` in s, ``gyro`` in rad/s and ``acceleration`` (specific force) in the IMU's axes,
+    ``attitude`` unit quaternions scalar first, sensor -> world (NaN rows allowed).
+    """
+
+    t: np.ndarray | None = None
+    gyro: np.ndarray | None = None
+    acceleration: np.ndarray | None = None
+    attitude: np.ndarray | None = None
+
+    def rows(self, index: slice | np.ndarray) -> Inertial:
+        """The streams restricted to some rows."""
+        return Inertial(*(None if v is None else v[index]
+                          for v in (self.t, self.gyro, self.acceleration, self.attitude)))
+
+    @property
+    def source(self) -> str:
+        """What :func:`fit_alignment` will use: ``attitude``, ``gyro+accelerometer``,
+        ``accelerometer`` or ``none``."""
+        if self.attitude is not None and np.isfinite(self.attitude).all(axis=1).sum() >= 10:
+            return "attitude"
+        if self.gyro is not None and self.t is not None and self.acceleration is not None:
+            return "gyro+accelerometer"
+        return "accelerometer" if self.acceleration is not None else "none"
+
+
+def symmetric_field(cal: Calibration, y: np.ndarray) -> np.ndarray:
+    """``A (y - h)``: the calibrated field in the symmetric gauge (what an alignment turns)."""
+    return (y - cal.h) @ safe_gauge(cal.T, cal.h).A.T
+
+
+def wahba_alignment(m: np.ndarray, attitude: np.ndarray, n_iter: int = 10) -> np.ndarray:
+    """The rotation ``R`` with ``R m_k`` nearest ``Q_k^T m_w`` for the best world direction
+    ``m_w``: alternate the mean world direction and Wahba's solution (SVD)."""
+    ok = np.isfinite(attitude).all(axis=1)
+    Q, u = quat_to_matrix(attitude[ok]), unit_rows(m[ok])
+    R = np.eye(3)
+    for _ in range(n_iter):
+        m_w = mean_direction(np.einsum("kij,kj->ki", Q, u @ R.T))
+        R = nearest_rotation(np.einsum("kji,j->ki", Q, m_w).T @ u)
+    return R
+
+
+def fit_alignment(cal: Calibration, y: np.ndarray, inertial: Inertial,
+                  **map_options: object) -> tuple[Calibration, str]:
+    """The chosen calibration with its rotation to the IMU, and what fixed it.
+
+    Parameters
+    ----------
+    cal : Calibration
+        The calibration chosen on magnitude (any gauge).
+    y : ndarray, shape (K, 3)
+        The magnetometer samples it was fitted on.
+    inertial : Inertial
+        The streams on the same rows.
+    **map_options
+        Options of ``mag_imu_map`` (noise levels) for the gyro+accelerometer source.
+
+    Returns
+    -------
+    Calibration
+        ``cal`` in the symmetric gauge with ``alignment`` set (heading-true).
+    str
+        The source: ``attitude``, ``gyro+accelerometer`` or ``accelerometer``.
+
+    Raises
+    ------
+    CalibrationFailed
+        No inertial stream, or one that cannot fix the rotation (rests too alike).
+    """
+    safe = cal.safe()
+    m = symmetric_field(safe, y)
+    source = inertial.source
+    if source == "attitude":
+        R = wahba_alignment(m, inertial.attitude)
+    elif source == "gyro+accelerometer":
+        joint = calibrate(y, "mag_imu_map", angular_rate=inertial.gyro, time=inertial.t,
+                          acceleration=inertial.acceleration, **map_options)
+        R = nearest_rotation(unit_rows(joint.apply(y)).T @ unit_rows(m))
+    elif source == "accelerometer":
+        rows = static_rows(inertial.acceleration, 0.05)
+        up = unit_rows(inertial.acceleration[rows])
+        check_spread(up, 0.02)
+        R, _, _ = refine_dip_rotation(unit_rows(m[rows]), up,
+                                      dip_rotation(unit_rows(m[rows]), up)[0])
+    else:
+        raise CalibrationFailed("alignment: no accelerometer, gyro or attitude columns; the "
+                                "rotation to the IMU is unknown (symmetric gauge)")
+    return Calibration(safe.T, safe.h, cal.n_iter, cal.converged, cal.message, cal.gyro_bias,
+                       R), source
+
+
+def direction_consistency(cal: Calibration, y: np.ndarray, inertial: Inertial, *,
+                          reference: np.ndarray | None = None) -> dict[str, float]:
+    """Direction metrics of ``cal`` on (held-out) rows, in degrees.
+
+    The field is ``cal``'s correction in its own gauge (heading-true when it has an alignment,
+    which the gyro consistency and dip spread need). With an attitude and no ``reference``
+    the world field direction is its own mean on these rows (the heading error is then a
+    spread about the mean heading); pass the fit rows' mean for a true held-out error.
+
+    Returns
+    -------
+    dict
+        :func:`magbench.core.direction.direction_score`'s keys.
+    """
+    A, b = cal.correction()
+    field = (y - b) @ A.T
+    if inertial.attitude is not None and reference is None:
+        ok = np.isfinite(inertial.attitude).all(axis=1)
+        reference = mean_direction(world_field(field[ok], inertial.attitude[ok]))
+    return direction_score(field, attitude=inertial.attitude, reference=reference,
+                           t=inertial.t, angular_rate=inertial.gyro,
+                           acceleration=inertial.acceleration)
+
+
+def world_reference(cal: Calibration, y: np.ndarray, attitude: np.ndarray) -> np.ndarray:
+    """The mean world-frame field direction of ``cal`` on the fit rows (the held-out rows'
+    heading error is measured against it)."""
+    A, b = cal.correction()
+    ok = np.isfinite(attitude).all(axis=1)
+    return mean_direction(world_field((y[ok] - b) @ A.T, attitude[ok]))
+
+
+def direction_vetoes(direction_deg: dict[str, float], tol_deg: float = 1.0) -> dict[str, str]:
+    """Candidates whose held-out direction error exceeds the best one's by more than
+    ``tol_deg``, each with the reason (a candidate with a NaN score is not vetoed).
+
+    Parameters
+    ----------
+    direction_deg : dict
+        Candidate name -> its held-out direction error (e.g. heading RMS or gyro RMS), deg.
+    tol_deg : float
+        What the direction may lose to the best before a candidate is set aside.
+    """
+    finite = {k: v for k, v in direction_deg.items() if math.isfinite(v)}
+    if not finite:
+        return {}
+    best_name = min(finite, key=finite.get)
+    best = finite[best_name]
+    return {k: f"held-out direction error {v:.2f} deg, {v - best:.2f} deg worse than "
+               f"{best_name}'s {best:.2f} deg"
+            for k, v in finite.items() if v > best + tol_deg}
+
+
+def field_check(strength: float, inclination_deg: float | None, site: Site, date: dt.date,
+                *, strength_tol: float = 0.1, inclination_tol_deg: float = 3.0) -> dict:
+    """A fit's field strength (recorded units) and inclination beside the geomagnetic model.
+
+    Returns
+    -------
+    dict
+        ``expected`` (:class:`ExpectedField`), ``unit`` (the unit in which the strength
+        matches the model within 25 %, or None for raw counts), ``strength_ratio`` (measured
+        over expected, in that unit; NaN without one), ``inclination_error_deg`` (NaN without
+        an inclination) and ``ok`` with ``reasons`` for what is off.
+    """
+    expected: ExpectedField = expected_field(site, date)
+    unit = infer_unit(strength, expected.strength_nT)
+    ratio = strength * UNITS_NT[unit] / expected.strength_nT if unit else math.nan
+    incl_err = (inclination_deg - expected.inclination_deg if inclination_deg is not None
+                else math.nan)
+    reasons = []
+    if unit is None:
+        reasons.append(f"field strength {strength:.4g} matches the model's "
+                       f"{expected.strength_nT:.0f} nT in no unit (raw counts?)")
+    elif abs(ratio - 1.0) > strength_tol:
+        reasons.append(f"field strength {ratio:.2f} times the model's "
+                       f"{expected.strength_nT / UNITS_NT[unit]:.4g} {unit}")
+    if abs(incl_err) > inclination_tol_deg:
+        reasons.append(f"inclination {inclination_deg:.1f} deg against the model's "
+                       f"{expected.inclination_deg:.1f} deg")
+    return {"expected": expected, "unit": unit, "strength_ratio": ratio,
+            "inclination_error_deg": incl_err, "ok": not reasons, "reasons": reasons}

@@ -1,0 +1,103 @@
+"""Direction for calibrate: alignment of a chosen calibration, held-out direction consistency,
+the direction veto and the geomagnetic check."""
+
+from __future__ import annotations
+
+import datetime as dt
+
+import numpy as np
+import pytest
+
+import magbench
+from magbench.core.crb import alignment_rotation
+from magbench.core.geomagnetic import Site
+from magbench.core.model import Calibration, CalibrationFailed
+from magbench.core.quaternions import matrix_to_quat
+from magbench.core.rotations import rotation_exp
+from magbench.sources.trajectory import simulate
+from magbench.studies.alignment import (
+    Inertial,
+    direction_consistency,
+    direction_vetoes,
+    field_check,
+    fit_alignment,
+    world_reference,
+)
+from tests.methods.algorithms.test_alignment import static_poses
+
+MOUNT = rotation_exp(np.radians(3.0) * np.array([0.6, -0.48, 0.64]))
+T = np.array([[1.1, 0.02, -0.01], [0.02, 0.95, 0.03], [-0.01, 0.03, 1.02]])
+
+
+def tumbling(noise: float = 0.0, seed: int = 5):
+    return simulate(np.random.default_rng(seed), rate_hz=50.0, duration_s=30.0, T=T,
+                    h=np.array([0.03, -0.02, 0.04]), mount=MOUNT, mag_noise=0.005 * noise,
+                    gyro_noise=0.005 * noise, accel_noise=0.05 * noise)
+
+
+def streams(traj, *, attitude=True, gyro=True, accel=True) -> Inertial:
+    return Inertial(t=traj.t if gyro else None, gyro=traj.angular_rate if gyro else None,
+                    acceleration=traj.acceleration if accel else None,
+                    attitude=matrix_to_quat(traj.R) if attitude else None)
+
+
+@pytest.mark.parametrize(("which", "tol"), [("attitude", 1e-9), ("gyro+accelerometer", 1e-4)])
+def test_the_alignment_of_a_chosen_calibration_is_recovered(which, tol):
+    traj = tumbling()
+    chosen = magbench.calibrate(traj.y, "magical")
+    inertial = streams(traj, attitude=which == "attitude")
+    aligned, source = fit_alignment(chosen, traj.y, inertial)
+    assert source == which and aligned.gauge == "heading-true"
+    assert np.abs(aligned.alignment - alignment_rotation(T @ MOUNT)).max() < tol
+    # The heading-true correction gives the field in the IMU's axes.
+    A, b = aligned.correction()
+    np.testing.assert_allclose((traj.y - b) @ A.T, traj.m, atol=30 * tol)
+
+
+def test_an_accelerometer_at_several_rests_aligns_and_one_at_a_single_rest_refuses():
+    y, a, M, _ = static_poses(2)
+    chosen = magbench.calibrate(y, "magical")
+    aligned, source = fit_alignment(chosen, y, Inertial(acceleration=a))
+    assert source == "accelerometer"
+    assert np.abs(aligned.alignment - alignment_rotation(M)).max() < 1e-9
+    with pytest.raises(CalibrationFailed, match="too few directions"):
+        fit_alignment(chosen, y, Inertial(acceleration=np.tile(a[:1], (len(a), 1))))
+    with pytest.raises(CalibrationFailed, match="no accelerometer, gyro or attitude"):
+        fit_alignment(chosen, y, Inertial())
+
+
+def test_direction_consistency_sees_a_rotation_the_magnitude_cannot():
+    traj = tumbling()
+    aligned, _ = fit_alignment(magbench.calibrate(traj.y, "magical"), traj.y, streams(traj))
+    turned = Calibration(aligned.T, aligned.h, alignment=aligned.alignment @ rotation_exp(
+        np.radians(5.0) * np.array([0.0, 0.0, 1.0])))
+    inertial = streams(traj)
+    good = direction_consistency(aligned, traj.y, inertial)
+    bad = direction_consistency(turned, traj.y, inertial)
+    assert good["spread_rms"] < 1e-6 and good["gyro_rms"] < 0.05
+    assert bad["spread_rms"] > 1.0 and bad["gyro_rms"] > 1.0
+    # Held out against the fit rows' reference: the heading error of a perfect fit is zero.
+    fit, test = slice(0, 750), slice(750, None)
+    reference = world_reference(aligned, traj.y[fit], inertial.attitude[fit])
+    held = direction_consistency(aligned, traj.y[test], inertial.rows(test),
+                                 reference=reference)
+    assert held["heading_rms"] < 1e-6
+
+
+def test_a_fit_worse_in_direction_by_more_than_the_tolerance_is_vetoed():
+    vetoes = direction_vetoes({"ali": 12.2, "fang": 6.8, "magical": 7.1, "odd": float("nan")})
+    assert set(vetoes) == {"ali"}
+    assert "5.40 deg worse than fang's 6.80 deg" in vetoes["ali"]
+    assert direction_vetoes({"a": float("nan")}) == {}
+
+
+BERLIN = Site(52.51, 13.33)
+
+
+def test_field_check_against_the_model():
+    ok = field_check(49.5, 68.0, BERLIN, dt.date(2021, 1, 1))
+    assert ok["ok"] and ok["unit"] == "uT" and abs(ok["strength_ratio"] - 1) < 0.01
+    counts = field_check(1370.0, None, BERLIN, dt.date(2021, 1, 1))
+    assert not counts["ok"] and "raw counts" in counts["reasons"][0]
+    tilted = field_check(49.5, 58.0, BERLIN, dt.date(2021, 1, 1))
+    assert not tilted["ok"] and "inclination 58.0 deg" in tilted["reasons"][0]
