@@ -129,6 +129,9 @@ def fit_alignment(cal: Calibration, y: np.ndarray, inertial: Inertial,
     elif source == "gyro+accelerometer":
         joint = calibrate(y, "mag_imu_map", angular_rate=inertial.gyro, time=inertial.t,
                           acceleration=inertial.acceleration, **map_options)
+        if not joint.converged:
+            raise CalibrationFailed(f"alignment: the joint gyro and accelerometer fit did not "
+                                    f"converge ({joint.message}); the rotation is unknown")
         R = nearest_rotation(unit_rows(joint.apply(y)).T @ unit_rows(m))
     elif source == "accelerometer":
         rows = static_rows(inertial.acceleration, 0.05)
