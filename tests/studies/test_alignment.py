@@ -18,6 +18,7 @@ from magbench.sources.trajectory import simulate
 from magbench.studies.alignment import (
     Inertial,
     direction_consistency,
+    direction_report,
     direction_vetoes,
     field_check,
     fit_alignment,
@@ -145,3 +146,19 @@ def test_held_out_heading_on_broad21_agrees_with_the_truth_based_number():
     truth = float(np.degrees(rms(heading)))
     assert source == "attitude"
     assert abs(printed - truth) < 1.0, (printed, truth)
+
+
+def test_direction_report_sets_aside_a_fit_worse_in_direction():
+    """MAG.I.C.AL. against a sphere fit (T = r I) of a soft-iron distorted magnetometer: no
+    rotation repairs the sphere's direction errors, the held-out heading shows them and the
+    report sets it aside."""
+    traj = tumbling(noise=1.0)
+    inertial = streams(traj)
+    fit, test = np.arange(0, 750), np.arange(750, 1500)
+    candidates = {n: magbench.calibrate(traj.y[fit], n) for n in ("magical", "sphere")}
+    report = direction_report(candidates, traj.y, inertial, fit, test)
+    assert report.source == "attitude" and report.metric == "held-out heading RMS"
+    assert report.scores["magical"]["heading_rms"] < 1.0      # the noise: 0.6 deg
+    assert report.scores["sphere"]["heading_rms"] > 2.0
+    assert set(report.vetoes) == {"sphere"} and "worse than magical's" in report.line("sphere")
+    assert report.aligned["magical"].gauge == "heading-true"

@@ -44,8 +44,9 @@ from magbench.methods.algorithms._alignment_common import (
 )
 from magbench.methods.api import calibrate
 
-__all__ = ["Inertial", "direction_consistency", "direction_vetoes", "field_check",
-           "fit_alignment"]
+__all__ = ["PRIMARY", "DirectionReport", "Inertial", "direction_consistency",
+           "direction_report", "direction_vetoes", "field_check", "fit_alignment",
+           "primary_direction"]
 
 
 @dataclass(frozen=True)
@@ -228,3 +229,91 @@ def field_check(strength: float, inclination_deg: float | None, site: Site, date
                        f"{expected.inclination_deg:.1f} deg")
     return {"expected": expected, "unit": unit, "strength_ratio": ratio,
             "inclination_error_deg": incl_err, "ok": not reasons, "reasons": reasons}
+
+
+#: The held-out direction metric that rules the veto, strongest first: heading error against
+#: an attitude, consistency with the gyro, spread of the dip angle at rest.
+PRIMARY = (("heading_rms", "held-out heading RMS"), ("gyro_rms", "gyro consistency RMS"),
+           ("dip_spread", "dip-angle spread at rest"))
+
+
+def primary_direction(score: dict[str, float]) -> tuple[str, float]:
+    """The first metric of :data:`PRIMARY` that ``score`` holds (finite), as (label, deg);
+    ``("", nan)`` when none."""
+    for key, label in PRIMARY:
+        value = score.get(key, math.nan)
+        if math.isfinite(value):
+            return label, float(value)
+    return "", math.nan
+
+
+@dataclass(frozen=True)
+class DirectionReport:
+    """What ``calibrate`` prints and writes about direction.
+
+    Attributes
+    ----------
+    aligned : dict
+        Candidate name -> its calibration made heading-true on the fit rows (candidates whose
+        alignment failed are left out).
+    scores : dict
+        Candidate name -> :func:`direction_consistency` on the held-out rows.
+    metric : str
+        The label of the metric that rules the veto (:func:`primary_direction`).
+    vetoes : dict
+        Candidate name -> why it is set aside (:func:`direction_vetoes`).
+    source : str
+        What fixed the alignment (``attitude``, ``gyro+accelerometer``, ``accelerometer``).
+    failures : dict
+        Candidate name -> why its alignment failed.
+    """
+
+    aligned: dict
+    scores: dict
+    metric: str
+    vetoes: dict
+    source: str
+    failures: dict
+
+    def line(self, name: str) -> str:
+        """One line on ``name``'s direction, for the printed report."""
+        if name in self.failures:
+            return f"{name}: direction not measured ({self.failures[name]})"
+        label, value = primary_direction(self.scores[name])
+        veto = f"; set aside: {self.vetoes[name]}" if name in self.vetoes else ""
+        return f"{name}: {label} {value:.2f} deg (alignment from {self.source}){veto}"
+
+
+def direction_report(candidates: dict[str, Calibration], y: np.ndarray, inertial: Inertial,
+                     fit: np.ndarray, test: np.ndarray, *, tol_deg: float = 1.0,
+                     **map_options: object) -> DirectionReport:
+    """Align every candidate on the fit rows, score it on the held-out rows, veto.
+
+    Parameters
+    ----------
+    candidates : dict
+        Name -> calibration chosen on magnitude (fitted on ``fit`` rows).
+    y : ndarray, shape (K, 3)
+        All magnetometer samples; ``inertial`` on the same rows.
+    fit, test : ndarray of int
+        Row indices of the fit and held-out parts (the gyro+accelerometer source needs
+        ``fit`` to be consecutive rows).
+    tol_deg : float
+        See :func:`direction_vetoes`.
+    """
+    aligned, scores, failures, source = {}, {}, {}, inertial.source
+    for name, cal in candidates.items():
+        try:
+            aligned[name], source = fit_alignment(cal, y[fit], inertial.rows(fit),
+                                                  **map_options)
+        except CalibrationFailed as exc:
+            failures[name] = str(exc)
+            continue
+        reference = (world_reference(aligned[name], y[fit], inertial.attitude[fit])
+                     if source == "attitude" else None)
+        scores[name] = direction_consistency(aligned[name], y[test], inertial.rows(test),
+                                             reference=reference)
+    primary = {n: primary_direction(s) for n, s in scores.items()}
+    metric = next((label for label, _ in primary.values() if label), "")
+    vetoes = direction_vetoes({n: v for n, (_, v) in primary.items()}, tol_deg)
+    return DirectionReport(aligned, scores, metric, vetoes, source, failures)
