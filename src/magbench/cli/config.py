@@ -387,15 +387,7 @@ def _results_dir(cfg: DictConfig) -> Path:
         raise UsageError(f"results_dir must be a folder path, e.g. results_dir=results, got "
                          f"{cfg.get('results_dir')!r}")
     path = Path(str(cfg.results_dir)).expanduser()
-    for parent in [path, *path.parents]:
-        if parent.exists():
-            if not parent.is_dir():
-                raise UsageError(f"results_dir {path} cannot be created: {parent} is a file; "
-                                 "expected a folder")
-            if not os.access(parent, os.W_OK | os.X_OK):
-                raise UsageError(f"results_dir {path} is not writable ({parent}); choose a "
-                                 "folder you can write to")
-            break
+    _no_file_in_the_way(path, "results_dir")
     return path
 
 
@@ -438,6 +430,17 @@ def point_checks(min_k: int) -> dict:
             "band_deg": (lambda b: 0 < b <= 90, "in (0, 90] degrees")}
 
 
+def _no_file_in_the_way(path: Path, key: str) -> None:
+    """Refuse a folder ``path`` that is a file or lies below one (the check of a folder that
+    is not created yet: whether it can be written is tried by :func:`writable_folder`)."""
+    for parent in [path, *path.parents]:
+        if parent.exists() and not parent.is_dir():
+            what = "is" if parent == path else f"cannot be created: {parent} is"
+            raise UsageError(f"{key}={path} {what} a file; expected a folder")
+        if parent.exists():
+            return
+
+
 def writable_folder(path: Path | str, key: str) -> Path:
     """``path`` as a folder that exists and can be written to, created if need be.
 
@@ -450,12 +453,7 @@ def writable_folder(path: Path | str, key: str) -> Path:
         ``path`` or one of its parents is a file, or the folder cannot be created or written.
     """
     path = Path(path).expanduser()
-    for parent in [path, *path.parents]:
-        if parent.exists() and not parent.is_dir():
-            what = "is" if parent == path else f"cannot be created: {parent} is"
-            raise UsageError(f"{key}={path} {what} a file; expected a folder")
-        if parent.exists():
-            break
+    _no_file_in_the_way(path, key)
     try:
         path.mkdir(parents=True, exist_ok=True)
         with tempfile.TemporaryFile(dir=path):
