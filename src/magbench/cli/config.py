@@ -10,6 +10,7 @@ the same checks for its keys.
 from __future__ import annotations
 
 import dataclasses
+import datetime as dt
 import difflib
 import math
 import os
@@ -21,6 +22,7 @@ from typing import TYPE_CHECKING
 
 from omegaconf import DictConfig, OmegaConf
 
+from magbench.core.geomagnetic import Site, parse_date, parse_location
 from magbench.engine.plugins import load_plugins
 from magbench.methods.registry import get_method, methods
 
@@ -37,6 +39,7 @@ __all__ = [
     "check_number",
     "check_options",
     "check_override_keys",
+    "check_site",
     "check_trials",
     "compose_config",
     "config_dir",
@@ -465,3 +468,26 @@ def writable_folder(path: Path | str, key: str) -> Path:
                          "folder you can write to") from None
     return path
 
+
+
+def check_site(cfg: DictConfig) -> tuple[Site | None, dt.date | None]:
+    """``location=lat,lon[,alt]`` and ``date=`` (calibrate's geomagnetic check), parsed.
+
+    ``date`` without ``location`` is refused (it has nothing to check); ``location`` without
+    ``date`` means today.
+
+    Raises
+    ------
+    UsageError
+        A malformed location or date, one line naming the expected form.
+    """
+    location, date = plain(cfg.get("location")), plain(cfg.get("date"))
+    if location is None:
+        if date is not None:
+            raise UsageError("date= is used with location=lat,lon[,alt]; give both or neither")
+        return None, None
+    try:
+        return parse_location(location), parse_date(date if date is not None else
+                                                     dt.date.today())
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
