@@ -24,7 +24,7 @@ from magbench.studies.alignment import (
     fit_alignment,
     world_reference,
 )
-from tests.methods.algorithms.test_alignment import static_poses
+from tests.methods.algorithms.test_dip_align import static_poses
 
 MOUNT = rotation_exp(np.radians(3.0) * np.array([0.6, -0.48, 0.64]))
 T = np.array([[1.1, 0.02, -0.01], [0.02, 0.95, 0.03], [-0.01, 0.03, 1.02]])
