@@ -42,6 +42,7 @@ from magbench.cli.config import (
     UsageError,
     check_columns,
     check_common,
+    check_instance,
     check_integer,
     check_options,
     writable_folder,
@@ -236,6 +237,7 @@ def run_calibrate(cfg: DictConfig, picture: PictureWorker | None = None) -> int:
     max_samples = check_integer(cfg.get("max_samples", DEFAULT_MAX_SAMPLES), "max_samples", 8)
     n_boot = check_integer(cfg.get("bootstrap", 50), "bootstrap", 0, 10_000)
     columns = check_columns(cfg)
+    instance = check_instance(cfg)
     name = cfg.get("method")
     if name is not None and str(name) not in methods():
         raise UsageError(f"unknown method {name!r}; expected one of: {', '.join(methods())}")
@@ -247,7 +249,8 @@ def run_calibrate(cfg: DictConfig, picture: PictureWorker | None = None) -> int:
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         try:
-            rec = read_samples(path, columns, min_samples=need, min_coverage=MIN_COVERAGE)
+            rec = read_samples(path, columns, min_samples=need, min_coverage=MIN_COVERAGE,
+                               instance=instance)
         except ValueError as exc:
             raise UsageError(str(exc)) from None
     for w in caught:

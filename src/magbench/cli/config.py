@@ -29,7 +29,8 @@ if TYPE_CHECKING:
     from magbench.studies.review import OptionAxis, ReviewStudy
     from magbench.studies.wushi import WuShiStudy
 
-__all__ = ["KINDS", "UsageError", "check_columns", "check_common", "check_integer", "check_number",
+__all__ = ["KINDS", "UsageError", "check_columns", "check_common", "check_instance",
+           "check_integer", "check_number",
            "check_options", "compose_config", "config_dir", "gyro_study", "real_study",
            "review_study", "selected_algorithms", "study_for", "writable_folder",
            "wushi_study"]
@@ -79,6 +80,12 @@ def check_integer(value: object, what: str, low: int, high: int | None = None) -
     if high is not None and value > high:
         raise UsageError(f"{what} must be an integer <= {high}, got {value!r}")
     return value
+
+
+def check_instance(cfg: DictConfig) -> int | None:
+    """The ``instance`` key: which compass of a file that holds several (None: the only one)."""
+    value = cfg.get("instance")
+    return None if value is None else check_integer(value, "instance", 0)
 
 
 #: The most trials a sweep accepts: its work units are listed in memory before the run (a

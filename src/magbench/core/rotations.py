@@ -7,7 +7,8 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["euler_zyx_to_matrix", "rotation_exp", "skew"]
+__all__ = ["euler_zyx_to_matrix", "euler_zyx_to_quaternion", "quaternion_to_matrix",
+           "rotation_exp", "skew"]
 
 
 def skew(v: np.ndarray) -> np.ndarray:
@@ -47,3 +48,34 @@ def euler_zyx_to_matrix(phi: np.ndarray, theta: np.ndarray, psi: np.ndarray) -> 
     R[..., 1, 2] = sp * st * cf - cp * sf
     R[..., 2, 0], R[..., 2, 1], R[..., 2, 2] = -st, ct * sf, ct * cf
     return R
+
+
+def quaternion_to_matrix(q: np.ndarray) -> np.ndarray:
+    """Rotation matrices of ``(..., 4)`` Hamilton quaternions, scalar first ``(w, x, y, z)``.
+
+    A unit quaternion ``q`` and its matrix ``R`` rotate a vector the same way,
+    ``R v = q v q*``; for an attitude quaternion from body to world ``R`` is body-to-world.
+    The quaternion is normalised first (a logged one is only nearly unit).
+    """
+    q = np.asarray(q, dtype=float)
+    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
+    w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
+    R = np.empty(q.shape[:-1] + (3, 3))
+    R[..., 0, 0], R[..., 0, 1], R[..., 0, 2] = 1 - 2 * (y * y + z * z), 2 * (x * y - w * z), \
+        2 * (x * z + w * y)
+    R[..., 1, 0], R[..., 1, 1], R[..., 1, 2] = 2 * (x * y + w * z), 1 - 2 * (x * x + z * z), \
+        2 * (y * z - w * x)
+    R[..., 2, 0], R[..., 2, 1], R[..., 2, 2] = 2 * (x * z - w * y), 2 * (y * z + w * x), \
+        1 - 2 * (x * x + y * y)
+    return R
+
+
+def euler_zyx_to_quaternion(phi: np.ndarray, theta: np.ndarray, psi: np.ndarray) -> np.ndarray:
+    """The scalar-first quaternion of :func:`euler_zyx_to_matrix` (roll phi, pitch theta, yaw
+    psi; radians): ``q = q_z(psi) q_y(theta) q_x(phi)``, with ``w >= 0``."""
+    cr, sr = np.cos(np.asarray(phi) / 2), np.sin(np.asarray(phi) / 2)
+    cp, sp = np.cos(np.asarray(theta) / 2), np.sin(np.asarray(theta) / 2)
+    cy, sy = np.cos(np.asarray(psi) / 2), np.sin(np.asarray(psi) / 2)
+    q = np.stack([cr * cp * cy + sr * sp * sy, sr * cp * cy - cr * sp * sy,
+                  cr * sp * cy + sr * cp * sy, cr * cp * sy - sr * sp * cy], axis=-1)
+    return np.where(q[..., :1] < 0, -q, q)

@@ -29,9 +29,10 @@ import pandas as pd
 
 from magbench.core.geometry import MIN_COVERAGE, MIN_THICKNESS, check_geometry
 from magbench.core.model import check_magnitude
+from magbench.sources.logs import EXTRA_COLUMNS, MIN_LOG_SAMPLES, is_log, read_log
 
-__all__ = ["DATA_ENV", "GYRO_COLUMNS", "MAG_COLUMNS", "Recording", "data_dir",
-           "list_recordings", "load_recording", "read_samples"]
+__all__ = ["DATA_ENV", "EXTRA_COLUMNS", "GYRO_COLUMNS", "MAG_COLUMNS", "Recording", "data_dir",
+           "list_recordings", "load_recording", "log_recording", "read_samples"]
 
 DATA_ENV = "MAGBENCH_DATA"
 MAG_COLUMNS = ("mx", "my", "mz")
@@ -59,6 +60,9 @@ class Recording:
         Every ``stride``-th row is kept (1 = all).
     columns : tuple of str
         Names of the magnetometer columns read (``column i`` without a header).
+    extra : DataFrame or None
+        Other time-aligned columns, one row per sample (those of :data:`EXTRA_COLUMNS` the
+        file has).
     """
 
     name: str
@@ -68,6 +72,7 @@ class Recording:
     n_rows: int = 0
     stride: int = 1
     columns: tuple = MAG_COLUMNS
+    extra: pd.DataFrame | None = None
 
     @property
     def K(self) -> int:
@@ -81,7 +86,9 @@ class Recording:
         """The recording restricted to some rows (times and gyro alike)."""
         return replace(self, y=self.y[index],
                        t=None if self.t is None else self.t[index],
-                       gyro=None if self.gyro is None else self.gyro[index])
+                       gyro=None if self.gyro is None else self.gyro[index],
+                       extra=None if self.extra is None else
+                       self.extra.iloc[index].reset_index(drop=True))
 
     def thinned(self, max_samples: int | None) -> Recording:
         """Every ``s``-th sample, ``s = ceil(K / max_samples)``; unchanged if already small."""
@@ -323,6 +330,17 @@ def _count_lines(path: Path) -> int:
     return n
 
 
+def _extra_columns(path: Path, layout: dict, header: list[str] | None,
+                   used: slice | np.ndarray, has_header: bool) -> pd.DataFrame | None:
+    """The :data:`EXTRA_COLUMNS` the header names, on the rows kept (missing cells NaN)."""
+    wanted = {header.index(c): c for c in EXTRA_COLUMNS if header and c in header}
+    if not wanted:
+        return None
+    table = _read_columns(path, layout, wanted, line0=2 if has_header else 1)[used]
+    names = [wanted[p] for p in sorted(wanted)]
+    return pd.DataFrame(table, columns=names)[[c for c in EXTRA_COLUMNS if c in names]]
+
+
 #: The geometry check of a longer recording looks at an even stride of this many samples: the
 #: spread and the coverage of 10 million samples are those of any 100 000 evenly spread ones,
 #: at a hundredth of the time and memory.
@@ -332,7 +350,8 @@ GEOMETRY_SAMPLES = 100_000
 def read_samples(path: Path | str, columns: Sequence[object] | None = None, *,
                  min_samples: int = 4, check: bool = True,
                  min_coverage: float = MIN_COVERAGE,
-                 min_thickness: float = MIN_THICKNESS) -> Recording:
+                 min_thickness: float = MIN_THICKNESS,
+                 instance: int | None = None) -> Recording:
     """Read magnetometer samples from a CSV file (delimiter and header detected).
 
     Parameters
@@ -348,6 +367,9 @@ def read_samples(path: Path | str, columns: Sequence[object] | None = None, *,
     check : bool
         Also reject nearly coplanar samples and samples covering too little of the sphere
         (:func:`check_geometry`).
+    instance : int, optional
+        A flight log's compass (:mod:`magbench.sources.logs`; a ``.ulg``, ``.bin`` or ``.log``
+        file is read as one): needed when it has several.
 
     Returns
     -------
@@ -368,6 +390,9 @@ def read_samples(path: Path | str, columns: Sequence[object] | None = None, *,
         When rows with missing values are dropped (how many).
     """
     path = Path(path)
+    if is_log(path):          # .ulg, .bin, .log: magbench.sources.logs
+        return log_recording(path, instance, min_samples=min_samples, check=check,
+                             min_coverage=min_coverage, min_thickness=min_thickness)
     if path.is_dir():
         raise ValueError(f"file {path} is a folder; expected a CSV of magnetometer samples")
     if not path.is_file():
@@ -425,9 +450,57 @@ def read_samples(path: Path | str, columns: Sequence[object] | None = None, *,
                          "are needed (the method's number of unknowns)")
     rec = Recording(path.parent.name if path.name == "data.csv" else path.stem, y,
                     None if t is None else t[used], None if gyro is None else gyro[used],
-                    n_rows=int(y.shape[0]), columns=tuple(names))
+                    n_rows=int(y.shape[0]), columns=tuple(names),
+                    extra=_extra_columns(path, layout, header, used, has_header))
     if check:
         stride = math.ceil(rec.K / GEOMETRY_SAMPLES)
         check_geometry(rec.y[::stride], min_coverage=min_coverage,
                        min_thickness=min_thickness, what=path.name)
+    return rec
+
+
+def log_recording(path: Path | str, instance: int | None = None, *, min_samples: int = 4,
+                  check: bool = True, min_coverage: float = MIN_COVERAGE,
+                  min_thickness: float = MIN_THICKNESS) -> Recording:
+    """One compass of a flight log (:mod:`magbench.sources.logs`) as a :class:`Recording`.
+
+    ``check`` (a calibration) also asks for :data:`MIN_LOG_SAMPLES` samples and the geometry
+    of :func:`~magbench.core.geometry.check_geometry`. The other streams go to
+    ``Recording.extra``; the gyro is ``Recording.gyro`` as well (rows where it is missing are
+    dropped with a warning, as the CSV reader does).
+
+    Raises
+    ------
+    ValueError
+        What :meth:`FlightLog.choose` and :func:`read_log` raise; non-finite or unusable
+        magnitudes; bad geometry. One line each.
+    """
+    path = Path(path)
+    log = read_log(path)
+    chosen = log.choose(instance, max(min_samples, MIN_LOG_SAMPLES) if check else min_samples)
+    table = log.table(chosen)
+    gyro_cols = list(GYRO_COLUMNS)
+    if all(c in table for c in gyro_cols):
+        missing = table[gyro_cols].isna().any(axis=1).to_numpy()
+        if missing.any():
+            warnings.warn(f"{path.name}: dropped {int(missing.sum())} of {len(table)} compass "
+                          "samples with no gyro sample around them (outside the gyro stream or "
+                          "in a gap of it)", UserWarning, stacklevel=2)
+            table = table[~missing].reset_index(drop=True)
+    y = table[list(MAG_COLUMNS)].to_numpy(float)
+    if not np.isfinite(y).all():
+        raise ValueError(f"{path.name}: the compass stream holds non-finite values")
+    what = f"the compass samples of {path.name} (instance {chosen})"
+    check_magnitude(y, what)
+    if y.shape[0] < min_samples:
+        raise ValueError(f"{path.name}: instance {chosen} has {y.shape[0]} usable samples; at "
+                         f"least {min_samples} are needed")
+    extra = table[[c for c in EXTRA_COLUMNS if c in table]]
+    rec = Recording(path.stem, y, table["t"].to_numpy(float),
+                    table[gyro_cols].to_numpy(float) if all(c in table for c in gyro_cols)
+                    else None, n_rows=len(y), columns=MAG_COLUMNS,
+                    extra=extra if len(extra.columns) else None)
+    if check:
+        check_geometry(rec.y, min_coverage=min_coverage, min_thickness=min_thickness,
+                       what=path.name)
     return rec

@@ -1,0 +1,71 @@
+"""``python -m magbench extract``: a flight log's compass as CSV; one-line errors; calibrate's
+answer on the shared sample logs."""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from magbench.cli import main
+from magbench.cli.main import command_help
+from magbench.sources.logs import read_log
+from tests.sources.test_logs import SHARED_LOGS, T0, mag0, px4_log
+
+
+def test_extract_writes_the_aligned_table_that_calibrate_reads_back(tmp_path, capsys):
+    log = px4_log(tmp_path / "flight.ulg")
+    out = tmp_path / "data.csv"
+    assert main(["extract", f"file={log}", "instance=0", f"out={out}"]) == 0
+    said = capsys.readouterr().out
+    assert said.startswith(f"flight.ulg: compass instance 0 (device 11, gauss), {len(T0)} "
+                           "samples at 20 Hz from t = 0.200 to 5.950 s; columns t, mx, my, mz, "
+                           "gx, gy, gz, ax, ay, az, qw, qx, qy, qz, current, throttle, "
+                           "temperature; no value (outside the stream or in a gap): gx 6,")
+    frame = pd.read_csv(out)
+    expected = read_log(log).table(0)
+    pd.testing.assert_frame_equal(frame, expected, check_exact=False, rtol=1e-12)
+    np.testing.assert_allclose(frame[["mx", "my", "mz"]], mag0(T0), rtol=1e-5)
+    # The CSV reader keeps the same extra columns (rows without gyro dropped, as for the log).
+    from magbench.sources.recordings import read_samples
+
+    with pytest.warns(UserWarning, match="dropped 6 of 116 rows"):
+        rec = read_samples(out, check=False)
+    assert rec.has_gyro and list(rec.extra.columns) == ["ax", "ay", "az", "qw", "qx", "qy",
+                                                         "qz", "current", "throttle",
+                                                         "temperature"]
+
+
+def test_extract_errors_are_one_line(tmp_path, capsys):
+    log = px4_log(tmp_path / "flight.ulg")
+    assert main(["extract", f"file={log}", f"out={tmp_path / 'x.csv'}"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err == ("magbench: error: flight.ulg has 2 compasses; choose one with instance=N: "
+                   "0 (device 11, 116 samples), 1 (device 22, 50 samples)")
+    assert main(["extract", f"file={log}", "instance=-1"]) == 2
+    assert "instance must be an integer >= 0, got -1" in capsys.readouterr().err
+    (tmp_path / "a.csv").write_text("mx,my,mz\n1,2,3\n")
+    assert main(["extract", f"file={tmp_path / 'a.csv'}"]) == 2
+    assert "extract reads flight logs (.ulg, .bin, .log); a.csv is not one" in \
+        capsys.readouterr().err
+    assert main(["extract"]) == 2
+    assert "extract needs file=PATH" in capsys.readouterr().err
+
+
+def test_extract_help_lists_its_keys():
+    text = command_help("extract")
+    for key in ("file", "instance", "out", "overwrite"):
+        assert f"\n  {key} " in text
+
+
+@pytest.mark.skipif(not SHARED_LOGS, reason="the shared sample logs are not here")
+@pytest.mark.parametrize("path", SHARED_LOGS, ids=lambda p: p.name)
+def test_calibrate_on_the_shared_logs_says_the_stream_is_too_short(path, tmp_path, capsys):
+    assert main(["calibrate", f"file={path}", f"out={tmp_path / 'cal'}"]) == 2
+    captured = capsys.readouterr()
+    lines = captured.err.strip().splitlines()
+    assert len(lines) == 1 and "the magnetometer streams are too short to calibrate" in lines[0]
+    assert ("6 and 6 samples" in lines[0]) or ("11 and 11 samples" in lines[0])
+    assert not (tmp_path / "cal").exists()
+    assert main(["calibrate", f"file={path}", "instance=0", f"out={tmp_path / 'cal'}"]) == 2
+    assert "the magnetometer stream is too short" in capsys.readouterr().err
