@@ -69,3 +69,19 @@ def test_calibrate_on_the_shared_logs_says_the_stream_is_too_short(path, tmp_pat
     assert not (tmp_path / "cal").exists()
     assert main(["calibrate", f"file={path}", "instance=0", f"out={tmp_path / 'cal'}"]) == 2
     assert "the magnetometer stream is too short" in capsys.readouterr().err
+
+
+def test_calibrate_from_a_log_reports_the_mounting_rotation(tmp_path, capsys):
+    import json
+
+    from tests.studies.test_flight import simulated_ulog
+
+    log = simulated_ulog(tmp_path / "flight.ulg", 6, seed=4, seconds=30.0)
+    out = tmp_path / "cal"
+    assert main(["calibrate", f"file={log}", f"out={out}", "bootstrap=0"]) == 0
+    said = capsys.readouterr().out
+    line = next(s for s in said.splitlines() if s.startswith("mounting rotation:"))
+    assert line.startswith("mounting rotation: ROTATION_YAW_270 (id 6) from the attitude, "
+                           "confidence ")
+    found = json.loads((out / "calibration.json").read_text())["mounting_rotation"]
+    assert found["id"] == 6 and found["confidence"] > 2 and found["basis"] == "attitude"

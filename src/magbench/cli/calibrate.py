@@ -61,6 +61,7 @@ from magbench.studies.calibration import (
     calibrate_recording,
     estimate,
 )
+from magbench.studies.flight import mounting_rotation
 from magbench.studies.real import DEFAULT_MAX_SAMPLES, PREPROCESSING, applicability
 
 #: Why the first round's choice stands when the second round is not fitted (one phrase).
@@ -292,6 +293,7 @@ def run_calibrate(cfg: DictConfig, picture: PictureWorker | None = None) -> int:
     out = writable_folder(cfg.out if cfg.get("out") else default_out(path), "out")
     payload = calibration_json(result, file=str(path), columns=list(rec.columns),
                                n_file=rec.K, preprocess=preprocess)
+    mounting = _add_mounting(result, payload)
     job = {"path": out / "calibration.png", "dpi": PICTURE_DPI,
            "compress_level": PICTURE_COMPRESSION, "kwargs": _picture_arguments(result, payload)}
     sent = picture is not None and picture.send(job)
@@ -306,6 +308,8 @@ def run_calibrate(cfg: DictConfig, picture: PictureWorker | None = None) -> int:
     print(f"choice: {result.how}")
     print(f"chosen: {payload['label']} ({payload['model']} model)")
     print("\n".join(_verdict_lines(payload)))
+    if mounting:
+        print(mounting)
     for warning in payload["warnings"]:
         print(f"magbench: warning: {warning}", file=sys.stderr)
     problem = picture.wait() if sent else ""
@@ -316,6 +320,18 @@ def run_calibrate(cfg: DictConfig, picture: PictureWorker | None = None) -> int:
     print(f"wrote {out}/: {', '.join([*written, 'ranking.csv', 'calibration.png'])} "
           f"(in {time.perf_counter() - start:.2f} s)")
     return 0
+
+
+def _add_mounting(result: CalibrationResult, payload: dict) -> str:
+    """Adds the detected mounting rotation to ``payload`` (``mounting_rotation``: the id of
+    the autopilots' rotation enum, or None with the reason) when the recording has an
+    attitude or an accelerometer (:mod:`magbench.studies.flight`); its line, or ""."""
+    found = mounting_rotation(result.rec, np.array(payload["A"]), np.array(payload["b"]),
+                              result.inliers)
+    if found is None:
+        return ""
+    payload["mounting_rotation"] = found.to_dict()
+    return found.line()
 
 
 def _write_exports(cal: Calibration, payload: dict, out: Path) -> list[str]:

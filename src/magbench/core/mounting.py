@@ -216,7 +216,8 @@ def detect_mounting(m: np.ndarray, *, attitude: np.ndarray | None = None,
     else:
         raise ValueError("detect_mounting needs an attitude or an accelerometer")
     order = np.argsort(costs, kind="stable")
-    best = rotations[order[0]]
+    # A repeated matrix (26, 27) is reported by its first id, whichever rounding won.
+    best = min(r for r in rotations if _same(r, rotations[order[0]]))
     second_i = next(i for i in order[1:] if not _same(best, rotations[i]))
     second = rotations[second_i]
     floor = np.finfo(float).tiny

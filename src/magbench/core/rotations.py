@@ -7,8 +7,8 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["euler_zyx_to_matrix", "euler_zyx_to_quaternion", "quaternion_to_matrix",
-           "rotation_exp", "skew"]
+__all__ = ["euler_zyx_to_matrix", "euler_zyx_to_quaternion", "matrix_to_quaternion",
+           "quaternion_to_matrix", "rotation_exp", "skew"]
 
 
 def skew(v: np.ndarray) -> np.ndarray:
@@ -68,6 +68,31 @@ def quaternion_to_matrix(q: np.ndarray) -> np.ndarray:
     R[..., 2, 0], R[..., 2, 1], R[..., 2, 2] = 2 * (x * z - w * y), 2 * (y * z + w * x), \
         1 - 2 * (x * x + y * y)
     return R
+
+
+def matrix_to_quaternion(R: np.ndarray) -> np.ndarray:
+    """The scalar-first unit quaternions (``w >= 0``) of ``(..., 3, 3)`` rotation matrices,
+    the inverse of :func:`quaternion_to_matrix` (from the largest of the four squared
+    components, which keeps the division well conditioned)."""
+    R = np.asarray(R, dtype=float)
+    tr = np.trace(R, axis1=-2, axis2=-1)
+    squares = np.stack([1 + tr, 1 + 2 * R[..., 0, 0] - tr, 1 + 2 * R[..., 1, 1] - tr,
+                        1 + 2 * R[..., 2, 2] - tr], axis=-1) / 4       # w^2, x^2, y^2, z^2
+    # 4 w x, 4 w y, 4 w z, 4 x y, 4 x z, 4 y z from the off-diagonal sums and differences.
+    wx = R[..., 2, 1] - R[..., 1, 2]
+    wy = R[..., 0, 2] - R[..., 2, 0]
+    wz = R[..., 1, 0] - R[..., 0, 1]
+    xy = R[..., 0, 1] + R[..., 1, 0]
+    xz = R[..., 0, 2] + R[..., 2, 0]
+    yz = R[..., 1, 2] + R[..., 2, 1]
+    products = np.stack([np.stack([4 * squares[..., 0], wx, wy, wz], -1),
+                         np.stack([wx, 4 * squares[..., 1], xy, xz], -1),
+                         np.stack([wy, xy, 4 * squares[..., 2], yz], -1),
+                         np.stack([wz, xz, yz, 4 * squares[..., 3]], -1)], -2)
+    pick = np.argmax(squares, axis=-1)
+    row = np.take_along_axis(products, pick[..., None, None], axis=-2)[..., 0, :]
+    q = row / np.linalg.norm(row, axis=-1, keepdims=True)
+    return np.where(q[..., :1] < 0, -q, q)
 
 
 def euler_zyx_to_quaternion(phi: np.ndarray, theta: np.ndarray, psi: np.ndarray) -> np.ndarray:
