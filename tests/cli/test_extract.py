@@ -85,3 +85,30 @@ def test_calibrate_from_a_log_reports_the_mounting_rotation(tmp_path, capsys):
                            "confidence ")
     found = json.loads((out / "calibration.json").read_text())["mounting_rotation"]
     assert found["id"] == 6 and found["confidence"] > 2 and found["basis"] == "attitude"
+
+
+def test_calibrate_from_a_log_fits_the_current_term_and_keeps_it(tmp_path, capsys):
+    import json
+
+    from tests.studies.test_flight import simulated_ulog
+
+    motor = np.array([0.004, -0.002, 0.003])               # gauss per A
+    log = simulated_ulog(tmp_path / "flight.ulg", 0, seed=5, seconds=30.0, motor=motor)
+    out = tmp_path / "cal"
+    assert main(["calibrate", f"file={log}", f"out={out}", "bootstrap=0"]) == 0
+    said = capsys.readouterr().out
+    line = next(s for s in said.splitlines() if s.startswith("time-varying terms"))
+    assert "u = current" in line and ": kept; C per unit of u" in line
+    terms = json.loads((out / "calibration.json").read_text())["time_varying"]
+    assert terms["kept"] and terms["held_out_time_varying"] < 0.1 * terms["held_out_static"]
+    np.testing.assert_allclose(np.array(terms["C"])[:, 0], motor, atol=2e-4)
+    assert main(["calibrate", f"file={log}", f"out={tmp_path / 'none'}", "bootstrap=0",
+                 "compensate=none"]) == 0
+    assert "time-varying" not in capsys.readouterr().out
+    assert "time_varying" not in json.loads((tmp_path / "none" / "calibration.json").read_text())
+    assert main(["calibrate", f"file={log}", "compensate=[temperature]"]) == 2
+    assert capsys.readouterr().err.strip() == ("magbench: error: compensate: the recording has "
+                                               "no temperature column (it has: current)")
+    assert main(["calibrate", f"file={log}", "compensate=[wind]"]) == 2
+    assert "compensate must be auto, none or a list of current, throttle, temperature" in \
+        capsys.readouterr().err

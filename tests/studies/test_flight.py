@@ -20,17 +20,29 @@ T_TRUE = 0.5 * np.array([[1.05, 0.03, -0.02], [0.03, 0.95, 0.04], [-0.02, 0.04, 
 H_TRUE = np.array([0.12, -0.05, 0.2])
 
 
-def simulated_ulog(path: Path, rotation: int, seed: int = 0, seconds: float = 30.0) -> Path:
+def current_profile(t: np.ndarray) -> np.ndarray:
+    """A battery current (A) that rises and falls as a throttle would, 0 to 20 A."""
+    return 20 * np.clip(0.5 + 0.3 * np.sin(0.44 * t + 1) + 0.2 * np.sin(1.45 * t), 0, 1)
+
+
+def simulated_ulog(path: Path, rotation: int, seed: int = 0, seconds: float = 30.0,
+                   motor: np.ndarray | None = None) -> Path:
     """A PX4 log of a calibration manoeuvre: ``sensor_mag`` (gauss, 20 Hz) of a compass mounted
-    with ``rotation``, distorted by ``T_TRUE``, ``H_TRUE``; ``vehicle_attitude`` at 40 Hz."""
+    with ``rotation``, distorted by ``T_TRUE``, ``H_TRUE``; ``vehicle_attitude`` at 40 Hz;
+    with ``motor`` (gauss per A), ``battery_status`` at 40 Hz and ``motor * current`` added."""
     rng = np.random.default_rng(seed)
     traj = simulate(rng, duration_s=seconds, rate_hz=40.0)
     m_sensor = traj.m @ rotation_matrix(rotation)
     y = m_sensor @ T_TRUE.T + H_TRUE + rng.normal(0.0, 0.002, m_sensor.shape)
+    current = current_profile(traj.t)
+    if motor is not None:
+        y = y + current[:, None] * np.asarray(motor)
     q = matrix_to_quaternion(traj.R)
     us = np.round((traj.t + 1.0) * 1e6).astype(int)
     mag_fields = [("uint64_t", "timestamp"), ("float", "x"), ("float", "y"), ("float", "z")]
-    return write_ulog(path, [
+    battery = [("battery_status", 0, [("uint64_t", "timestamp"), ("float", "current_a")],
+                [(int(u), float(c)) for u, c in zip(us, current, strict=True)])]
+    return write_ulog(path, (battery if motor is not None else []) + [
         ("sensor_mag", 0, mag_fields, [(int(u), *v) for u, v in zip(us[::2], y[::2],
                                                                       strict=True)]),
         ("vehicle_attitude", 0, [("uint64_t", "timestamp"), ("float[4]", "q")],

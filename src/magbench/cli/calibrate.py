@@ -42,6 +42,7 @@ from magbench.cli.config import (
     UsageError,
     check_columns,
     check_common,
+    check_compensate,
     check_instance,
     check_integer,
     check_options,
@@ -52,6 +53,7 @@ from magbench.core.exports import ardupilot_param_file, ardupilot_params, c_head
 from magbench.core.files import write_csv_atomic, write_text_atomic
 from magbench.core.gauge import safe_gauge
 from magbench.core.model import Calibration
+from magbench.methods.api import calibrate as magbench_calibrate
 from magbench.methods.registry import get_method, methods
 from magbench.sources.recordings import Recording, read_samples
 from magbench.studies.calibration import (
@@ -61,7 +63,12 @@ from magbench.studies.calibration import (
     calibrate_recording,
     estimate,
 )
-from magbench.studies.flight import mounting_rotation
+from magbench.studies.flight import (
+    check_regressors,
+    mounting_rotation,
+    time_varying_terms,
+    usable_regressors,
+)
 from magbench.studies.real import DEFAULT_MAX_SAMPLES, PREPROCESSING, applicability
 
 #: Why the first round's choice stands when the second round is not fitted (one phrase).
@@ -239,6 +246,7 @@ def run_calibrate(cfg: DictConfig, picture: PictureWorker | None = None) -> int:
     n_boot = check_integer(cfg.get("bootstrap", 50), "bootstrap", 0, 10_000)
     columns = check_columns(cfg)
     instance = check_instance(cfg)
+    compensate = check_compensate(cfg)
     name = cfg.get("method")
     if name is not None and str(name) not in methods():
         raise UsageError(f"unknown method {name!r}; expected one of: {', '.join(methods())}")
@@ -256,6 +264,11 @@ def run_calibrate(cfg: DictConfig, picture: PictureWorker | None = None) -> int:
             raise UsageError(str(exc)) from None
     for w in caught:
         print(f"magbench: warning: {w.message}", file=sys.stderr)
+    if compensate:
+        try:
+            check_regressors(rec, compensate)
+        except ValueError as exc:
+            raise UsageError(str(exc)) from None
     candidates, second = _candidates(cfg, rec.has_gyro)
     options = check_options(cfg, candidates + second)
     thinned = rec.thinned(max_samples)
@@ -294,6 +307,7 @@ def run_calibrate(cfg: DictConfig, picture: PictureWorker | None = None) -> int:
     payload = calibration_json(result, file=str(path), columns=list(rec.columns),
                                n_file=rec.K, preprocess=preprocess)
     mounting = _add_mounting(result, payload)
+    varying = _add_time_varying(result, payload, compensate, options)
     job = {"path": out / "calibration.png", "dpi": PICTURE_DPI,
            "compress_level": PICTURE_COMPRESSION, "kwargs": _picture_arguments(result, payload)}
     sent = picture is not None and picture.send(job)
@@ -310,6 +324,8 @@ def run_calibrate(cfg: DictConfig, picture: PictureWorker | None = None) -> int:
     print("\n".join(_verdict_lines(payload)))
     if mounting:
         print(mounting)
+    if varying:
+        print(varying)
     for warning in payload["warnings"]:
         print(f"magbench: warning: {warning}", file=sys.stderr)
     problem = picture.wait() if sent else ""
@@ -332,6 +348,36 @@ def _add_mounting(result: CalibrationResult, payload: dict) -> str:
         return ""
     payload["mounting_rotation"] = found.to_dict()
     return found.line()
+
+
+def _add_time_varying(result: CalibrationResult, payload: dict, wanted: list[str] | None,
+                      options: dict) -> str:
+    """Fits ``y = T m + h + C u`` after the chosen static fit (same method; Fang for a
+    gyro-aided one) and adds ``time_varying`` to ``payload`` (regressors, held-out errors
+    static and with the terms, kept or not, and the fit's ``A``, ``b``, ``C``); its line, or
+    "" when there is nothing to fit. ``wanted``: ``compensate`` (None: auto)."""
+    rec: Recording = result.rec
+    names = usable_regressors(rec, wanted)
+    if not names:
+        return ""
+    name = payload["method"] if not get_method(payload["method"]).needs_gyro else "fang"
+    opts = options.get(name) or {}
+
+    def static_fit(samples: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        return magbench_calibrate(samples, name, **opts).correction()
+
+    choice = time_varying_terms(rec, names, static_fit, result.inliers)
+    payload["time_varying"] = {"method": name, **choice.to_dict(names)}
+    head = (f"time-varying terms (y = T m + h + C u, u = {', '.join(names)}; {name}; held out "
+            "on interleaved time blocks): ")
+    if choice.fit is None:
+        return head + f"not kept ({choice.reason})"
+    terms = "; ".join(f"{n} ({', '.join(f'{c:.3g}' for c in choice.fit.C[:, j])})"
+                      for j, n in enumerate(names))
+    verdict = "kept" if choice.kept else f"not kept ({choice.reason})"
+    return (head + f"held-out mean squared norm residual {choice.static_out:.3g} static, "
+            f"{choice.varying_out:.3g} with the terms: {verdict}; C per unit of u (file units): "
+            f"{terms}")
 
 
 def _write_exports(cal: Calibration, payload: dict, out: Path) -> list[str]:

@@ -90,7 +90,7 @@ COMMANDS: dict[str, tuple[Callable[..., int], str, str, tuple[str, ...]]] = {
     "calibrate": (_calibrate, "calibrate your own recording and write the correction",
                   "python -m magbench calibrate file=data.csv",
                   ("file", "method", "candidates", "columns", "instance", "out", "preprocess",
-                   "max_samples", "bootstrap", "seed",
+                   "max_samples", "compensate", "bootstrap", "seed",
                    "options", "call_timeout_s", "plugins")),
     "apply": (_apply, "correct a recording with a saved calibration.json (m = A (y - b))",
               "python -m magbench apply calibration=cal/calibration.json file=flight.csv "
