@@ -65,13 +65,20 @@ def _symmetric(a: np.ndarray) -> np.ndarray:
     return A
 
 
+def _cost(y: np.ndarray, v: np.ndarray, a: np.ndarray, b: np.ndarray, C: np.ndarray) -> float:
+    r = np.linalg.norm((y - b - v @ C.T) @ _symmetric(a).T, axis=1) - 1.0
+    return float(r @ r)
+
+
 def _gauss_newton(y: np.ndarray, v: np.ndarray, A: np.ndarray, b: np.ndarray,
                   C: np.ndarray, iterations: int, *, with_A: bool
                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Gauss-Newton on ``sum (|A (y - b - C v)| - 1)^2``: ``b`` and ``C``, and the symmetric
-    ``A`` too when ``with_A``."""
+    ``A`` too when ``with_A``. A step that does not lower the sum is halved (up to 30 times),
+    so a poor start cannot throw the estimate away."""
     K, p = v.shape
     a = np.array([A[i, j] for i, j in _SYM])
+    cost = _cost(y, v, a, b, C)
     for _ in range(iterations):
         A = _symmetric(a)
         w = y - b - v @ C.T
@@ -85,13 +92,50 @@ def _gauss_newton(y: np.ndarray, v: np.ndarray, A: np.ndarray, b: np.ndarray,
             parts.append(np.column_stack([n[:, i] * w[:, j] + (n[:, j] * w[:, i] if i != j
                                                                else 0.0) for i, j in _SYM]))
         step, *_ = np.linalg.lstsq(np.hstack(parts), -(norm - 1.0), rcond=None)
-        b = b + step[:3]
-        C = C + step[3:3 + 3 * p].reshape(3, p)
-        if with_A:
-            a = a + step[3 + 3 * p:]
-        if np.max(np.abs(step)) < 1e-12:
+        for _ in range(30):
+            trial_b = b + step[:3]
+            trial_C = C + step[3:3 + 3 * p].reshape(3, p)
+            trial_a = a + step[3 + 3 * p:] if with_A else a
+            trial = _cost(y, v, trial_a, trial_b, trial_C)
+            if trial <= cost:
+                break
+            step = step / 2
+        else:
+            break                                       # no step lowers the cost: converged
+        a, b, C = trial_a, trial_b, trial_C
+        converged = cost - trial <= 1e-14 * max(cost, 1e-300)
+        cost = trial
+        if converged:
             break
     return _symmetric(a), b, C
+
+
+def _algebraic_start(y: np.ndarray, v: np.ndarray) -> np.ndarray | None:
+    """``C`` of the quadric through ``(y, v)``: a start that needs no static fit.
+
+    ``(y - b - C v)^T Q (y - b - C v) = 1`` is a quadric in ``(y, v)`` whose ``y y`` block is
+    ``Q``, ``y v`` block ``-2 Q C`` and ``y`` term ``-2 Q b``; the general quadric fitted by
+    the smallest singular vector of its monomials (the ``v v`` block left free) gives
+    ``C = -Q^-1 (y v block) / 2``. None when its ``Q`` is not definite.
+    """
+    K, p = v.shape
+    ii, jj = np.triu_indices(3)
+    kk, ll = np.triu_indices(p)
+    design = np.hstack([y[:, ii] * y[:, jj], (y[:, :, None] * v[:, None, :]).reshape(K, 3 * p),
+                        v[:, kk] * v[:, ll], y, v, np.ones((K, 1))])
+    norms = np.linalg.norm(design, axis=0).clip(1e-300)     # equilibrated columns
+    try:
+        coef = np.linalg.svd(design / norms, full_matrices=False)[2][-1] / norms
+    except np.linalg.LinAlgError:
+        return None
+    Q = np.zeros((3, 3))
+    Q[ii, jj] = coef[:6]
+    Q = (Q + Q.T) / 2                     # off-diagonal monomials carry 2 Q_ij
+    cross = coef[6:6 + 3 * p].reshape(3, p)
+    eig = np.linalg.eigvalsh(Q)
+    if not (eig.min() > 0 or eig.max() < 0):
+        return None
+    return -np.linalg.solve(Q, cross) / 2
 
 
 def fit_time_varying(y: np.ndarray, u: np.ndarray, static_fit: StaticFit, *,
@@ -127,12 +171,23 @@ def fit_time_varying(y: np.ndarray, u: np.ndarray, static_fit: StaticFit, *,
         raise ValueError("a regressor does not vary over the recording, so its term cannot be "
                          "told from the bias")
     v = (u - mean) / scale
-    A, b = static_fit(y)
-    C = np.zeros((3, u.shape[1]))
-    # First b and C with the static A (a safe start), then every parameter together.
-    A, b, C = _gauss_newton(y, v, A, b, C, iterations, with_A=False)
-    A, b, C = _gauss_newton(y, v, A, b, C, iterations, with_A=True)
-    if not (np.isfinite(A).all() and np.isfinite(C).all()):
+    # Two starts, the better kept: no terms (the static fit as it is), and the terms of the
+    # algebraic quadric with the static fit redone on the samples they correct (a large
+    # disturbance bends the static fit so far that Gauss-Newton from it can stall).
+    best = None
+    for C in (np.zeros((3, u.shape[1])), _algebraic_start(y, v)):
+        if C is None or not np.isfinite(C).all():
+            continue
+        A, b = static_fit(y - v @ C.T)
+        # First b and C with the static A (a safe start), then every parameter together.
+        A, b, C = _gauss_newton(y, v, A, b, C, iterations, with_A=False)
+        A, b, C = _gauss_newton(y, v, A, b, C, iterations, with_A=True)
+        a = np.array([A[i, j] for i, j in _SYM])
+        cost = _cost(y, v, a, b, C) if np.isfinite(A).all() and np.isfinite(C).all() else np.inf
+        if best is None or cost < best[0]:
+            best = (cost, A, b, C)
+    cost, A, b, C = best
+    if not np.isfinite(cost):
         raise ValueError("the time-varying fit diverged")
     C_u = C / scale
     return TimeVarying(A, b - C_u @ mean, C_u)
