@@ -99,6 +99,9 @@ def test_calibrate_from_a_log_fits_the_current_term_and_keeps_it(tmp_path, capsy
     said = capsys.readouterr().out
     line = next(s for s in said.splitlines() if s.startswith("time-varying terms"))
     assert "u = current" in line and ": kept; C per unit of u" in line
+    # The rotation is detected on the samples corrected with the kept term.
+    rotation = next(s for s in said.splitlines() if s.startswith("mounting rotation"))
+    assert rotation.startswith("mounting rotation: ROTATION_NONE (id 0)")
     terms = json.loads((out / "calibration.json").read_text())["time_varying"]
     assert terms["kept"] and terms["held_out_time_varying"] < 0.1 * terms["held_out_static"]
     np.testing.assert_allclose(np.array(terms["C"])[:, 0], motor, atol=2e-4)

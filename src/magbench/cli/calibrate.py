@@ -306,8 +306,8 @@ def run_calibrate(cfg: DictConfig, picture: PictureWorker | None = None) -> int:
     out = writable_folder(cfg.out if cfg.get("out") else default_out(path), "out")
     payload = calibration_json(result, file=str(path), columns=list(rec.columns),
                                n_file=rec.K, preprocess=preprocess)
-    mounting = _add_mounting(result, payload)
-    varying = _add_time_varying(result, payload, compensate, options)
+    varying, corrected = _add_time_varying(result, payload, compensate, options)
+    mounting = _add_mounting(result, payload, corrected)
     job = {"path": out / "calibration.png", "dpi": PICTURE_DPI,
            "compress_level": PICTURE_COMPRESSION, "kwargs": _picture_arguments(result, payload)}
     sent = picture is not None and picture.send(job)
@@ -322,10 +322,10 @@ def run_calibrate(cfg: DictConfig, picture: PictureWorker | None = None) -> int:
     print(f"choice: {result.how}")
     print(f"chosen: {payload['label']} ({payload['model']} model)")
     print("\n".join(_verdict_lines(payload)))
-    if mounting:
-        print(mounting)
     if varying:
         print(varying)
+    if mounting:
+        print(mounting)
     for warning in payload["warnings"]:
         print(f"magbench: warning: {warning}", file=sys.stderr)
     problem = picture.wait() if sent else ""
@@ -338,12 +338,15 @@ def run_calibrate(cfg: DictConfig, picture: PictureWorker | None = None) -> int:
     return 0
 
 
-def _add_mounting(result: CalibrationResult, payload: dict) -> str:
+def _add_mounting(result: CalibrationResult, payload: dict,
+                  corrected: np.ndarray | None = None) -> str:
     """Adds the detected mounting rotation to ``payload`` (``mounting_rotation``: the id of
     the autopilots' rotation enum, or None with the reason) when the recording has an
-    attitude or an accelerometer (:mod:`magbench.studies.flight`); its line, or ""."""
+    attitude or an accelerometer (:mod:`magbench.studies.flight`); its line, or "".
+    ``corrected``: the samples corrected with kept time-varying terms, used instead of
+    ``A (y - b)``."""
     found = mounting_rotation(result.rec, np.array(payload["A"]), np.array(payload["b"]),
-                              result.inliers)
+                              result.inliers, corrected)
     if found is None:
         return ""
     payload["mounting_rotation"] = found.to_dict()
@@ -351,16 +354,19 @@ def _add_mounting(result: CalibrationResult, payload: dict) -> str:
 
 
 def _add_time_varying(result: CalibrationResult, payload: dict, wanted: list[str] | None,
-                      options: dict) -> str:
-    """Fits ``y = T m + h + C u`` after the chosen static fit (same method; Fang for a
-    gyro-aided one) and adds ``time_varying`` to ``payload`` (regressors, held-out errors
-    static and with the terms, kept or not, and the fit's ``A``, ``b``, ``C``); its line, or
-    "" when there is nothing to fit. ``wanted``: ``compensate`` (None: auto)."""
+                      options: dict) -> tuple[str, np.ndarray | None]:
+    """Fits ``y = T m + h + C u`` after the chosen static fit and adds ``time_varying`` to
+    ``payload`` (regressors, held-out errors static and with the terms, kept or not, and the
+    fit's ``A``, ``b``, ``C``). The static start is the chosen method if it fits the full model
+    without a gyro, else Fang (the terms are fitted with a full ``A``). ``wanted``:
+    ``compensate`` (None: auto). Returns the line ("" when there is nothing to fit) and, when
+    the terms are kept, every sample corrected with them (NaN where ``u`` is missing)."""
     rec: Recording = result.rec
     names = usable_regressors(rec, wanted)
     if not names:
-        return ""
-    name = payload["method"] if not get_method(payload["method"]).needs_gyro else "fang"
+        return "", None
+    spec = get_method(payload["method"])
+    name = payload["method"] if spec.model == "full" and not spec.needs_gyro else "fang"
     opts = options.get(name) or {}
 
     def static_fit(samples: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -371,13 +377,16 @@ def _add_time_varying(result: CalibrationResult, payload: dict, wanted: list[str
     head = (f"time-varying terms (y = T m + h + C u, u = {', '.join(names)}; {name}; held out "
             "on interleaved time blocks): ")
     if choice.fit is None:
-        return head + f"not kept ({choice.reason})"
+        return head + f"not kept ({choice.reason})", None
     terms = "; ".join(f"{n} ({', '.join(f'{c:.3g}' for c in choice.fit.C[:, j])})"
                       for j, n in enumerate(names))
     verdict = "kept" if choice.kept else f"not kept ({choice.reason})"
-    return (head + f"held-out mean squared norm residual {choice.static_out:.3g} static, "
-            f"{choice.varying_out:.3g} with the terms: {verdict}; C per unit of u (file units): "
-            f"{terms}")
+    line = (head + f"held-out mean squared norm residual {choice.static_out:.3g} static, "
+            f"{choice.varying_out:.3g} with the terms: {verdict}; C per unit of u (file "
+            f"units): {terms}")
+    corrected = choice.fit.apply(rec.y, rec.extra[names].to_numpy(float)) if choice.kept \
+        else None
+    return line, corrected
 
 
 def _write_exports(cal: Calibration, payload: dict, out: Path) -> list[str]:

@@ -179,6 +179,8 @@ def fit_time_varying(y: np.ndarray, u: np.ndarray, static_fit: StaticFit, *,
         if C is None or not np.isfinite(C).all():
             continue
         A, b = static_fit(y - v @ C.T)
+        # A method of fixed scale (T = field_norm I) starts at the data's own field strength.
+        A = A / float(np.median(np.linalg.norm((y - b - v @ C.T) @ A.T, axis=1)))
         # First b and C with the static A (a safe start), then every parameter together.
         A, b, C = _gauss_newton(y, v, A, b, C, iterations, with_A=False)
         A, b, C = _gauss_newton(y, v, A, b, C, iterations, with_A=True)

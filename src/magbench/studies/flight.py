@@ -27,7 +27,8 @@ ACCEL = ["ax", "ay", "az"]
 
 
 def mounting_rotation(rec: Recording, A: np.ndarray, b: np.ndarray,
-                      keep: np.ndarray | None = None) -> MountingResult | None:
+                      keep: np.ndarray | None = None,
+                      corrected: np.ndarray | None = None) -> MountingResult | None:
     """The mounting rotation of a recording's compass, or None without attitude or accelerometer.
 
     Parameters
@@ -38,11 +39,14 @@ def mounting_rotation(rec: Recording, A: np.ndarray, b: np.ndarray,
         The correction ``m = A (y - b)``.
     keep : ndarray of bool, optional
         Samples to use (the calibration's inliers); rows without attitude are left out too.
+    corrected : ndarray of shape (K, 3), optional
+        The corrected samples to use instead of ``A (y - b)`` (with time-varying terms).
     """
     if rec.extra is None:
         return None
     base = np.ones(rec.K, bool) if keep is None else np.asarray(keep, bool)
-    m = (rec.y - b) @ np.asarray(A).T
+    m = (rec.y - b) @ np.asarray(A).T if corrected is None else np.asarray(corrected)
+    base = base & np.isfinite(m).all(axis=1)
     if all(c in rec.extra for c in QUATERNION):
         q = rec.extra[QUATERNION].to_numpy(float)
         use = base & np.isfinite(q).all(axis=1)
