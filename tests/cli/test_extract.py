@@ -115,3 +115,23 @@ def test_calibrate_from_a_log_fits_the_current_term_and_keeps_it(tmp_path, capsy
     assert main(["calibrate", f"file={log}", "compensate=[wind]"]) == 2
     assert "compensate must be auto, none or a list of current, throttle, temperature" in \
         capsys.readouterr().err
+
+
+def test_apply_reads_one_compass_of_a_log(tmp_path, capsys):
+    import json
+
+    from magbench.core.exports import to_json_dict
+    from magbench.core.model import Calibration
+
+    log = px4_log(tmp_path / "flight.ulg")
+    cal = tmp_path / "calibration.json"
+    cal.write_text(json.dumps(to_json_dict(Calibration(2 * np.eye(3), np.zeros(3)))))
+    out = tmp_path / "corrected.csv"
+    assert main(["apply", f"calibration={cal}", f"file={log}", f"out={out}"]) == 2
+    assert "has 2 compasses; choose one with instance=N" in capsys.readouterr().err
+    assert main(["apply", f"calibration={cal}", f"file={log}", "instance=1",
+                 f"out={out}"]) == 0
+    frame = pd.read_csv(out)
+    from tests.sources.test_logs import T1, mag1
+
+    np.testing.assert_allclose(frame[["mx", "my", "mz"]], mag1(T1) / 2, rtol=1e-5)

@@ -94,7 +94,8 @@ COMMANDS: dict[str, tuple[Callable[..., int], str, str, tuple[str, ...]]] = {
                    "options", "call_timeout_s", "plugins")),
     "apply": (_apply, "correct a recording with a saved calibration.json (m = A (y - b))",
               "python -m magbench apply calibration=cal/calibration.json file=flight.csv "
-              "out=flight-corrected.csv", ("calibration", "file", "columns", "out", "overwrite")),
+              "out=flight-corrected.csv", ("calibration", "file", "columns", "instance", "out",
+                                           "overwrite")),
     "extract": (_extract, "write a flight log's compass and its other streams, time-aligned, "
                 "as CSV (PX4 .ulg, ArduPilot .bin/.log)",
                 "python -m magbench extract file=flight.ulg instance=0 out=data.csv",
