@@ -14,27 +14,12 @@ from pathlib import Path
 import numpy as np
 from omegaconf import DictConfig
 
-from magbench.cli.config import UsageError, check_instance, writable_folder
+from magbench.cli.apply import output_csv
+from magbench.cli.config import UsageError, check_instance
 from magbench.core.files import write_csv_atomic
 from magbench.sources.logs import LOG_SUFFIXES, is_log, rate_hz, read_log
 
 __all__ = ["run_extract"]
-
-
-def _out_path(cfg: DictConfig, path: Path) -> Path:
-    """``out``, else ``<log stem>.csv`` here; refuses a folder, the log itself or an existing
-    file without ``overwrite=true``."""
-    out = Path(str(cfg.out)) if cfg.get("out") else Path(f"{path.stem}.csv")
-    if out.is_dir():
-        raise UsageError(f"out={out} is a folder; expected the name of the CSV file to write, "
-                         f"e.g. out={out / 'data.csv'}")
-    if out.exists() and out.resolve() == path.resolve():
-        raise UsageError(f"out={out} is the input file; choose another name")
-    if out.exists() and cfg.get("overwrite") is not True:
-        raise UsageError(f"out={out} exists; choose another name or pass overwrite=true to "
-                         "replace it")
-    writable_folder(out.parent, "the folder of out")
-    return out
 
 
 def run_extract(cfg: DictConfig) -> int:
@@ -47,7 +32,7 @@ def run_extract(cfg: DictConfig) -> int:
         raise UsageError(f"extract reads flight logs ({', '.join(LOG_SUFFIXES)}); {path.name} "
                          "is not one (a CSV is read by calibrate and apply as it is)")
     instance = check_instance(cfg)
-    out = _out_path(cfg, path)
+    out = output_csv(cfg, path, Path(f"{path.stem}.csv"), "data.csv")
     try:
         log = read_log(path)
         chosen = log.choose(instance)
