@@ -136,9 +136,10 @@ class MountingResult:
                   f"{self.confidence:.1f}")
         if self.rotation is None:
             return f"mounting rotation: not detected ({self.reason}; {ranked})"
+        turned = "the attitude" if self.basis == "attitude" else "the down direction"
         return (f"mounting rotation: {self.name} (id {self.rotation}) from the {self.basis}, "
                 f"confidence {self.confidence:.1f} (second best {ROTATIONS[self.second][0]}); "
-                f"{self.samples} samples, the attitude turned through "
+                f"{self.samples} samples, {turned} turned through "
                 f"{self.attitude_span_deg:.0f} deg")
 
 
@@ -227,7 +228,7 @@ def detect_mounting(m: np.ndarray, *, attitude: np.ndarray | None = None,
     if n < MIN_SAMPLES:
         reason = f"{n} samples with an attitude, at least {MIN_SAMPLES} are needed"
     elif confidence < min_confidence:
-        reason = (f"confidence {confidence:.2f} is below {min_confidence:g} (the attitude turned "
-                  f"through {span:.0f} deg; turn the vehicle through several orientations)")
+        reason = (f"confidence {confidence:.2f} is below {min_confidence:g}: the {basis} turned "
+                  f"through {span:.0f} deg; turn the vehicle through several orientations")
     return MountingResult(None if reason else best, best, second, confidence, table, basis, n,
                           span, reason)
