@@ -34,7 +34,9 @@ from magbench.core.geometry import fibonacci_sphere
 from magbench.core.metrics import accuracy_cost, trivial_cost
 from magbench.core.seeding import rng
 from magbench.engine.sweep import Study
+from magbench.engine.trial import run_method, time_limit
 from magbench.methods.api import calibrate
+from magbench.methods.registry import get_method
 from magbench.methods.regressors import HeldOutChoice, TimeVarying, held_out_choice
 from magbench.sources.trajectory import Trajectory, simulate
 from magbench.studies.review import TRUTH_COLUMNS, truth_columns
@@ -71,6 +73,10 @@ class CompensationStudy(Study):
         Noise std and distortion ranges (eq. 68).
     delta : float
         Threshold of eq. (76).
+    call_timeout_s : float or None
+        Time limit of one static call, and of the whole held-out choice of the terms.
+    plugins : sequence of str
+        Modules imported in every worker (they register extra methods).
     """
 
     strengths: Sequence[float]
@@ -85,6 +91,7 @@ class CompensationStudy(Study):
     gamma: float = 0.05
     alpha: tuple[float, float] = (0.8, 1.2)
     delta: float = 0.5
+    call_timeout_s: float | None = None
     plugins: Sequence[str] = ()
     name: str = "compensation"
 
@@ -142,9 +149,30 @@ def _field_error(result: TimeVarying, traj: Trajectory, C: np.ndarray,
     return float(100 * np.sqrt(np.mean((np.linalg.norm(m, axis=1) - 1) ** 2)))
 
 
+def _compensate(spec: CompensationStudy, name: str, y: np.ndarray, u: np.ndarray,
+                trial: int, strength: float) -> tuple[HeldOutChoice | None, str]:
+    """The held-out choice of the time-varying terms after ``name``, contained: any failure of
+    the method (or its time limit, ``call_timeout_s`` for the whole choice) is the reason."""
+    opts = dict(spec.options.get(name) or {})
+    if get_method(name).randomized and "rng" not in opts:
+        opts["rng"] = rng(spec.seed, zlib.crc32(f"compensation;{strength!r}".encode()), trial,
+                          name, "compensated")
+
+    def static_fit(samples: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        return calibrate(samples, name, **opts).correction()
+
+    try:
+        with time_limit(spec.call_timeout_s):
+            choice = held_out_choice(y, u[:, None], static_fit)
+    except Exception as exc:   # failures are data: a row with the reason
+        return None, f"{type(exc).__name__}: {exc}"
+    return choice, "" if choice.fit is not None else choice.reason
+
+
 def compensation_rows(spec: CompensationStudy, strength: float, trial: int) -> list[dict]:
     """Every selected method, static, compensated and selected, on one disturbed manoeuvre."""
     traj, u, C, y = _draw(spec, strength, trial)
+    key = zlib.crc32(f"compensation;{strength!r}".encode())
     test = rng(spec.seed, zlib.crc32(f"compensation-test;{strength!r}".encode()), trial)
     test_u = test.uniform(0.0, 1.0, TEST_SAMPLES)
     directions = fibonacci_sphere(TEST_SAMPLES)
@@ -154,30 +182,25 @@ def compensation_rows(spec: CompensationStudy, strength: float, trial: int) -> l
             **{f"C_true_{i}": float(c) for i, c in enumerate(C)}}
     rows = []
     for name in spec.algorithms:
-        opts = dict(spec.options.get(name) or {})
-
-        def static_fit(samples: np.ndarray, name: str = name, opts: dict = opts):
-            return calibrate(samples, name, **opts).correction()
-
-        results: dict[str, tuple[TimeVarying | None, str, bool]] = {}
-        try:
-            A, b = static_fit(y)
-            results["static"] = (TimeVarying(A, b, np.zeros((3, 1))), "", False)
-        except Exception as exc:   # failures are data: a row with the reason
-            results["static"] = (None, f"{type(exc).__name__}: {exc}", False)
-        try:
-            choice: HeldOutChoice = held_out_choice(y, u[:, None], static_fit)
-            error = "" if choice.fit is not None else choice.reason
-        except Exception as exc:   # failures are data: a row with the reason
-            choice, error = None, f"{type(exc).__name__}: {exc}"
+        out = run_method(name, lambda o, name=name: calibrate(y, name, **o),
+                         options=spec.options.get(name) or {}, seed=spec.seed,
+                         stream=(key, trial), call_timeout_s=spec.call_timeout_s)
+        static, static_error = None, out.error
+        if out.calibration is not None:
+            try:
+                A, b = out.calibration.correction()
+                static = TimeVarying(A, b, np.zeros((3, 1)))
+            except (ValueError, np.linalg.LinAlgError) as exc:   # a singular estimate
+                static_error = f"{type(exc).__name__}: {exc}"
+        choice, error = _compensate(spec, name, y, u, trial, strength)
         fit = choice.fit if choice is not None else None
         kept = bool(choice is not None and choice.kept)
-        results["compensated"] = (fit, error, kept)
-        results["selected"] = (fit, error, kept) if kept else results["static"][:2] + (False,)
+        results = {"static": (static, static_error, False), "compensated": (fit, error, kept),
+                   "selected": (fit, error, True) if kept else (static, static_error, False)}
         for variant in VARIANTS:
-            result, error, kept_here = results[variant]
+            result, why, kept_here = results[variant]
             rows.append({**base, "algorithm": name, "variant": variant,
-                         **_scores(result, error, kept_here, traj, C, test_u, directions,
+                         **_scores(result, why, kept_here, traj, C, test_u, directions,
                                    spec.delta * J0)})
     return rows
 

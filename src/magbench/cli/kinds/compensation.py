@@ -31,7 +31,8 @@ def build(cfg: DictConfig, common: dict, values: dict) -> CompensationStudy:
         seed=common["seed"], algorithms=algorithms, options=check_options(cfg, algorithms),
         rate_hz=values["rate_hz"], duration_s=values["duration_s"], sigma=nominal.sigma,
         beta=nominal.beta, gamma=nominal.gamma, alpha=(nominal.alpha_low, nominal.alpha_high),
-        delta=common["delta"], plugins=common["plugins"], name=str(cfg.sweep.name))
+        delta=common["delta"], call_timeout_s=common["call_timeout_s"],
+        plugins=common["plugins"], name=str(cfg.sweep.name))
 
 
 def finish(study: CompensationStudy, out_dir: Path, common: dict) -> None:
