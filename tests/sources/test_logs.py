@@ -3,6 +3,7 @@ in the attitude, streams that start late), and the shared PX4 sample logs."""
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import numpy as np
@@ -206,3 +207,32 @@ def test_shared_px4_logs_read_and_refused_as_too_short(path):
     np.testing.assert_allclose(np.linalg.norm(q, axis=1), 1.0, atol=1e-6)
     with pytest.raises(ValueError, match=f"too short to calibrate: {counts[0]} and "):
         read_samples(path)
+
+
+def test_older_dataflash_logs_name_the_second_compass_mag2(tmp_path):
+    """Before the instance field, ArduPilot logged MAG, MAG2 and MAG3."""
+    pytest.importorskip("pymavlink")
+    cols = "TimeUS,MagX,MagY,MagZ,OfsX,OfsY,OfsZ"
+    rows0 = [(us(t), *v, 0.0, 0.0, 0.0) for t, v in zip(T0, mag0(T0), strict=True)]
+    rows1 = [(us(t), *v, 0.0, 0.0, 0.0) for t, v in zip(T1, mag1(T1), strict=True)]
+    path = write_dataflash(tmp_path / "old.log", {"MAG": ("Qffffff", cols, rows0),
+                                                  "MAG2": ("Qffffff", cols, rows1)},
+                           binary=False)
+    log = read_log(path)
+    assert sorted(log.mags) == [0, 1] and not log.streams
+    np.testing.assert_allclose(log.table(1)[["mx", "my", "mz"]], mag1(T1), rtol=1e-6)
+
+
+@pytest.mark.parametrize("suffix", [".ulg", ".bin"])
+def test_a_file_that_is_not_a_log_is_one_error(suffix, tmp_path, capsys):
+    if suffix == ".bin":
+        pytest.importorskip("pymavlink")
+    path = tmp_path / f"junk{suffix}"
+    path.write_bytes(b"this is not a flight log\n" * 10)
+    expected = {".ulg": "junk.ulg: cannot read as ULog (Invalid file format",
+                ".bin": "junk.bin: not a DataFlash log (no valid message header"}[suffix]
+    with pytest.raises(ValueError, match=re.escape(expected)) as caught:
+        read_log(path)
+    assert "\n" not in str(caught.value)
+    said = capsys.readouterr()
+    assert said.out == said.err == ""                # the reader's own chatter held back

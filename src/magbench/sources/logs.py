@@ -43,8 +43,13 @@ none (:mod:`magbench.core.mounting` detects it).
 
 from __future__ import annotations
 
+import contextlib
+import io
 import math
-from collections.abc import Callable
+import os
+import sys
+import tempfile
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -244,7 +249,9 @@ ULOG_TOPICS = ["sensor_mag", "sensor_combined", "sensor_accel", "sensor_gyro",
 def _read_ulog(path: Path) -> FlightLog:
     pyulog = _need("pyulog", "pyulog")
     try:
-        ulog = pyulog.ULog(str(path), ULOG_TOPICS)
+        with contextlib.redirect_stdout(io.StringIO()), \
+                contextlib.redirect_stderr(io.StringIO()):    # pyulog prints its warnings
+            ulog = pyulog.ULog(str(path), ULOG_TOPICS)
     except Exception as exc:        # pyulog raises bare exceptions on a corrupt file
         raise ValueError(f"{path.name}: cannot read as ULog ({exc})") from None
     data = {(d.name, d.multi_id): d.data for d in ulog.data_list}
@@ -296,23 +303,52 @@ def _read_ulog(path: Path) -> FlightLog:
 DATAFLASH_TYPES = ["MAG", "MAG2", "MAG3", "IMU", "ATT", "BAT", "CTUN"]
 
 
+@contextlib.contextmanager
+def _held_back() -> Iterator[io.StringIO]:
+    """Standard output and error, the file descriptors themselves, go to a buffer for the
+    block (pymavlink's compiled indexer prints a line per unreadable byte from C); the text
+    is in the yielded buffer afterwards."""
+    text = io.StringIO()
+    for stream in (sys.stdout, sys.stderr):
+        stream.flush()
+    saved = [os.dup(1), os.dup(2)]
+    with tempfile.TemporaryFile(mode="w+b") as sink:
+        try:
+            os.dup2(sink.fileno(), 1)
+            os.dup2(sink.fileno(), 2)
+            with contextlib.redirect_stdout(text), contextlib.redirect_stderr(text):
+                yield text
+        finally:
+            for stream in (sys.stdout, sys.stderr):
+                stream.flush()
+            os.dup2(saved[0], 1)
+            os.dup2(saved[1], 2)
+            for fd in saved:
+                os.close(fd)
+            sink.seek(0)
+            text.write(sink.read().decode(errors="replace"))
+            text.seek(0)
+
+
 def _dataflash_rows(path: Path) -> dict[str, list]:
-    """Every wanted message as a list of field dicts, per type."""
+    """Every wanted message as a list of field dicts, per type. pymavlink's own messages
+    (a line per unreadable byte) are held back; a file with no readable message is one
+    error."""
     reader = _need("pymavlink.DFReader", "pymavlink")
     cls = reader.DFReader_binary if path.suffix.lower() == ".bin" else reader.DFReader_text
-    try:
-        log = cls(str(path), zero_time_base=False)
-    except Exception as exc:        # pymavlink raises bare exceptions on a corrupt file
-        raise ValueError(f"{path.name}: cannot read as a DataFlash log ({exc})") from None
     rows: dict[str, list] = {t: [] for t in DATAFLASH_TYPES}
-    while True:
-        try:
-            msg = log.recv_match(type=DATAFLASH_TYPES)
-        except Exception as exc:     # a truncated last message
-            raise ValueError(f"{path.name}: cannot read as a DataFlash log ({exc})") from None
-        if msg is None:
-            return rows
-        rows[msg.get_type()].append(msg.to_dict())
+    try:
+        with _held_back() as chatter:
+            log = cls(str(path), zero_time_base=False)
+            while (msg := log.recv_match(type=DATAFLASH_TYPES)) is not None:
+                rows[msg.get_type()].append(msg.to_dict())
+    except Exception as exc:        # pymavlink raises bare exceptions on a corrupt file
+        raise ValueError(f"{path.name}: cannot read as a DataFlash log "
+                         f"({' '.join(str(exc).split()) or type(exc).__name__})") from None
+    if not any(rows.values()) and "bad header" in chatter.read():
+        raise ValueError(f"{path.name}: not a DataFlash log (no valid message header; expected "
+                         "ArduPilot's binary .bin or text .log)")
+    return rows
 
 
 def _frame(rows: list[dict], instance_key: str | None = None,
