@@ -17,6 +17,7 @@ from typing import TYPE_CHECKING
 
 from omegaconf import DictConfig, OmegaConf
 
+from magbench.core.units import Units, parse_field, parse_units
 from magbench.engine.plugins import load_plugins
 from magbench.methods.registry import get_method, methods
 
@@ -29,9 +30,10 @@ if TYPE_CHECKING:
     from magbench.studies.review import OptionAxis, ReviewStudy
     from magbench.studies.wushi import WuShiStudy
 
-__all__ = ["KINDS", "UsageError", "check_columns", "check_common", "check_integer", "check_number",
-           "check_options", "compose_config", "config_dir", "gyro_study", "real_study",
-           "review_study", "selected_algorithms", "study_for", "writable_folder",
+__all__ = ["KINDS", "UsageError", "check_columns", "check_common", "check_field_strength",
+           "check_instance", "check_integer", "check_number", "check_options",
+           "check_out_calibration", "check_units", "compose_config", "config_dir", "gyro_study",
+           "real_study", "review_study", "selected_algorithms", "study_for", "writable_folder",
            "wushi_study"]
 
 #: Sweep kinds: the review's sweeps and coverage are "review"; the others name their study.
@@ -463,3 +465,42 @@ def writable_folder(path: Path | str, key: str) -> Path:
                          "folder you can write to") from None
     return path
 
+
+
+def check_units(cfg: DictConfig) -> Units:
+    """``units`` of calibrate: a unit, ``counts`` or a count's size (:mod:`magbench.core.units`);
+    unset means unknown."""
+    try:
+        return parse_units(_plain(cfg.get("units")))
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
+
+
+def check_field_strength(cfg: DictConfig, units: Units) -> float | None:
+    """``field_strength`` of calibrate: the expected field, in file units or with a unit
+    (``48uT``), converted to file units; None when unset."""
+    try:
+        return parse_field(_plain(cfg.get("field_strength")), units)
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
+
+
+def check_instance(cfg: DictConfig) -> str | None:
+    """``instance``: the value of the sensor-instance column to keep (compared as text, so
+    ``instance=1`` matches a cell ``1``); None when unset."""
+    value = _plain(cfg.get("instance"))
+    if value is None:
+        return None
+    if isinstance(value, bool) or not isinstance(value, str | int | float):
+        raise UsageError(f"instance must be one value of the file's instance column, e.g. "
+                         f"instance=1, got {value!r}")
+    return str(value)
+
+
+def check_out_calibration(out: Path, overwrite: object) -> None:
+    """Refuse an ``out`` folder that already holds a calibration unless ``overwrite=true``."""
+    if _flag(overwrite if overwrite is not None else False, "overwrite"):
+        return
+    if (Path(out).expanduser() / "calibration.json").exists():
+        raise UsageError(f"out={out} already holds a calibration (calibration.json); pass "
+                         "overwrite=true to replace it, or choose another out=")
