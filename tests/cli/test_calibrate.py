@@ -427,3 +427,26 @@ def test_a_60_degree_cap_of_a_real_recording_warns_and_names_the_rotation(tmp_pa
     assert calibrate(f"file={SHARED / 'hmc5883l_sphere' / 'data.csv'}", *args,
                      f"out={tmp_path / 'f'}") == 0
     assert "coverage is insufficient" not in capsys.readouterr().err
+
+
+@pytest.mark.skipif(not (SHARED / "bno055_hand" / "data.csv").exists(),
+                    reason=f"real recordings not found ({DATA_ENV} unset, {SHARED} absent)")
+def test_bno055_counts_become_milligauss_only_with_their_size(tmp_path, capsys):
+    # Its SOURCE.md: raw register counts, 16 per microtesla.
+    from tests.core.test_exports import ardupilot_correct, parse_params
+
+    path = SHARED / "bno055_hand" / "data.csv"
+    args = [f"file={path}", "method=ellipsoid", "bootstrap=0"]
+    assert calibrate(*args, f"out={tmp_path / 'raw'}") == 0
+    assert "not writing ardupilot.param, px4.params (unit unknown" in capsys.readouterr().out
+    assert not (tmp_path / "raw" / "ardupilot.param").exists()
+    assert calibrate(*args, f"out={tmp_path / 'mg'}", "units=0.0625uT") == 0
+    data = json.loads((tmp_path / "mg" / "calibration.json").read_text())
+    assert data["unit"]["description"] == "counts of 0.0625 uT"
+    p = parse_params((tmp_path / "mg" / "ardupilot.param").read_text())
+    np.testing.assert_allclose([p[f"COMPASS_OFS_{a}"] for a in "XYZ"],
+                               -0.625 * np.array(data["b"]), rtol=1e-6)
+    y = pd.read_csv(path)[["mx", "my", "mz"]].to_numpy()
+    corrected = ardupilot_correct(p, y * 0.625)                # counts -> mGauss
+    np.testing.assert_allclose(corrected / (0.625 * data["field_strength"]),
+                               (y - data["b"]) @ np.array(data["A"]).T, rtol=2e-6, atol=2e-6)

@@ -195,3 +195,13 @@ def test_a_text_dump_with_columns_by_position_gets_one_line(tmp_path, text, mess
     with pytest.raises(ValueError, match=message) as caught:
         read_samples(path, [3, 4, 5], min_samples=1, check=False)
     assert "\n" not in str(caught.value)
+
+
+def test_an_unclosed_quote_names_its_line(tmp_path):
+    lines = frame(10)[["mx", "my", "mz"]].to_csv(index=False).splitlines()
+    lines[4] = '"' + lines[4]
+    path = tmp_path / "rec.csv"
+    path.write_text("\n".join(lines) + "\n")
+    with pytest.raises(ValueError, match=r"^rec\.csv: a quoted field opens on line 5 and is "
+                                         r"never closed"):
+        read_samples(path, check=False)

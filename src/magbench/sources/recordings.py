@@ -326,6 +326,17 @@ class _Where:
         return _ragged(self.path, self.compression, self.sniffed["sep"],
                        self.sniffed["n_cols"])
 
+    def unclosed_quote(self) -> str:
+        """Where a quoted field opens and never closes (the first line with an odd number of
+        double quotes)."""
+        opener = _READABLE.get(self.compression or "", open)
+        with opener(self.path, "rt", newline="") as handle:
+            line = next((n for n, text in enumerate(handle, start=1) if text.count('"') % 2),
+                        None)
+        at = f" on line {line}" if line else ""
+        return (f"{self.path.name}: a quoted field opens{at} and is never closed; remove the "
+                'stray " or close the quote')
+
 
 def _numeric(table: pd.DataFrame, position: int, name: str, where: _Where,
              row0: int = 0) -> np.ndarray:
@@ -399,6 +410,8 @@ def _read_columns(path: Path, layout: dict, wanted: dict[int, str], where: _Wher
     except pd.errors.ParserError as exc:
         if "Expected" in str(exc) and "fields" in str(exc):
             raise ValueError(where.ragged()) from None
+        if "EOF inside string" in str(exc):
+            raise ValueError(where.unclosed_quote()) from None
         raise ValueError(f"cannot read {path} as CSV: {' '.join(str(exc).split())}") from None
     except (UnicodeDecodeError, EOFError, OSError) as exc:
         raise ValueError(f"cannot read {path} as CSV: {' '.join(str(exc).split())}") from None
