@@ -89,6 +89,7 @@ own raw readings, in int16.
 from __future__ import annotations
 
 import re
+from collections.abc import Callable
 
 import numpy as np
 
@@ -418,6 +419,15 @@ _OFFSETS_ONLY = ("holds offsets only: the soft-iron and scale correction A of "
                  "calibration.json is not applied")
 
 
+def _offsets_file(cal: Calibration, units: Units, firmware: str, comment: str, how: str,
+                  settings: Callable[[list[int]], list[str]]) -> str:
+    """A CLI file of ``set`` lines holding ``b`` in raw counts, saying what is not applied."""
+    zero = _raw_offsets(cal, units, firmware)
+    head = _comment(f"{comment}\n{firmware}'s compass model {_OFFSETS_ONLY}; {how}\npaste "
+                    f"into the {firmware} CLI")
+    return "\n".join([*head, *settings(zero), "save"]) + "\n"
+
+
 def inav_cli(cal: Calibration, units: Units, comment: str = "") -> str:
     """INAV CLI ``set`` lines: ``magzero_x/y/z`` = ``b`` in raw counts, ``maggain_*`` = 1024.
 
@@ -426,13 +436,11 @@ def inav_cli(cal: Calibration, units: Units, comment: str = "") -> str:
     ValueError
         The recording is not in raw counts, or an offset does not fit an int16; one line.
     """
-    zero = _raw_offsets(cal, units, "INAV")
-    head = _comment(f"{comment}\nINAV's compass model {_OFFSETS_ONLY}; it subtracts magzero "
-                    "from the driver's raw axes before align_mag, and maggain 1024 means no "
-                    "scale\npaste into the INAV CLI")
-    lines = [f"set magzero_{a} = {v}" for a, v in zip("xyz", zero, strict=True)]
-    lines += [f"set maggain_{a} = 1024" for a in "xyz"]
-    return "\n".join([*head, *lines, "save"]) + "\n"
+    return _offsets_file(
+        cal, units, "INAV", comment, "it subtracts magzero from the driver's raw axes before "
+        "align_mag, and maggain 1024 means no scale",
+        lambda zero: [*(f"set magzero_{a} = {v}" for a, v in zip("xyz", zero, strict=True)),
+                      *(f"set maggain_{a} = 1024" for a in "xyz")])
 
 
 def betaflight_cli(cal: Calibration, units: Units, comment: str = "") -> str:
@@ -443,12 +451,10 @@ def betaflight_cli(cal: Calibration, units: Units, comment: str = "") -> str:
     ValueError
         The recording is not in raw counts, or an offset does not fit an int16; one line.
     """
-    zero = _raw_offsets(cal, units, "Betaflight")
-    head = _comment(f"{comment}\nBetaflight's compass model {_OFFSETS_ONLY}; it subtracts "
-                    "mag_calibration after the sensor alignment, so the recording must be in "
-                    "the aligned axes\npaste into the Betaflight CLI")
-    return "\n".join([*head, f"set mag_calibration = {zero[0]},{zero[1]},{zero[2]}",
-                      "save"]) + "\n"
+    return _offsets_file(
+        cal, units, "Betaflight", comment, "it subtracts mag_calibration after the sensor "
+        "alignment, so the recording must be in the aligned axes",
+        lambda zero: [f"set mag_calibration = {zero[0]},{zero[1]},{zero[2]}"])
 
 
 #: The firmware files :func:`firmware_files` writes, in order.
