@@ -450,3 +450,15 @@ def test_bno055_counts_become_milligauss_only_with_their_size(tmp_path, capsys):
     corrected = ardupilot_correct(p, y * 0.625)                # counts -> mGauss
     np.testing.assert_allclose(corrected / (0.625 * data["field_strength"]),
                                (y - data["b"]) @ np.array(data["A"]).T, rtol=2e-6, atol=2e-6)
+
+
+def test_a_single_device_id_becomes_px4s_calibration_id(tmp_path):
+    y = recording() / 1000                                   # gauss
+    frame = pd.DataFrame({"device_id": 396809, "mx": y[:, 0], "my": y[:, 1], "mz": y[:, 2]})
+    frame.to_csv(tmp_path / "px4.csv", index=False)
+    assert calibrate(f"file={tmp_path / 'px4.csv'}", "method=ellipsoid", "units=gauss",
+                     f"out={tmp_path / 'o'}", "bootstrap=0") == 0
+    text = (tmp_path / "o" / "px4.params").read_text()
+    assert "1\t1\tCAL_MAG0_ID\t396809\t6" in text and "not set here" not in text
+    data = json.loads((tmp_path / "o" / "calibration.json").read_text())
+    assert data["instance"] == {"column": "device_id", "value": "396809"}
