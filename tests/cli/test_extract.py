@@ -43,7 +43,8 @@ def test_extract_errors_are_one_line(tmp_path, capsys):
     assert err == ("magbench: error: flight.ulg has 2 compasses; choose one with instance=N: "
                    "0 (device 11, 116 samples), 1 (device 22, 50 samples)")
     assert main(["extract", f"file={log}", "instance=-1"]) == 2
-    assert "instance must be an integer >= 0, got -1" in capsys.readouterr().err
+    assert "instance must be a compass number of the log (0, 1, ...), got '-1'" in \
+        capsys.readouterr().err
     (tmp_path / "a.csv").write_text("mx,my,mz\n1,2,3\n")
     assert main(["extract", f"file={tmp_path / 'a.csv'}"]) == 2
     assert "extract reads flight logs (.ulg, .bin, .log); a.csv is not one" in \

@@ -21,6 +21,7 @@ from typing import TYPE_CHECKING
 
 from omegaconf import DictConfig, OmegaConf
 
+from magbench.core.units import Units, parse_field, parse_units
 from magbench.engine.plugins import load_plugins
 from magbench.methods.registry import get_method, methods
 
@@ -34,12 +35,15 @@ __all__ = [
     "check_columns",
     "check_common",
     "check_compensate",
+    "check_field_strength",
     "check_instance",
     "check_integer",
     "check_number",
     "check_options",
+    "check_out_calibration",
     "check_override_keys",
     "check_trials",
+    "check_units",
     "compose_config",
     "config_dir",
     "did_you_mean",
@@ -144,12 +148,6 @@ def check_integer(value: object, what: str, low: int, high: int | None = None) -
     if high is not None and value > high:
         raise UsageError(f"{what} must be an integer <= {high}, got {value!r}")
     return value
-
-
-def check_instance(cfg: DictConfig) -> int | None:
-    """The ``instance`` key: which compass of a file that holds several (None: the only one)."""
-    value = cfg.get("instance")
-    return None if value is None else check_integer(value, "instance", 0)
 
 
 #: What ``compensate`` may list: the regressors of the time-varying terms.
@@ -415,15 +413,7 @@ def _results_dir(cfg: DictConfig) -> Path:
         raise UsageError(f"results_dir must be a folder path, e.g. results_dir=results, got "
                          f"{cfg.get('results_dir')!r}")
     path = Path(str(cfg.results_dir)).expanduser()
-    for parent in [path, *path.parents]:
-        if parent.exists():
-            if not parent.is_dir():
-                raise UsageError(f"results_dir {path} cannot be created: {parent} is a file; "
-                                 "expected a folder")
-            if not os.access(parent, os.W_OK | os.X_OK):
-                raise UsageError(f"results_dir {path} is not writable ({parent}); choose a "
-                                 "folder you can write to")
-            break
+    _no_file_in_the_way(path, "results_dir")
     return path
 
 
@@ -466,6 +456,17 @@ def point_checks(min_k: int) -> dict:
             "band_deg": (lambda b: 0 < b <= 90, "in (0, 90] degrees")}
 
 
+def _no_file_in_the_way(path: Path, key: str) -> None:
+    """Refuse a folder ``path`` that is a file or lies below one (the check of a folder that
+    is not created yet: whether it can be written is tried by :func:`writable_folder`)."""
+    for parent in [path, *path.parents]:
+        if parent.exists() and not parent.is_dir():
+            what = "is" if parent == path else f"cannot be created: {parent} is"
+            raise UsageError(f"{key}={path} {what} a file; expected a folder")
+        if parent.exists():
+            return
+
+
 def writable_folder(path: Path | str, key: str) -> Path:
     """``path`` as a folder that exists and can be written to, created if need be.
 
@@ -478,12 +479,7 @@ def writable_folder(path: Path | str, key: str) -> Path:
         ``path`` or one of its parents is a file, or the folder cannot be created or written.
     """
     path = Path(path).expanduser()
-    for parent in [path, *path.parents]:
-        if parent.exists() and not parent.is_dir():
-            what = "is" if parent == path else f"cannot be created: {parent} is"
-            raise UsageError(f"{key}={path} {what} a file; expected a folder")
-        if parent.exists():
-            break
+    _no_file_in_the_way(path, key)
     try:
         path.mkdir(parents=True, exist_ok=True)
         with tempfile.TemporaryFile(dir=path):
@@ -493,3 +489,42 @@ def writable_folder(path: Path | str, key: str) -> Path:
                          "folder you can write to") from None
     return path
 
+
+
+def check_units(cfg: DictConfig) -> Units:
+    """``units`` of calibrate: a unit, ``counts`` or a count's size (:mod:`magbench.core.units`);
+    unset means unknown."""
+    try:
+        return parse_units(plain(cfg.get("units")))
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
+
+
+def check_field_strength(cfg: DictConfig, units: Units) -> float | None:
+    """``field_strength`` of calibrate: the expected field, in file units or with a unit
+    (``48uT``), converted to file units; None when unset."""
+    try:
+        return parse_field(plain(cfg.get("field_strength")), units)
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
+
+
+def check_instance(cfg: DictConfig) -> str | None:
+    """``instance``: the value of the sensor-instance column to keep (compared as text, so
+    ``instance=1`` matches a cell ``1``); None when unset."""
+    value = plain(cfg.get("instance"))
+    if value is None:
+        return None
+    if isinstance(value, bool) or not isinstance(value, str | int | float):
+        raise UsageError(f"instance must be one value of the file's instance column, e.g. "
+                         f"instance=1, got {value!r}")
+    return str(value)
+
+
+def check_out_calibration(out: Path, overwrite: object) -> None:
+    """Refuse an ``out`` folder that already holds a calibration unless ``overwrite=true``."""
+    if _flag(overwrite if overwrite is not None else False, "overwrite"):
+        return
+    if (Path(out).expanduser() / "calibration.json").exists():
+        raise UsageError(f"out={out} already holds a calibration (calibration.json); pass "
+                         "overwrite=true to replace it, or choose another out=")

@@ -89,13 +89,13 @@ COMMANDS: dict[str, tuple[Callable[..., int], str, str, tuple[str, ...]]] = {
              "scheduler_address", "nominal", "data_dir")),
     "calibrate": (_calibrate, "calibrate your own recording and write the correction",
                   "python -m magbench calibrate file=data.csv",
-                  ("file", "method", "candidates", "columns", "instance", "out", "preprocess",
-                   "max_samples", "compensate", "bootstrap", "seed",
-                   "options", "call_timeout_s", "plugins")),
+                  ("file", "method", "candidates", "columns", "out", "preprocess",
+                   "max_samples", "compensate", "bootstrap", "seed", "units", "field_strength",
+                   "instance", "overwrite", "options", "call_timeout_s", "plugins")),
     "apply": (_apply, "correct a recording with a saved calibration.json (m = A (y - b))",
               "python -m magbench apply calibration=cal/calibration.json file=flight.csv "
               "out=flight-corrected.csv", ("calibration", "file", "columns", "instance", "out",
-                                           "overwrite")),
+                                            "overwrite")),
     "extract": (_extract, "write a flight log's compass and its other streams, time-aligned, "
                 "as CSV (PX4 .ulg, ArduPilot .bin/.log)",
                 "python -m magbench extract file=flight.ulg instance=0 out=data.csv",

@@ -59,7 +59,7 @@ import pandas as pd
 from magbench.core.rotations import euler_zyx_to_quaternion
 
 __all__ = ["EXTRA_COLUMNS", "GAP_INTERVALS", "LOG_COLUMNS", "LOG_SUFFIXES", "MIN_LOG_SAMPLES",
-           "FlightLog", "align", "is_log", "rate_hz", "read_log"]
+           "FlightLog", "align", "is_log", "log_units", "rate_hz", "read_log"]
 
 #: File suffixes read as flight logs.
 LOG_SUFFIXES = (".ulg", ".bin", ".log")
@@ -79,6 +79,11 @@ GAP_INTERVALS = 5.0
 #: Fewest compass samples a calibration from a log accepts: each half in time must hold the
 #: full model's minimum (10), since the verdict is held out.
 MIN_LOG_SAMPLES = 20
+
+
+def log_units(path: Path | str) -> str:
+    """The compass unit of a log by its kind: PX4 logs gauss, ArduPilot milligauss."""
+    return "gauss" if Path(path).suffix.lower() == ".ulg" else "milligauss"
 
 
 def is_log(path: Path | str) -> bool:
@@ -138,7 +143,7 @@ class FlightLog:
             parts.append(f"{i} ({dev}{len(s.t)} samples)")
         return ", ".join(parts)
 
-    def choose(self, instance: int | None, min_samples: int = 1) -> int:
+    def choose(self, instance: object, min_samples: int = 1) -> int:
         """The compass instance to read.
 
         Raises
@@ -148,6 +153,7 @@ class FlightLog:
             candidate shorter than ``min_samples``.
         """
         name = self.path.name
+        instance = _instance_number(instance, name)
         if not self.mags:
             raise ValueError(f"{name}: no magnetometer stream in this {self.kind} log "
                              f"({'sensor_mag' if self.kind == 'ulog' else 'MAG'} messages)")
@@ -181,6 +187,20 @@ class FlightLog:
             extra["temperature"] = mag.values[:, 3]       # the compass's own, preferred
         out.update((c, extra[c]) for c in LOG_COLUMNS if c in extra)
         return pd.DataFrame(out)
+
+
+def _instance_number(value: object, name: str) -> int | None:
+    """``instance`` as a compass number (``1``, ``"1"``, ``1.0``), or None if unset."""
+    if value is None:
+        return None
+    try:
+        number = float(str(value).strip())
+    except ValueError:
+        number = math.nan
+    if not (number.is_integer() and number >= 0):
+        raise ValueError(f"{name}: instance must be a compass number of the log (0, 1, ...), "
+                         f"got {value!r}")
+    return int(number)
 
 
 def align(t: np.ndarray, stream: Stream, *, quaternion: bool = False) -> np.ndarray:

@@ -31,7 +31,7 @@ from magbench.core.metrics import accuracy_cost, summarize, trivial_cost
 from magbench.core.model import Calibration
 from magbench.core.seeding import rng
 from magbench.engine.sweep import Study
-from magbench.engine.trial import estimate_columns, run_method
+from magbench.engine.trial import H_COLUMNS, T_COLUMNS, estimate_columns, run_method
 from magbench.methods.api import calibrate
 from magbench.methods.registry import get_method
 from magbench.sources.trajectory import Trajectory, simulate
@@ -42,14 +42,12 @@ __all__ = ["DEFAULT_COVERAGES", "GYRO_POINT_COLUMNS", "GYRO_ROW_COLUMNS", "GyroP
            "GyroStudy", "draw_trajectory", "gyro_trial_rows", "summarize_gyro"]
 
 GYRO_POINT_COLUMNS = ["coverage", "gyro_noise", "sigma"]
-_T_COLUMNS = [f"T_{i}{j}" for i in range(3) for j in range(3)]
-_H_COLUMNS = [f"h_{i}" for i in range(3)]
 _WB_TRUE = [f"wb_true_{i}" for i in range(3)]
 _WB = [f"wb_{i}" for i in range(3)]
 GYRO_ROW_COLUMNS = (GYRO_POINT_COLUMNS + ["K", "trial", "seed", "algorithm", "gyro", "ok",
                                           "error", "n_iter", "J", "J_h", "J_T", "J0",
                                           "meaningful", "J_wb"]
-                    + TRUTH_COLUMNS + _H_COLUMNS + _T_COLUMNS + _WB_TRUE + _WB)
+                    + TRUTH_COLUMNS + H_COLUMNS + T_COLUMNS + _WB_TRUE + _WB)
 
 #: Named coverages (simulator settings): a full tumble, Wu and Shi's pattern, mostly yaw.
 DEFAULT_COVERAGES: dict[str, dict] = {
@@ -164,7 +162,7 @@ def _fit(name: str, traj: Trajectory) -> Callable[[dict], Calibration]:
             extra.update(attitude=traj.R, reference_field=traj.m0)
 
     def fit(options: dict) -> Calibration:
-        return calibrate(traj.y, name, **{**extra, **options})
+        return calibrate(traj.y, name, raw=True, **{**extra, **options})
 
     return fit
 

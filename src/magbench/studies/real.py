@@ -55,7 +55,7 @@ from magbench.core.geometry import coverage, sphere_fit
 from magbench.core.metrics import real_cost
 from magbench.core.model import Calibration
 from magbench.engine.sweep import Study
-from magbench.engine.trial import estimate_columns, run_method
+from magbench.engine.trial import H_COLUMNS, T_COLUMNS, estimate_columns, run_method
 from magbench.methods.api import calibrate
 from magbench.methods.registry import get_method
 from magbench.sources.recordings import Recording, load_recording
@@ -69,13 +69,11 @@ DEFAULT_MAX_SAMPLES = 2000
 PREPROCESSING = ("none", "scale", "centre")
 #: Recordings of the same sensor: a fit on one is also evaluated on the other.
 PARTNERS = {"qmc5883l_filtered": "qmc5883l_noisy", "qmc5883l_noisy": "qmc5883l_filtered"}
-_T_COLUMNS = [f"T_{i}{j}" for i in range(3) for j in range(3)]
-_H_COLUMNS = [f"h_{i}" for i in range(3)]
 REAL_ROW_COLUMNS = (["dataset", "n_rows", "stride", "preprocess", "algorithm", "fit_on", "K_fit",
                      "test_on", "K_test", "skipped", "ok", "error", "n_iter",
                      "J_r_fit", "J_r_test", "J_r_sphere_fit", "J_r_sphere_test",
                      "coverage_fit", "coverage_sphere_fit", "usable", "meaningful"]
-                    + _H_COLUMNS + _T_COLUMNS)
+                    + H_COLUMNS + T_COLUMNS)
 
 
 def applicability(name: str, rec: Recording) -> str:
@@ -117,7 +115,8 @@ def fit_recording(rec: Recording, method: str, preprocess: str = "centre",
     extra = {}
     if get_method(method).needs_gyro:
         extra = {"angular_rate": rec.gyro, "time": rec.t}
-    cal = calibrate((rec.y - offset) / scale, method, **extra, **dict(options or {}))
+    cal = calibrate((rec.y - offset) / scale, method, raw=True, **extra,
+                    **dict(options or {}))
     return Calibration(scale * cal.T, scale * cal.h + offset, cal.n_iter, cal.converged,
                        cal.message, cal.gyro_bias)
 
@@ -307,7 +306,7 @@ def recording_summary(trials: pd.DataFrame) -> pd.DataFrame:
             "J_r_cross": float(cross["J_r_test"].iloc[0]) if len(cross) else np.nan,
             "coverage": float(full["coverage_fit"]),
             "coverage_sphere": float(full["coverage_sphere_fit"]),
-            **{c: float(full[c]) for c in _H_COLUMNS + _T_COLUMNS},
+            **{c: float(full[c]) for c in H_COLUMNS + T_COLUMNS},
         })
     return pd.DataFrame(rows)
 

@@ -25,7 +25,7 @@ from magbench.core.files import write_csv_atomic
 from magbench.core.metrics import accuracy_cost, summarize, trivial_cost
 from magbench.core.seeding import rng
 from magbench.engine.sweep import Study
-from magbench.engine.trial import estimate_columns, run_method
+from magbench.engine.trial import H_COLUMNS, T_COLUMNS, estimate_columns, run_method
 from magbench.methods.api import calibrate
 from magbench.methods.registry import get_method
 from magbench.sources.synthetic import Point, make_dataset
@@ -36,13 +36,11 @@ __all__ = ["POINT_COLUMNS", "ROW_COLUMNS", "TIME_COLUMNS", "TRUTH_COLUMNS", "Opt
            "read_trials", "summarize_review", "trial_rows", "with_coverage_column"]
 
 POINT_COLUMNS = ["K", "sigma", "beta", "gamma", "cap_deg", "band_deg"]
-_T_COLUMNS = [f"T_{i}{j}" for i in range(3) for j in range(3)]
-_H_COLUMNS = [f"h_{i}" for i in range(3)]
 TRUTH_COLUMNS = [f"h_true_{i}" for i in range(3)] + [f"T_true_{i}{j}" for i in range(3)
                                                       for j in range(3)]
 ROW_COLUMNS = (POINT_COLUMNS + ["trial", "seed", "algorithm", "ok", "error", "n_iter",
                                 "J", "J_h", "J_T", "J0", "meaningful", "sq_err", "crb", "crb_J"]
-               + TRUTH_COLUMNS + _H_COLUMNS + _T_COLUMNS)
+               + TRUTH_COLUMNS + H_COLUMNS + T_COLUMNS)
 #: The columns of a study's times sidecar (:mod:`magbench.studies.times`).
 TIME_COLUMNS = ["trial", "algorithm", "time_s"]
 
@@ -175,7 +173,7 @@ def trial_rows(point: Point, trial: int, seed: int, algorithms: Sequence[str],
         opts = method_options(name, point, options)
         if value is not None:
             opts[axis.option] = value
-        out = run_method(name, lambda o, n=name: calibrate(data.y, n, **o), options=opts,
+        out = run_method(name, lambda o, n=name: calibrate(data.y, n, raw=True, **o), options=opts,
                          seed=seed, stream=(point.key, trial), call_timeout_s=call_timeout_s)
         J, J_h, J_T = (accuracy_cost(out.T, out.h, data.T, data.h) if out.calibration
                        else (np.nan, np.nan, np.nan))
