@@ -236,3 +236,10 @@ def test_a_file_that_is_not_a_log_is_one_error(suffix, tmp_path, capsys):
     assert "\n" not in str(caught.value)
     said = capsys.readouterr()
     assert said.out == said.err == ""                # the reader's own chatter held back
+
+
+def test_log_units_by_firmware():
+    from magbench.sources.logs import log_units
+
+    assert log_units("a.ulg") == "gauss"
+    assert log_units("a.BIN") == log_units("a.log") == "milligauss"
