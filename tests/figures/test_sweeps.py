@@ -6,7 +6,7 @@ import pandas as pd
 
 from magbench.figures.sweeps import FIGURES, figure_data, plot_sweep, write_figure
 from magbench.studies.review import with_coverage_column
-from tests.report.test_build import NOMINAL, gamma_case
+from tests.report.helpers import NOMINAL, gamma_case
 
 
 def test_figure_and_its_csv_from_a_fixture(tmp_path):

@@ -33,7 +33,7 @@ from matplotlib.figure import Figure
 
 from magbench.core.files import write_csv_atomic
 from magbench.figures.style import method_style, new_figure, save_figure
-from magbench.methods.registry import get_method, methods
+from magbench.methods.registry import find_method, methods
 
 __all__ = ["FIGURES", "FigureSpec", "coverage_group", "figure_data", "plot_sweep",
            "write_figure"]
@@ -71,11 +71,8 @@ FIGURES = {
 }
 
 def _method_info(name: str) -> tuple[str, str]:
-    try:
-        spec = get_method(name)
-        return spec.label, spec.family
-    except ValueError:  # a method of an older run, no longer registered
-        return name, "extra"
+    spec = find_method(name)
+    return (name, "extra") if spec is None else (spec.label, spec.family)
 
 
 def _ordered(names: list[str]) -> list[str]:
@@ -157,16 +154,8 @@ def plot_sweep(data: pd.DataFrame, sweep: str) -> Figure:
               ("efficiency", "Cramer-Rao bound / mean squared error,\nsame meaningful runs "
                "(1 = on the floor)", True)]
     methods_here = list(dict.fromkeys(data["series"]))
-    # Categorical x (coverage): caps, then a gap, then bands; lines only within a geometry.
     categories = list(dict.fromkeys(data["x"])) if spec.categorical else None
-    position = {}
-    if categories:
-        k = 0
-        for i, c in enumerate(categories):
-            if i and coverage_group(c) != coverage_group(categories[i - 1]):
-                k += 1                                    # a gap between the geometries
-            position[c] = k
-            k += 1
+    position = _positions(categories) if categories else {}
 
     for name in methods_here:
         part = data[data["series"] == name]
@@ -177,26 +166,13 @@ def plot_sweep(data: pd.DataFrame, sweep: str) -> Figure:
             for ax, (column, _, _) in zip(axes, panels, strict=True):
                 ax.plot(xs, g[column], **{**style, "label": style["label"] if gi == 0 else
                                           "_nolegend_"})
-    letters = "abcd"
     for k, (ax, (column, ylabel, logy)) in enumerate(zip(axes, panels, strict=True)):
         values = data[column].to_numpy(dtype=float)
         if logy and np.any(values[np.isfinite(values)] > 0):
             ax.set_yscale("log")
-        if spec.logx:
-            ax.set_xscale("log")
-        if categories:
-            ax.set_xticks([position[c] for c in categories], categories, rotation=35,
-                          ha="right")
-            gaps = [position[c] - 1 for i, c in enumerate(categories)
-                    if i and coverage_group(c) != coverage_group(categories[i - 1])]
-            for gap in gaps:
-                ax.axvline(gap, color="0.6", linestyle="--", linewidth=1)
-        else:
-            ticks = sorted(data["x"].unique())
-            ax.set_xticks(ticks, [f"{v:g}" for v in ticks])
-        ax.set_xlabel(spec.xlabel)
+        _x_axis(ax, spec, data, position)
         ax.set_ylabel(ylabel)
-        ax.set_title(f"({letters[k]})", loc="left")
+        ax.set_title(f"({'abcd'[k]})", loc="left")
         ax.grid(True, which="major", alpha=0.3)
     axes[2].set_ylim(-3, 103)
     axes[3].axhline(1.0, color="black", linestyle=":", linewidth=2,
@@ -208,6 +184,33 @@ def plot_sweep(data: pd.DataFrame, sweep: str) -> Figure:
     fig.suptitle(spec.title + (" (polar caps | equatorial bands: two geometries, never joined)"
                                if categories else ""))
     return fig
+
+
+def _positions(categories: list[str]) -> dict[str, int]:
+    """x positions of categorical points (coverage): caps, then a gap, then bands."""
+    position, k = {}, 0
+    for i, c in enumerate(categories):
+        if i and coverage_group(c) != coverage_group(categories[i - 1]):
+            k += 1                                    # a gap between the geometries
+        position[c] = k
+        k += 1
+    return position
+
+
+def _x_axis(ax: object, spec: FigureSpec, data: pd.DataFrame, position: dict) -> None:
+    """Ticks, scale and label of the swept parameter; a dashed line between geometries."""
+    if spec.logx:
+        ax.set_xscale("log")
+    if position:
+        categories = list(position)
+        ax.set_xticks([position[c] for c in categories], categories, rotation=35, ha="right")
+        for i, c in enumerate(categories):
+            if i and coverage_group(c) != coverage_group(categories[i - 1]):
+                ax.axvline(position[c] - 1, color="0.6", linestyle="--", linewidth=1)
+    else:
+        ticks = sorted(data["x"].unique())
+        ax.set_xticks(ticks, [f"{v:g}" for v in ticks])
+    ax.set_xlabel(spec.xlabel)
 
 
 def write_figure(summary: pd.DataFrame, sweep: str, out_dir: Path | str,

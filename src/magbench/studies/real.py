@@ -57,7 +57,7 @@ from magbench.core.model import Calibration
 from magbench.engine.sweep import Study
 from magbench.engine.trial import estimate_columns, run_method
 from magbench.methods.api import calibrate
-from magbench.methods.registry import get_method
+from magbench.methods.registry import get_method, method_label
 from magbench.sources.recordings import Recording, load_recording
 
 __all__ = ["DEFAULT_MAX_SAMPLES", "PARTNERS", "PREPROCESSING", "REAL_ROW_COLUMNS", "RealStudy",
@@ -325,12 +325,8 @@ def method_summary(per_recording: pd.DataFrame) -> pd.DataFrame:
         out = good[np.isfinite(good["J_r_out"])]
         rho_in = float(good["J_r_in"].mean()) if len(good) else np.nan
         rho_out = float(out["J_r_out"].mean()) if len(out) else np.nan
-        try:
-            label = get_method(name).label
-        except ValueError:
-            label = name
         rows.append({
-            "preprocess": how, "algorithm": name, "label": label,
+            "preprocess": how, "algorithm": name, "label": method_label(name),
             "n_recordings": len(g), "n_applicable": len(applicable),
             "n_meaningful": len(good), "n_out": len(out),
             "RB_pct": 100.0 * len(good) / len(applicable) if len(applicable) else np.nan,
