@@ -26,10 +26,19 @@ def test_speed_comes_from_the_timing_pass_when_there_is_one():
     timing = s[["gamma", "algorithm"]].assign(speed_hz=1234.0)
     data = figure_data(s, "gamma", timing)
     assert (data["speed_hz"] == 1234.0).all() and (data["speed_source"] == "timing").all()
+    # One source per figure: a method the pass did not time has no speed, not a per-trial one.
     partial = timing[timing["algorithm"] != "ali"]
     data = figure_data(s, "gamma", partial).set_index("series")
-    assert (data.loc["ali", "speed_source"] == "trials").all()
-    assert (data.loc["ali", "speed_hz"] == 500).all()
+    assert (data["speed_source"] == "timing").all() and data.loc["ali", "speed_hz"].isna().all()
+
+
+def test_no_speed_where_no_run_was_meaningful():
+    s = gamma_case()
+    s.loc[s["algorithm"] == "crassidis", "RB_pct"] = [100, 50, 0]
+    timing = s[["gamma", "algorithm"]].assign(speed_hz=1234.0)
+    for t in (None, timing):
+        speeds = figure_data(s, "gamma", t).set_index("series").loc["crassidis", "speed_hz"]
+        assert speeds.notna().tolist() == [True, True, False]
 
 
 def coverage_summary():

@@ -105,14 +105,16 @@ def figure_data(summary: pd.DataFrame, sweep: str,
         A key of :data:`FIGURES`.
     timing : DataFrame, optional
         ``timing.csv`` of the sweep (the timing protocol); its speeds replace the per-trial
-        ones. For the coverage sweep it must carry the ``coverage`` label column too.
+        ones (NaN where it has none). For the coverage sweep it must carry the ``coverage``
+        label column too.
 
     Returns
     -------
     DataFrame
         Columns ``series`` (method name), ``label``, ``family``, ``x`` (the swept value),
         ``group`` (the coverage geometry, ``cap`` or ``band``; empty elsewhere), ``accuracy``
-        (1/rho), ``speed_hz`` (1/tau), ``speed_source`` (``timing`` or ``trials``),
+        (1/rho), ``speed_hz`` (1/tau; NaN where RB is 0, as eq. (79) averages over
+        meaningful runs), ``speed_source`` (``timing`` or ``trials``),
         ``RB_pct`` and ``efficiency`` (Cramer-Rao bound / mean squared error over the same
         meaningful runs; NaN without the Cramer-Rao columns).
     """
@@ -126,12 +128,13 @@ def figure_data(summary: pd.DataFrame, sweep: str,
             part = part.sort_values(spec.x)
         for rec in part.itertuples(index=False):
             x = getattr(rec, spec.x)
-            timed = speeds.get((x, name)) if speeds is not None else None
+            speed = rec.speed_hz if speeds is None else speeds.get((x, name), np.nan)
             rows.append({"series": name, "label": label, "family": family, "x": x,
                          "group": coverage_group(x) if spec.categorical else "",
                          "accuracy": rec.accuracy,
-                         "speed_hz": rec.speed_hz if timed is None else timed,
-                         "speed_source": "trials" if timed is None else "timing",
+                         # eq. (79) times meaningful runs: no speed where there is none
+                         "speed_hz": speed if rec.RB_pct > 0 else np.nan,
+                         "speed_source": "trials" if speeds is None else "timing",
                          "RB_pct": rec.RB_pct,
                          "efficiency": getattr(rec, "efficiency", np.nan)})
     return pd.DataFrame(rows, columns=["series", "label", "family", "x", "group", "accuracy",

@@ -8,9 +8,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from magbench.core.reference import paper_values
-from magbench.methods.registry import find_method, method_label
-from magbench.report.format import format_number
+from magbench.methods.registry import method_label
+from magbench.report.format import format_number, render
 
 __all__ = ["bench_report_section"]
 
@@ -32,33 +31,18 @@ def bench_report_section(results_dir: Path | str) -> str:
     return "\n".join(lines) + "\n"
 
 
-def _paper_speed(name: str) -> float:
-    spec = find_method(name)
-    key = spec.paper_key if spec is not None else None
-    return paper_values()["review"]["table2"].get(key, {}).get("speed_hz", np.nan) \
-        if key else np.nan
-
-
 def _calls_lines(calls: pd.DataFrame) -> list[str]:
     at300 = calls[calls["K"] == 300]
-    lines = ["## Speed (benchmark)", "",
-             "Median time of one `calibrate` call at the nominal setting, K = 300, on this "
-             "machine (Python, one thread), beside the review's MATLAB speeds (Table 2). "
-             "Produced by `make bench`; scaling plot: `bench/scaling.png`.", "",
-             f"*Benchmark `bench`: {int(at300['n'].max()) if len(at300) else 0} timed calls per "
-             "method and K (datasets x repeats, `calls.csv`); the benchmark is not a sweep and "
-             "has no config fingerprint. The sweeps' speeds come from their own timing passes "
-             "(`<sweep>/timing.csv`).*", "",
-             "| method | median (ms) | quartiles (ms) | speed (1/s) | paper speed (1/s) | "
-             "K=10000 / K=1000 |", "|---|---:|---:|---:|---:|---:|"]
+    lines = ["## Speed (benchmark)", "", render("bench.intro"), "",
+             render("bench.note", n=int(at300["n"].max()) if len(at300) else 0), "",
+             "| method | median (ms) | quartiles (ms) | K=10000 / K=1000 |",
+             "|---|---:|---:|---:|"]
     for r in at300.itertuples(index=False):
         big = calls[(calls["algorithm"] == r.algorithm) & (calls["K"] == 10000)]["median_s"]
         small = calls[(calls["algorithm"] == r.algorithm) & (calls["K"] == 1000)]["median_s"]
         ratio = float(big.iloc[0] / small.iloc[0]) if len(big) and len(small) else np.nan
         lines.append(f"| {method_label(r.algorithm)} | {format_number(r.median_s * 1e3)} | "
                      f"{format_number(r.q25_s * 1e3)}-{format_number(r.q75_s * 1e3)} | "
-                     f"{format_number(1 / r.median_s)} | "
-                     f"{format_number(float(_paper_speed(r.algorithm)))} | "
                      f"{format_number(ratio, 2)} |")
     return lines
 

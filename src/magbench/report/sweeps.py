@@ -88,9 +88,8 @@ def sweep_tables(summary: pd.DataFrame, x: str, trials: pd.DataFrame | None = No
     rich["accuracy_cell"] = [cell(r.accuracy, (r.acc_lo, r.acc_hi))
                              for r in rich.itertuples(index=False)]
     rich["RB_cell"] = [cell(r.RB_pct, (r.RB_lo, r.RB_hi), 3) for r in rich.itertuples(index=False)]
-    timed = bool(rich["speed_timed"].notna().all())
-    rich["speed_cell"] = [format_number(r.speed_timed if timed else r.speed_hz, 2)
-                          for r in rich.itertuples(index=False)]
+    timed = timing is not None
+    rich["speed_cell"] = [format_number(r.speed, 2) for r in rich.itertuples(index=False)]
     with_acc = bool(rich["acc_lo"].notna().any())
     titles = [("accuracy_cell", render("sweeps.accuracy_title_interval" if with_acc
                                        else "sweeps.accuracy_title")),
