@@ -1,5 +1,6 @@
 """The opening advice: which method when, from hand-made summaries."""
 
+import numpy as np
 import pandas as pd
 
 from magbench.report import advice as report
@@ -58,10 +59,24 @@ def test_gyro_row_compares_the_best_gyro_and_magnetometer_only_methods():
         return pd.DataFrame(rows)
 
     helps = report.gyro_line(gyro_summary(90.0))
-    assert "'low' manoeuvre, gyro noise 0.03 rad/s, 30 runs" in helps
-    assert helps.endswith("the gyro helps here.")
-    assert report.gyro_line(gyro_summary(10.0)).endswith("no gain from the gyro here over the "
-                                                         "best magnetometer-only fit.")
+    assert "gyro noise 0.03 rad/s, 30 runs per manoeuvre" in helps
+    assert "'low': SAR-LS RB 90 [74.4, 96.5] % against MAG.I.C.AL 40 [24.6, 57.7] %" in helps
+    assert helps.endswith("RB beyond the intervals on: 'wide', 'low'; accuracy on: no manoeuvre.")
+    # 60 % against 40 % on 30 runs each: the Wilson intervals overlap, no gain is claimed.
+    tie = report.gyro_line(gyro_summary(60.0))
+    assert "(within the intervals)" in tie and "RB beyond the intervals on: no manoeuvre" in tie
+
+
+def test_gyro_accuracy_is_compared_on_the_manoeuvres_both_solve():
+    summary = pd.DataFrame([{"coverage": "low", "gyro_noise": 0.03, "algorithm": a, "n": 4,
+                             "RB_pct": 100.0, "accuracy": 1.0} for a in ("sar_ls", "magical")])
+    trials = pd.DataFrame([{"coverage": "low", "gyro_noise": 0.03, "trial": i, "algorithm": a,
+                            "J": j * (1.0 if a == "magical" else 0.5), "meaningful": True}
+                           for i, j in enumerate([1.0, 2.0, 3.0, 4.0])
+                           for a in ("sar_ls", "magical")])
+    line = report.gyro_line(summary, trials)
+    assert "accuracy 2x MAG.I.C.AL's [2, 2] on the 4 manoeuvres both solve" in line
+    assert line.endswith("accuracy on: 'low'.")
 
 
 def test_advice_section_reads_the_results_folder(tmp_path):
@@ -73,3 +88,33 @@ def test_advice_section_reads_the_results_folder(tmp_path):
     assert text.startswith("## In short: which method to use\n\n- **Data from the whole sphere")
     assert "1 methods are equally good" in text and "the fastest here is MAG.I.C.AL" in text
     assert text.rstrip().endswith("(see the real-recordings section below).")
+
+
+def test_stress_rows_compare_accuracy_on_matched_datasets():
+    hard = np.r_[np.full(50, 1.0), np.full(50, 10.0)]
+    rows = [{"beta": 1.0, "trial": i, "algorithm": n, "J": j * f, "meaningful": m}
+            for n, f in (("dorveaux", 1.0), ("magical", 1.02), ("wu_shi", 0.6))
+            for i, j in enumerate(hard)
+            for m in [not (n == "wu_shi" and i >= 95)]]
+    trials = pd.DataFrame(rows)
+    s = summary("beta", [1.0], {
+        "dorveaux": {"RB_pct": [100], "accuracy": [1 / 5.5], "speed_hz": [1]},
+        "magical": {"RB_pct": [100], "accuracy": [1 / 5.61], "speed_hz": [1]},
+        "wu_shi": {"RB_pct": [95], "accuracy": [1 / 3.0], "speed_hz": [1]}})
+    line = report.stress_line(s, "beta", "Strong", "Fig. 3", trials)
+    assert "the most accurate are Dorveaux, MAG.I.C.AL (accuracy 0.98-1 of Dorveaux's on " \
+           "the 100 datasets meaningful for both; apart beyond the 95 % paired intervals: " \
+           "MAG.I.C.AL)" in line
+    assert "Wu-Shi (RB 95 %) is 1.7x as accurate as Dorveaux on the 95 datasets" in line
+
+
+def test_the_fastest_method_is_flagged_where_it_falls_behind():
+    rows = [{"sigma": 0.05, "trial": i, "algorithm": n, "J": 1.0 + 0.1 * i * 0 + f,
+             "meaningful": True} for i in range(20) for n, f in (("magical", 0.0),
+                                                                  ("fang", 0.25))]
+    s = summary("sigma", [0.05], {n: {"RB_pct": [100], "accuracy": [1.0], "speed_hz": [1]}
+                                  for n in ("magical", "fang")})
+    text = report._fastest_caveat("fang", {"sigma": s}, {"sigma": pd.DataFrame(rows)})
+    assert text == (" But at sigma = 0.05 (Fig. 5) it keeps 0.8 of MAG.I.C.AL's accuracy on "
+                    "the same 20 datasets: see the rows below.")
+    assert report._fastest_caveat("magical", {"sigma": s}, {"sigma": pd.DataFrame(rows)}) == ""

@@ -100,3 +100,9 @@ def test_baseline_section_is_table2_and_the_efficiency_table(tmp_path):
     assert text.startswith("## Baseline (Table 2)\n\n*Run: no `baseline/run.json`")
     assert "| MAG.I.C.AL | 400 | 2.28e+05 | 0.0018 | 100 [98.5, 100] | 100 |" in text
     assert "Efficiency at the baseline" in text and "### Why" not in text   # no trials.csv
+
+
+def test_rankings_show_ties_at_the_printed_precision():
+    table = pd.DataFrame({"v": [2.32e5, 2.28e5, 2.28e5, 2.27e5]},
+                         index=["wu_shi", "magical", "vasconcelos", "ali"])
+    assert report._ranking(table, "v") == "Wu-Shi > MAG.I.C.AL = Vasconcelos > Ali PSO"

@@ -48,9 +48,12 @@ def baseline_section(results_dir: Path) -> str:
     return "\n".join(out)
 
 
-def _ranking(table: pd.DataFrame, column: str) -> str:
-    """'A > B > ...' of the methods (the index) by ``column``, largest first."""
-    return " > ".join(method_label(n) for n in table[column].sort_values(ascending=False).index)
+def _ranking(table: pd.DataFrame, column: str, digits: int = 3) -> str:
+    """'A > B = C > ...' of the methods (the index) by ``column``, largest first; values equal
+    to ``digits`` significant figures (what the paper and this report print) are ties."""
+    ordered = table[column].sort_values(ascending=False, kind="stable")
+    groups = ordered.groupby([format_number(v, digits) for v in ordered], sort=False)
+    return " > ".join(" = ".join(method_label(n) for n in g.index) for _, g in groups)
 
 
 def _top_share(trials: pd.DataFrame, names: list[str], resamples: int = 2000) -> str:
@@ -69,6 +72,14 @@ def _top_share(trials: pd.DataFrame, names: list[str], resamples: int = 2000) ->
                "the first place is not significant")
     return (f"resampling the {len(wide)} datasets ({resamples} paired bootstrap draws), the "
             f"first place goes to {shares}: {verdict}.")
+
+
+def _common_runs(trials: pd.DataFrame, names: list[str]) -> int:
+    """The number of datasets meaningful for every method of ``names``."""
+    rows = trials[trials["algorithm"].isin(names)]
+    ok = rows.assign(meaningful=rows["meaningful"].astype(bool)).pivot(
+        index="trial", columns="algorithm", values="meaningful")
+    return int(ok.reindex(columns=names).eq(True).all(axis=1).sum())
 
 
 def _paper_accuracy(name: str) -> float:
@@ -93,6 +104,7 @@ def _why_context(trials: pd.DataFrame, hyp: pd.DataFrame) -> dict:
             "ratio_lo": format_number(accurate["paper_over_sq"].min(), 3),
             "ratio_hi": format_number(accurate["paper_over_sq"].max(), 3),
             "n_accurate": _WORDS.get(len(accurate), str(len(accurate))),
+            "n_common": _common_runs(trials, list(accurate.index)),
             "paper_ranking": _ranking(accurate, "paper"),
             "our_ranking": _ranking(accurate, "inv_mean_sq"),
             "top_share": _top_share(trials, list(accurate.index)),
