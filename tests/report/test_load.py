@@ -10,7 +10,7 @@ def test_the_report_reads_only_columns_a_trials_file_has(tmp_path):
     assert set(TRIAL_COLUMNS + ESTIMATE_COLUMNS) <= set(ROW_COLUMNS)
     pd.DataFrame([dict.fromkeys(ROW_COLUMNS, 1.0)]).to_csv(tmp_path / "trials.csv", index=False)
     assert list(load_trials(tmp_path).columns) == [c for c in ROW_COLUMNS if c in TRIAL_COLUMNS]
-    assert len(load_trials(tmp_path, estimates=True).columns) == 15 + 24
+    assert len(load_trials(tmp_path, estimates=True).columns) == 16 + 24
     assert load_trials(tmp_path / "absent") is None
 
 

@@ -14,8 +14,8 @@ __all__ = ["ESTIMATE_COLUMNS", "TRIAL_COLUMNS", "load_csv", "load_trials", "swee
 
 #: The columns of ``trials.csv`` the report reads (the point, the method, the error metrics);
 #: the file holds more (seed, status, times, iterations, estimates), read only where needed.
-TRIAL_COLUMNS = [*POINT_COLUMNS, "algorithm", "trial", "J", "meaningful", "sq_err", "crb",
-                 "crb_J", "J_h", "J_T"]
+TRIAL_COLUMNS = [*POINT_COLUMNS, "algorithm", "trial", "J", "J0", "meaningful", "sq_err",
+                 "crb", "crb_J", "J_h", "J_T"]
 #: The estimate and truth columns of ``trials.csv`` (h, T and their true values).
 ESTIMATE_COLUMNS = [*H_COLUMNS, *T_COLUMNS, *TRUTH_COLUMNS]
 

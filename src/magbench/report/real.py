@@ -7,8 +7,10 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from magbench.methods.registry import method_label
 from magbench.report.format import format_number, render
 from magbench.report.intervals import accuracy_intervals, cell, rb_interval, run_note
+from magbench.studies.real import selection_inflation
 
 __all__ = ["real_report_section"]
 
@@ -33,11 +35,27 @@ def real_report_section(results_dir: Path | str, figure_link: str = "real/fig6_r
         f"Per recording: ![Figure 6 per recording]"
         f"({figure_link.replace('fig6_real.png', 'fig6_real_recordings.png')})", "",
         run_note(folder, "recordings"), "", render("real.brackets"), "",
+        *_selection_lines(per_method, per_rec),
     ]
     bounds = _accuracy_bounds(per_rec)
     for how, g in per_method.groupby("preprocess", sort=False):
         lines += _method_table(how, g, bounds)
     return "\n".join(lines + _cross_table(per_rec))
+
+
+def _selection_lines(per_method: pd.DataFrame, per_rec: pd.DataFrame) -> list[str]:
+    """The accuracies set by which recordings a method kept (as Figure 6 hatches them)."""
+    flags = selection_inflation(per_rec)
+    flags = flags.loc[flags["set_by_selection"].astype(bool)].merge(
+        per_method[["preprocess", "algorithm", "accuracy_in"]], on=["preprocess", "algorithm"])
+    if flags.empty:
+        return []
+    flagged = "; ".join(
+        f"{method_label(r.algorithm)} (`{r.preprocess}`) {format_number(r.accuracy_in)} on its "
+        f"{r.n_kept} recordings, where the others score {format_number(r.others_on_kept)} "
+        f"({format_number(r.inflation, 2)}x their accuracy on all they solve)"
+        for r in flags.itertuples())
+    return [render("real.selection", flagged=flagged), ""]
 
 
 def _accuracy_bounds(per_rec: pd.DataFrame) -> dict[str, dict]:

@@ -5,14 +5,19 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
 
 from magbench.figures.sweeps import FIGURES
 from magbench.methods.registry import method_label
 from magbench.report.format import format_number, md_table, render
 from magbench.report.intervals import annotate, cell, run_note
-from magbench.report.load import load_csv, load_trials
-from magbench.studies.review import with_coverage_column
+from magbench.report.load import load_csv, load_trials, sweep_delta
+from magbench.studies.review import coverage_label, with_coverage_column
+
+#: The review's seven methods, whose scores the selection paragraph sets beside the
+#: efficient estimator's.
+REVIEW = ("twostep", "crassidis", "dorveaux", "vasconcelos", "ali", "wu_shi", "magical")
 
 __all__ = ["SWEEP_SECTIONS", "figure_title", "pivot", "sweep_section", "sweep_tables"]
 
@@ -48,9 +53,61 @@ def sweep_section(results_dir: Path, sweep: str) -> str:
     title = figure_title(sweep)
     out = [f"## {title}: sweep `{sweep}`", "", run_note(results_dir / sweep), "",
            f"![{title}]({sweep}/{spec.stem}.png)", "", render("sweeps.panels"), "",
-           sweep_tables(summary, spec.x, load_trials(results_dir / sweep),
+           sweep_tables(summary, spec.x, trials := load_trials(results_dir / sweep),
                         load_csv(results_dir, sweep, "timing.csv"), sweep), ""]
+    out += selection_lines(summary, load_csv(results_dir, sweep, "efficient_selection.csv"),
+                           trials, sweep_delta(results_dir / sweep))
     return "\n".join(out)
+
+
+def _labelled(frame: pd.DataFrame) -> pd.DataFrame:
+    return frame.assign(coverage=[coverage_label(c, b) for c, b in
+                                  zip(frame["cap_deg"], frame["band_deg"], strict=True)])
+
+
+def selection_lines(summary: pd.DataFrame, reference: pd.DataFrame | None,
+                    trials: pd.DataFrame | None, delta: float) -> list[str]:
+    """Where the robustness test sets the scores: the efficient estimator under the same
+    selection (``efficient_selection.csv``) beside the review's methods, at the points where
+    it keeps fewer than 99 % of its runs ('' without the file or such points)."""
+    if reference is None:
+        return []
+    ref = _labelled(reference)
+    ref = ref[ref["RB_pct"] < 99]
+    if ref.empty:
+        return []
+    rows = _labelled(summary)
+    rows = rows[rows["coverage"].isin(ref["coverage"]) & rows["algorithm"].isin(REVIEW)
+                & (rows["RB_pct"] > 0)]
+    methods = rows.groupby("coverage")["efficiency"]
+    lo, hi = methods.min(), methods.max()
+    efficient = "; ".join(f"{r.coverage}: {format_number(r.efficiency, 2)} ({r.RB_pct:.3g} % "
+                          f"kept; methods {format_number(lo.get(r.coverage, np.nan), 2)}-"
+                          f"{format_number(hi.get(r.coverage, np.nan), 2)})"
+                          for r in ref.itertuples())
+    text = render("sweeps.selection", efficient=efficient,
+                  accuracy=_threshold_sentence(rows, ref, trials, delta))
+    return [text.strip(), ""]
+
+
+def _threshold_sentence(rows: pd.DataFrame, ref: pd.DataFrame, trials: pd.DataFrame | None,
+                        delta: float) -> str:
+    """The points whose accuracies sit within 2x of the selection threshold 1/(delta J0)."""
+    if trials is None or "J0" not in trials:
+        return ""
+    J0 = _labelled(trials.drop_duplicates(["cap_deg", "band_deg", "trial"])).groupby(
+        "coverage", sort=False)["J0"].mean()
+    threshold = 1.0 / (delta * J0)
+    near = [c for c in ref["coverage"]
+            if (rows.loc[rows["coverage"] == c, "accuracy"] < 2 * threshold[c]).all()]
+    if not near:
+        return ""
+    acc = rows[rows["coverage"].isin(near)]["accuracy"]
+    eff = ref.set_index("coverage")["accuracy"]
+    return render("sweeps.threshold", where=" and ".join(near),
+                  acc=f"{format_number(acc.min(), 2)}-{format_number(acc.max(), 2)}",
+                  threshold=", ".join(f"{format_number(threshold[c], 2)}" for c in near),
+                  efficient=", ".join(f"{format_number(eff[c], 3)}" for c in near))
 
 
 def _columns(table: pd.DataFrame, x: str) -> list[str]:
