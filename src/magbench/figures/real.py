@@ -137,14 +137,7 @@ def figure6(per_method: pd.DataFrame, per_recording: pd.DataFrame | None = None)
             for tick in ax.get_xticklabels():
                 tick.set_rotation(30 if len(names) > 7 else 0)
                 tick.set_ha("right" if len(names) > 7 else "center")
-    hows = [h for h in _PREPROCESS if h in set(per_method["preprocess"])]
-    handles = [Patch(facecolor="0.55", alpha=_PREPROCESS[h][1], hatch=_PREPROCESS[h][0],
-                     edgecolor="black", label=_PREPROCESS[h][2]) for h in hows]
-    if flags is not None and flags["set_by_selection"].any():
-        handles += [Patch(fill=False, hatch="xxx", edgecolor="crimson",
-                          label="set by which recordings were kept"),
-                    Line2D([], [], color="black", linewidth=2.5,
-                           label="other review methods on the same recordings")]
+    handles = _legend_handles(per_method, flags)
     n_rec = int(per_method["n_recordings"].max()) if "n_recordings" in per_method else None
     fig.legend(handles=handles, loc="outside lower center", ncols=min(len(handles), 3),
                fontsize=9, frameon=False)
@@ -153,6 +146,19 @@ def figure6(per_method: pd.DataFrame, per_recording: pd.DataFrame | None = None)
     fig.suptitle("Figure 6 on public real recordings (review section 10.2)"
                  + (f", {n_rec} recordings" if n_rec else "") + note, fontsize=11)
     return fig
+
+
+def _legend_handles(per_method: pd.DataFrame, flags: pd.DataFrame | None) -> list:
+    """The preprocessings' bar styles, and the selection flag's when a bar carries it."""
+    hows = [h for h in _PREPROCESS if h in set(per_method["preprocess"])]
+    handles = [Patch(facecolor="0.55", alpha=_PREPROCESS[h][1], hatch=_PREPROCESS[h][0],
+                     edgecolor="black", label=_PREPROCESS[h][2]) for h in hows]
+    if flags is not None and flags["set_by_selection"].astype(bool).any():
+        handles += [Patch(fill=False, hatch="xxx", edgecolor="crimson",
+                          label="set by which recordings were kept"),
+                    Line2D([], [], color="black", linewidth=2.5,
+                           label="other review methods on the same recordings")]
+    return handles
 
 
 def figure6_recordings(per_method: pd.DataFrame, per_recording: pd.DataFrame) -> Figure:
