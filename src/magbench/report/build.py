@@ -15,16 +15,12 @@ from magbench.report.advice import advice_section
 from magbench.report.baseline import baseline_section
 from magbench.report.claims import claims_section
 from magbench.report.format import render
-from magbench.report.gyro import gyro_report_section
-from magbench.report.real import real_report_section
 from magbench.report.speed import bench_report_section
 from magbench.report.sweeps import SWEEP_SECTIONS, sweep_section
 from magbench.report.table2 import write_sweep_tables
-from magbench.report.variants import variants_report_section
-from magbench.report.wushi import wushi_report_section
 
-__all__ = ["KIND_SECTIONS", "REVIEW_SECTIONS", "Section", "build_report", "header_section",
-           "write_report", "write_sweep_tables"]
+__all__ = ["REVIEW_SECTIONS", "Section", "build_report", "header_section", "write_report",
+           "write_sweep_tables"]
 
 #: A report section: the results folder -> its Markdown ('' when it has nothing to say).
 Section = Callable[[Path], str]
@@ -40,22 +36,18 @@ def header_section(results_dir: Path) -> str:
 REVIEW_SECTIONS: tuple[Section, ...] = (
     header_section, advice_section, baseline_section,
     *(partial(sweep_section, sweep=s) for s in SWEEP_SECTIONS), claims_section)
-#: The other study kinds' sections, in report order (the benchmark's comes last).
-KIND_SECTIONS: tuple[Section, ...] = (variants_report_section, real_report_section,
-                                      wushi_report_section, gyro_report_section)
-
-
-def build_report(results_dir: Path | str, sections: Sequence[Section] = KIND_SECTIONS) -> str:
+def build_report(results_dir: Path | str, sections: Sequence[Section] = ()) -> str:
     """The Markdown of ``results/report.md``, from the CSV files under ``results_dir``:
-    :data:`REVIEW_SECTIONS`, then ``sections`` (the study kinds' parts), then the
-    benchmark's, each ending with a blank line; empty sections are left out."""
+    :data:`REVIEW_SECTIONS`, then ``sections`` (the study kinds' own parts, in the registry's
+    order), then the benchmark's, each ending with a blank line; empty sections are left
+    out."""
     results_dir = Path(results_dir)
     parts = (section(results_dir) for section in (*REVIEW_SECTIONS, *sections,
                                                    bench_report_section))
     return "\n".join(part.strip() + "\n" for part in parts if part)
 
 
-def write_report(results_dir: Path | str, sections: Sequence[Section] = KIND_SECTIONS) -> Path:
+def write_report(results_dir: Path | str, sections: Sequence[Section] = ()) -> Path:
     """Write ``<results_dir>/report.md`` from the CSV files (figures are drawn separately);
     ``sections`` as in :func:`build_report`."""
     results_dir = Path(results_dir)
