@@ -120,3 +120,11 @@ def test_figure6_hatches_an_accuracy_set_by_the_recordings_kept():
     assert len(hatched) == 1 and hatched[0].get_height() == pytest.approx(1e4)
     assert "set by which recordings were kept" not in [
         t.get_text() for t in figure6(per_method).legends[0].get_texts()]
+
+
+def test_a_reference_of_other_points_is_not_drawn(tmp_path):
+    pd.DataFrame({"K": 300, "sigma": 0.005, "beta": 0.05, "gamma": 0.05, "cap_deg": [30.0],
+                  "band_deg": [90.0], "RB_pct": [8.0], "accuracy": [10.6], "efficiency": [77.0],
+                  "undetermined": 0}).to_csv(tmp_path / "efficient_selection.csv", index=False)
+    csv = write_figure(gamma_case(), "gamma", tmp_path)[1]
+    assert (pd.read_csv(csv)["family"] != "reference").all()

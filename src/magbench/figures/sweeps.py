@@ -39,7 +39,7 @@ from matplotlib.figure import Figure
 from magbench.core.files import write_csv_atomic
 from magbench.figures.style import method_style, new_figure, save_figure
 from magbench.methods.registry import find_method, methods
-from magbench.studies.review import coverage_label
+from magbench.studies.review import POINT_COLUMNS, coverage_label
 
 __all__ = ["FIGURES", "REFERENCE_STYLE", "FigureSpec", "coverage_group", "figure_data",
            "plot_sweep", "reference_data", "write_figure"]
@@ -260,8 +260,10 @@ def write_figure(summary: pd.DataFrame, sweep: str, out_dir: Path | str,
     reference = out_dir / "efficient_selection.csv"
     data = figure_data(summary, sweep, timing)
     if reference.exists():
-        data = pd.concat([data, reference_data(pd.read_csv(reference), sweep)],
-                         ignore_index=True)
+        # Only the points of this summary: the file describes the folder's own sweep.
+        points = summary[POINT_COLUMNS].drop_duplicates()
+        rows = pd.read_csv(reference).merge(points, on=POINT_COLUMNS)
+        data = pd.concat([data, reference_data(rows, sweep)], ignore_index=True)
     fig = plot_sweep(data, sweep)
     png, csv = out_dir / f"{spec.stem}.png", out_dir / f"{spec.stem}.csv"
     save_figure(fig, png)
