@@ -123,3 +123,15 @@ def test_an_option_axis_runs_the_method_per_value_on_the_same_dataset(tmp_path):
     assert first["T_00"].iloc[2] != first["T_00"].iloc[3]
     assert len(summary) == 4 and summary["n"].eq(3).all()
     assert summary["crassidis.P0"].isna().sum() == 2
+
+
+def test_summary_from_the_chunked_columns_equals_the_whole_file_summary(tmp_path, monkeypatch):
+    import magbench.core.files as files
+    from magbench.studies.review import summarize_review
+
+    study = spec()
+    run_study(study, tmp_path, progress=False)
+    expected = summarize_review(read_trials(tmp_path / "trials.csv"))
+    # Chunks of 5 rows: every point and method spans several chunks.
+    monkeypatch.setattr(files, "CHUNK_ROWS", 5)
+    pd.testing.assert_frame_equal(study.summarize(tmp_path), expected, check_exact=True)
