@@ -8,6 +8,8 @@ import pytest
 from magbench.core.intervals import (
     RESAMPLES,
     bootstrap_inverse_mean,
+    bootstrap_mean,
+    bootstrap_ratio_of_means,
     intervals_overlap,
     resampled_means,
     wilson,
@@ -94,3 +96,17 @@ def test_resampling_memory_does_not_grow_with_the_resamples():
     tracemalloc.stop()
     # One call would hold 40 x 100 000 indices and values (64 MB); a chunk holds one row.
     assert peak < 4e6
+
+
+def test_bootstrap_mean_and_ratio_bracket_their_estimates():
+    x = np.random.default_rng(2).exponential(2.0, size=400)
+    low, high = bootstrap_mean(x, "m")
+    assert low < x.mean() < high
+    assert (high - low) / 2 == pytest.approx(1.96 * x.std() / np.sqrt(400), rel=0.15)
+    # A ratio of paired means: a constant ratio has no spread however noisy the pairs.
+    assert bootstrap_ratio_of_means(3 * x, x, "r") == pytest.approx((3.0, 3.0))
+    y = x + np.random.default_rng(4).normal(0, 0.5, size=400)
+    low, high = bootstrap_ratio_of_means(x, y, "r")
+    assert low < x.mean() / y.mean() < high
+    assert all(np.isnan(bootstrap_mean([np.nan], "m")))
+    assert all(np.isnan(bootstrap_ratio_of_means([1.0], [np.inf], "r")))

@@ -135,3 +135,16 @@ def test_summary_from_the_chunked_columns_equals_the_whole_file_summary(tmp_path
     # Chunks of 5 rows: every point and method spans several chunks.
     monkeypatch.setattr(files, "CHUNK_ROWS", 5)
     pd.testing.assert_frame_equal(study.summarize(tmp_path), expected, check_exact=True)
+
+
+def test_efficiency_intervals_match_the_summary_and_bracket_it(tmp_path):
+    from magbench.studies.review import efficiency_intervals
+
+    study = spec(trials=12)
+    trials, summary = run_sweep(study, tmp_path)
+    table = efficiency_intervals(trials, ["K", "gamma", "algorithm"], "t")
+    merged = table.merge(summary, on=["K", "gamma", "algorithm"], suffixes=("", "_summary"))
+    assert len(merged) == 4
+    np.testing.assert_allclose(merged["efficiency"], merged["efficiency_summary"], rtol=1e-12)
+    assert (merged["eff_lo"] < merged["efficiency"]).all()
+    assert (merged["efficiency"] < merged["eff_hi"]).all()

@@ -21,8 +21,8 @@ import numpy as np
 
 from magbench.core.seeding import rng
 
-__all__ = ["CHUNK_VALUES", "RESAMPLES", "Z95", "bootstrap_inverse_mean", "intervals_overlap",
-           "resampled_means", "wilson"]
+__all__ = ["CHUNK_VALUES", "RESAMPLES", "Z95", "bootstrap_inverse_mean", "bootstrap_mean",
+           "bootstrap_ratio_of_means", "intervals_overlap", "resampled_means", "wilson"]
 
 #: Standard normal quantile of a two-sided 95 % interval.
 Z95 = 1.959963984540054
@@ -105,6 +105,47 @@ def bootstrap_inverse_mean(values: Sequence[float] | np.ndarray, *keys: int | st
         inverse = 1.0 / means
     tail = 100.0 * (1.0 - level) / 2.0
     low, high = np.percentile(inverse, [tail, 100.0 - tail])
+    return (float(low), float(high))
+
+
+def bootstrap_mean(values: Sequence[float] | np.ndarray, *keys: int | str, seed: int = 0,
+                   resamples: int = RESAMPLES, level: float = 0.95) -> tuple[float, float]:
+    """Percentile-bootstrap interval of ``mean(values)`` (non-finite values dropped).
+
+    Same stream, resamples and conventions as :func:`bootstrap_inverse_mean`; ``(nan, nan)``
+    with no value.
+    """
+    x = np.asarray(values, dtype=float)
+    x = x[np.isfinite(x)]
+    if x.size == 0:
+        return (np.nan, np.nan)
+    return _percentile_interval(resampled_means(x, rng(seed, "bootstrap", *keys), resamples),
+                                level)
+
+
+def bootstrap_ratio_of_means(numerator: Sequence[float] | np.ndarray,
+                             denominator: Sequence[float] | np.ndarray, *keys: int | str,
+                             seed: int = 0, resamples: int = RESAMPLES,
+                             level: float = 0.95) -> tuple[float, float]:
+    """Percentile-bootstrap interval of ``mean(numerator) / mean(denominator)``, the pairs
+    resampled together (the efficiency ``mean(bound) / mean(squared error)`` over datasets).
+
+    Pairs with a non-finite member are dropped; ``(nan, nan)`` with none left.
+    """
+    pairs = np.column_stack([np.asarray(numerator, float), np.asarray(denominator, float)])
+    pairs = pairs[np.all(np.isfinite(pairs), axis=1)]
+    if pairs.shape[0] == 0:
+        return (np.nan, np.nan)
+    means = resampled_means(pairs, rng(seed, "bootstrap", *keys), resamples)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return _percentile_interval(means[:, 0] / means[:, 1], level)
+
+
+def _percentile_interval(statistic: np.ndarray, level: float) -> tuple[float, float]:
+    if not 0 < level < 1:
+        raise ValueError(f"level must be in (0, 1), got {level}")
+    tail = 100.0 * (1.0 - level) / 2.0
+    low, high = np.percentile(statistic, [tail, 100.0 - tail])
     return (float(low), float(high))
 
 

@@ -22,6 +22,7 @@ import pandas as pd
 
 from magbench.core.crb import crb_mse, efficient_expected_J
 from magbench.core.files import read_csv_columns, write_csv_atomic
+from magbench.core.intervals import bootstrap_ratio_of_means
 from magbench.core.metrics import accuracy_cost, summarize, trivial_cost
 from magbench.core.seeding import rng
 from magbench.engine.sweep import Study
@@ -31,8 +32,8 @@ from magbench.methods.registry import get_method
 from magbench.sources.synthetic import Point, make_dataset
 
 __all__ = ["POINT_COLUMNS", "ROW_COLUMNS", "SUMMARY_COLUMNS", "TRUTH_COLUMNS", "OptionAxis",
-           "ReviewStudy", "coverage_label", "method_options", "point_with", "points_for",
-           "read_trials",
+           "ReviewStudy", "coverage_label", "efficiency_intervals", "method_options",
+           "point_with", "points_for", "read_trials",
            "summarize_review", "trial_rows", "with_coverage_column"]
 
 POINT_COLUMNS = ["K", "sigma", "beta", "gamma", "cap_deg", "band_deg"]
@@ -215,6 +216,39 @@ def summarize_review(trials: pd.DataFrame, extra: Sequence[str] = ()) -> pd.Data
     """RB %, rho, tau (eqs. 77-79) and the Cramer-Rao columns per point and method (and per
     value of the ``extra`` columns, such as an option axis's)."""
     return summarize(trials, POINT_COLUMNS + list(extra) + ["algorithm"])
+
+
+def efficiency_intervals(trials: pd.DataFrame, by: Sequence[str], sweep: str) -> pd.DataFrame:
+    """Efficiency (Cramer-Rao bound / MSE over the meaningful runs, as in :func:`summarize`)
+    with its 95 % paired-bootstrap interval, per group.
+
+    Parameters
+    ----------
+    trials : DataFrame
+        Rows with ``meaningful``, ``crb`` and ``sq_err`` (the columns of ``trials.csv``).
+    by : sequence of str
+        Grouping columns (the point's columns and ``algorithm``).
+    sweep : str
+        Name of the sweep, part of every group's bootstrap stream.
+
+    Returns
+    -------
+    DataFrame
+        ``by`` plus ``n``, ``n_meaningful``, ``efficiency``, ``eff_lo`` and ``eff_hi``.
+    """
+    rows = []
+    for key, g in trials.groupby(list(by), sort=False):
+        key = key if isinstance(key, tuple) else (key,)
+        ok = g[g["meaningful"].astype(bool)]
+        stream = [f"{c}={v}" for c, v in zip(by, key, strict=True)]
+        low, high = bootstrap_ratio_of_means(ok["crb"], ok["sq_err"], sweep, "efficiency",
+                                             *stream)
+        mse = float(ok["sq_err"].mean()) if len(ok) else np.nan
+        rows.append({**dict(zip(by, key, strict=True)), "n": len(g), "n_meaningful": len(ok),
+                     "efficiency": float(ok["crb"].mean()) / mse if mse > 0 else np.nan,
+                     "eff_lo": low, "eff_hi": high})
+    return pd.DataFrame(rows, columns=[*by, "n", "n_meaningful", "efficiency", "eff_lo",
+                                       "eff_hi"])
 
 
 def coverage_label(cap_deg: float, band_deg: float) -> str:
