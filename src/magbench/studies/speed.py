@@ -428,9 +428,12 @@ def malloc_thresholds() -> str:
 
 def run_bench(results_dir: Path | str, names: Sequence[str] | None = None,
               sizes: Sequence[int] = SIZES, parallel_trials: int = 250,
-              progress: Callable[[str], None] | None = print) -> Path:
+              progress: Callable[[str], None] | None = print,
+              peer_datasets: int = 200) -> Path:
     """Run every benchmark and write ``calls.csv``, ``first_calls.csv``, ``peers.csv``,
-    ``peer_install.csv``, ``calibrate.csv`` and ``parallel.csv`` under ``<results_dir>/bench``."""
+    ``peer_accuracy.csv`` and ``peer_accuracy_summary.csv`` (``peer_datasets`` datasets per
+    geometry, 0 = none; :mod:`magbench.studies.peer_accuracy`), ``peer_install.csv``,
+    ``calibrate.csv`` and ``parallel.csv`` under ``<results_dir>/bench``."""
     folder = Path(results_dir) / "bench"
     folder.mkdir(parents=True, exist_ok=True)
     names = list(names or [m for m in methods() if not get_method(m).needs_gyro])
@@ -454,6 +457,13 @@ def run_bench(results_dir: Path | str, names: Sequence[str] | None = None,
     calls["malloc"] = malloc
     write_csv_atomic(calls, folder / "calls.csv")
     write_csv_atomic(bench_peers(), folder / "peers.csv")
+    if peer_datasets:
+        # Imported here: peer_accuracy takes its peers from this module.
+        from magbench.studies.peer_accuracy import peer_accuracy, summarize_peer_accuracy
+
+        accuracy = peer_accuracy(datasets=peer_datasets)
+        write_csv_atomic(accuracy, folder / "peer_accuracy.csv")
+        write_csv_atomic(summarize_peer_accuracy(accuracy), folder / "peer_accuracy_summary.csv")
     write_csv_atomic(peer_install_size(), folder / "peer_install.csv")
     write_csv_atomic(cal := bench_calibrate(), folder / "calibrate.csv")
     if progress:
