@@ -8,11 +8,12 @@ import numpy as np
 import pytest
 
 from magbench.studies.peer_accuracy import peer_accuracy, summarize_peer_accuracy
+from magbench.studies.speed import PEERS
 
 
 @pytest.fixture(scope="module")
 def rows():
-    return peer_accuracy(datasets=4, K=120)
+    return peer_accuracy(PEERS, datasets=4, K=120)
 
 
 def test_every_tool_on_every_dataset_of_every_geometry(rows):

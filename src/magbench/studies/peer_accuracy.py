@@ -16,7 +16,7 @@ Cramer-Rao bound on ``E[J_h^2]`` and ``E[J_T^2]``, the floor of an unbiased esti
 from __future__ import annotations
 
 import importlib.util
-from collections.abc import Sequence
+from collections.abc import Callable, Mapping, Sequence
 
 import numpy as np
 import pandas as pd
@@ -27,7 +27,6 @@ from magbench.core.metrics import accuracy_cost, sample_mean
 from magbench.core.seeding import rng
 from magbench.methods.api import calibrate
 from magbench.sources.synthetic import Point, make_dataset
-from magbench.studies.speed import PEERS
 
 __all__ = ["GEOMETRIES", "REFERENCES", "peer_accuracy", "summarize_peer_accuracy"]
 
@@ -44,20 +43,35 @@ def _directions(geometry: str, point: Point, seed: int, trial: int) -> np.ndarra
     return v / np.linalg.norm(v, axis=1, keepdims=True)
 
 
-def _tools() -> list[tuple[str, object]]:
+#: A peer: its package, its fit (samples -> (T, h)) and the magbench method it is paired with.
+Peers = Mapping[str, tuple[str, Callable, str]]
+
+
+def _tools(peers: Peers) -> list[tuple[str, Callable]]:
     """(name, fit returning (T, h)) of every installed peer and the magbench methods."""
-    tools = [(peer, fn) for peer, (package, fn, _) in PEERS.items()
+    tools = [(peer, fn) for peer, (package, fn, _) in peers.items()
              if importlib.util.find_spec(package) is not None]
-    ours = list(dict.fromkeys([c for _, (_, _, c) in PEERS.items()] + list(REFERENCES)))
+    ours = list(dict.fromkeys([c for _, (_, _, c) in peers.items()] + list(REFERENCES)))
     for name in ours:
         tools.append((f"magbench.{name}",
                       lambda y, n=name: (lambda c: (c.T, c.h))(calibrate(y, n))))
     return tools
 
 
-def peer_accuracy(datasets: int = 200, K: int = 300, seed: int = 0,
+def peer_accuracy(peers: Peers, datasets: int = 200, K: int = 300, seed: int = 0,
                   geometries: Sequence[str] = tuple(GEOMETRIES)) -> pd.DataFrame:
     """One row per geometry, dataset and tool: J_h, J_T, J of eq. (74) and the dataset's bound.
+
+    Parameters
+    ----------
+    peers : mapping
+        Peer name -> (package, fit, magbench counterpart), as
+        :data:`magbench.studies.speed.PEERS`; a peer whose package is not installed is left
+        out, its counterpart still runs.
+    datasets, K, seed : int
+        Datasets per geometry, samples per dataset, base seed.
+    geometries : sequence of str
+        Keys of :data:`GEOMETRIES`.
 
     Returns
     -------
@@ -68,7 +82,7 @@ def peer_accuracy(datasets: int = 200, K: int = 300, seed: int = 0,
         design).
     """
     rows = []
-    tools = _tools()
+    tools = _tools(peers)
     for geometry in geometries:
         point = Point(**{**GEOMETRIES[geometry].__dict__, "K": K})
         for trial in range(datasets):

@@ -28,6 +28,7 @@ from magbench.engine.sweep import run_study
 from magbench.methods.api import calibrate
 from magbench.methods.registry import get_method, methods
 from magbench.sources.synthetic import Point, make_dataset
+from magbench.studies.peer_accuracy import peer_accuracy, summarize_peer_accuracy
 from magbench.studies.real import DEFAULT_MAX_SAMPLES
 from magbench.studies.review import ReviewStudy
 
@@ -458,10 +459,7 @@ def run_bench(results_dir: Path | str, names: Sequence[str] | None = None,
     write_csv_atomic(calls, folder / "calls.csv")
     write_csv_atomic(bench_peers(), folder / "peers.csv")
     if peer_datasets:
-        # Imported here: peer_accuracy takes its peers from this module.
-        from magbench.studies.peer_accuracy import peer_accuracy, summarize_peer_accuracy
-
-        accuracy = peer_accuracy(datasets=peer_datasets)
+        accuracy = peer_accuracy(PEERS, datasets=peer_datasets)
         write_csv_atomic(accuracy, folder / "peer_accuracy.csv")
         write_csv_atomic(summarize_peer_accuracy(accuracy), folder / "peer_accuracy_summary.csv")
     write_csv_atomic(peer_install_size(), folder / "peer_install.csv")
