@@ -148,3 +148,16 @@ def test_efficiency_intervals_match_the_summary_and_bracket_it(tmp_path):
     np.testing.assert_allclose(merged["efficiency"], merged["efficiency_summary"], rtol=1e-12)
     assert (merged["eff_lo"] < merged["efficiency"]).all()
     assert (merged["efficiency"] < merged["eff_hi"]).all()
+
+
+def test_the_capacity_check_counts_the_columns_the_summary_reads(tmp_path, monkeypatch):
+    import magbench.engine.sweep as sweep
+
+    study = spec(trials=1000)           # 2 points x 1000 trials x 2 methods = 4000 rows
+    need = sweep.MEMORY_BYTES_PER_VALUE * 4000 * len(study.summary_columns)
+    assert len(study.summary_columns) < len(ROW_COLUMNS) / 3
+    monkeypatch.setattr(sweep, "_free_bytes", lambda folder: (10**12, need - 1))
+    with pytest.raises(sweep.TooLarge, match="of memory"):
+        sweep.check_capacity(study, study.units(), tmp_path)
+    monkeypatch.setattr(sweep, "_free_bytes", lambda folder: (10**12, need))
+    sweep.check_capacity(study, study.units(), tmp_path)

@@ -127,6 +127,11 @@ class ReviewStudy(Study):
         columns = ROW_COLUMNS if self.axis is None else [*ROW_COLUMNS, self.axis.column]
         return {"trials": ("trials.csv", columns)}
 
+    @property
+    def summary_columns(self) -> list[str]:
+        """The columns of ``trials.csv`` that :meth:`summarize` reads (and holds in memory)."""
+        return SUMMARY_COLUMNS + ([] if self.axis is None else [self.axis.column])
+
     def units(self) -> list[tuple[int, int]]:
         return [(i, t) for i in range(len(self.points)) for t in range(self.trials)]
 
@@ -148,7 +153,7 @@ class ReviewStudy(Study):
         tenth of the file's values, so a million-trial sweep is summarised in bounded memory.
         """
         extra = [] if self.axis is None else [self.axis.column]
-        trials = read_csv_columns(Path(out_dir) / "trials.csv", SUMMARY_COLUMNS + extra)
+        trials = read_csv_columns(Path(out_dir) / "trials.csv", self.summary_columns)
         summary = summarize_review(trials, extra)
         write_csv_atomic(summary, Path(out_dir) / "summary.csv")
         return summary
