@@ -26,27 +26,29 @@ from magbench.core.intervals import bootstrap_ratio_of_means
 from magbench.core.metrics import accuracy_cost, summarize, trivial_cost
 from magbench.core.seeding import rng
 from magbench.engine.sweep import Study
-from magbench.engine.trial import estimate_columns, run_method
+from magbench.engine.trial import H_COLUMNS, T_COLUMNS, estimate_columns, run_method
 from magbench.methods.api import calibrate
 from magbench.methods.registry import get_method
 from magbench.sources.synthetic import Point, make_dataset
+from magbench.studies.times import split_times, with_times
 
-__all__ = ["POINT_COLUMNS", "ROW_COLUMNS", "SUMMARY_COLUMNS", "TRUTH_COLUMNS", "OptionAxis",
-           "ReviewStudy", "coverage_label", "efficiency_intervals", "method_options",
-           "point_with", "points_for", "read_trials",
-           "summarize_review", "trial_rows", "with_coverage_column"]
+__all__ = ["POINT_COLUMNS", "ROW_COLUMNS", "SUMMARY_COLUMNS", "TIME_COLUMNS", "TRUTH_COLUMNS",
+           "OptionAxis", "ReviewStudy", "coverage_label", "efficiency_intervals",
+           "method_options", "point_with", "points_for", "read_trials", "summarize_review",
+           "trial_rows", "with_coverage_column"]
 
 POINT_COLUMNS = ["K", "sigma", "beta", "gamma", "cap_deg", "band_deg"]
-_T_COLUMNS = [f"T_{i}{j}" for i in range(3) for j in range(3)]
-_H_COLUMNS = [f"h_{i}" for i in range(3)]
 TRUTH_COLUMNS = [f"h_true_{i}" for i in range(3)] + [f"T_true_{i}{j}" for i in range(3)
                                                       for j in range(3)]
-ROW_COLUMNS = (POINT_COLUMNS + ["trial", "seed", "algorithm", "ok", "error", "time_s", "n_iter",
+ROW_COLUMNS = (POINT_COLUMNS + ["trial", "seed", "algorithm", "ok", "error", "n_iter",
                                 "J", "J_h", "J_T", "J0", "meaningful", "sq_err", "crb", "crb_J"]
-               + TRUTH_COLUMNS + _H_COLUMNS + _T_COLUMNS)
-#: The columns of ``trials.csv`` that :func:`summarize_review` reads.
-SUMMARY_COLUMNS = POINT_COLUMNS + ["algorithm", "meaningful", "J", "time_s", "sq_err", "crb",
-                                   "crb_J"]
+               + TRUTH_COLUMNS + H_COLUMNS + T_COLUMNS)
+#: The columns of a study's times sidecar (:mod:`magbench.studies.times`).
+TIME_COLUMNS = ["trial", "algorithm", "time_s"]
+#: The columns :func:`summarize_review` needs: ``time_s`` comes from the sidecar (or from an
+#: older trials file that still holds it), ``trial`` matches the sidecar's rows.
+SUMMARY_COLUMNS = POINT_COLUMNS + ["trial", "algorithm", "meaningful", "J", "time_s", "sq_err",
+                                   "crb", "crb_J"]
 
 
 def truth_columns(T: np.ndarray, h: np.ndarray) -> dict:
@@ -125,11 +127,13 @@ class ReviewStudy(Study):
     @property
     def tables(self) -> dict:
         columns = ROW_COLUMNS if self.axis is None else [*ROW_COLUMNS, self.axis.column]
-        return {"trials": ("trials.csv", columns)}
+        return {"trials": ("trials.csv", columns),
+                "times": ("trials_times.csv", TIME_COLUMNS)}
 
     @property
     def summary_columns(self) -> list[str]:
-        """The columns of ``trials.csv`` that :meth:`summarize` reads (and holds in memory)."""
+        """The columns :meth:`summarize` reads (and holds in memory), ``time_s`` from the
+        times sidecar."""
         return SUMMARY_COLUMNS + ([] if self.axis is None else [self.axis.column])
 
     def units(self) -> list[tuple[int, int]]:
@@ -137,9 +141,10 @@ class ReviewStudy(Study):
 
     def run_unit(self, unit: tuple[int, int]) -> dict[str, list[dict]]:
         point_index, trial = unit
-        return {"trials": trial_rows(self.points[point_index], trial, self.seed,
-                                     self.algorithms, self.options, self.delta,
-                                     self.call_timeout_s, self.axis)}
+        rows, times = split_times(trial_rows(self.points[point_index], trial, self.seed,
+                                             self.algorithms, self.options, self.delta,
+                                             self.call_timeout_s, self.axis), "trial")
+        return {"trials": rows, "times": times}
 
     def describe(self) -> dict:
         out = super().describe()
@@ -153,7 +158,8 @@ class ReviewStudy(Study):
         tenth of the file's values, so a million-trial sweep is summarised in bounded memory.
         """
         extra = [] if self.axis is None else [self.axis.column]
-        trials = read_csv_columns(Path(out_dir) / "trials.csv", self.summary_columns)
+        path = Path(out_dir) / "trials.csv"
+        trials = with_times(read_csv_columns(path, self.summary_columns), path, "trial")
         summary = summarize_review(trials, extra)
         write_csv_atomic(summary, Path(out_dir) / "summary.csv")
         return summary
@@ -212,9 +218,9 @@ def method_options(name: str, point: Point, options: dict | None = None) -> dict
 
 
 def read_trials(path: Path | str) -> pd.DataFrame:
-    """A trials CSV with ``error`` as text (empty where ok)."""
+    """A trials CSV with ``error`` as text (empty where ok) and ``time_s`` from its sidecar."""
     frame = pd.read_csv(path, dtype={"error": "string"})
-    return frame.assign(error=frame["error"].fillna(""))
+    return with_times(frame.assign(error=frame["error"].fillna("")), path, "trial")
 
 
 def summarize_review(trials: pd.DataFrame, extra: Sequence[str] = ()) -> pd.DataFrame:
