@@ -66,3 +66,19 @@ def test_a_given_noise_level_is_used_and_checked():
     assert accuracy_cost(given.T, given.h, estimated.T, estimated.h)[0] < 0.01
     with pytest.raises(ValueError, match="noise_std"):
         magbench.calibrate(data.y, "als", noise_std=-1.0)
+
+
+def test_centring_and_scaling_change_only_the_conditioning():
+    # ALS with the estimated variance is similarity invariant: the fit on the raw samples (no
+    # centring, no scaling) is the fit of calibrate to rounding.
+    from magbench.methods.algorithms import als
+    from magbench.methods.algorithms.ellipsoid import quadric_to_calibration
+
+    y = make_dataset(np.random.default_rng(3), Point(K=500, sigma=0.02, gamma=0.5)).y
+    powers = _powers(y)
+    v = np.linalg.eigh(adjusted_matrix(powers, als.noise_variance(powers)))[1][:, 0]
+    A = np.array([[v[0], v[3], v[4]], [v[3], v[1], v[5]], [v[4], v[5], v[2]]])
+    h, _, T = quadric_to_calibration(A, v[6:9], float(v[9]))
+    cal = magbench.calibrate(y, "als")
+    np.testing.assert_allclose(cal.h, h, atol=1e-12)
+    np.testing.assert_allclose(cal.T, T, atol=1e-12)

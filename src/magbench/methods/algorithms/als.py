@@ -3,7 +3,10 @@
 Kukush, Markovsky and Van Huffel, *Consistent estimation in an implicit quadratic measurement
 error model*, Comput. Statist. Data Anal. 47 (2004) 123-147 (KMV); used for magnetometers by
 Renaudin, Afzal and Lachapelle, *Complete triaxis magnetometer calibration in the magnetic
-domain*, J. Sensors 2010 (their Sect. 3).
+domain*, J. Sensors 2010. The model and the adjusted moments are written as in Usevich and
+Markovsky, *Adjusted least squares fitting of algebraic hypersurfaces*, Linear Algebra Appl.
+2016 (arXiv 1412.2291): the implicit equation ``theta^T phi(d) = 0`` of their eqs. (1)-(3),
+here with ``phi`` the ten monomials of a quadric in three variables.
 
 The samples are ``y_l = x_l + e_l`` with ``x_l`` on the quadric
 ``x^T A x + 2 b^T x + c = 0`` and ``e_l ~ N(0, sigma^2 I)`` independent. The algebraic (ordinary
@@ -15,20 +18,19 @@ monomial ``prod_k y_k^(p_k)`` by ``prod_k t_(p_k)(y_k)`` with the Hermite-type p
 
     t_0 = 1, t_1 = y, t_2 = y^2 - s, t_3 = y^3 - 3 s y, t_4 = y^4 - 6 s y^2 + 3 s^2,
 
-``s = sigma^2``, for which ``E t_p(x + e) = x^p`` (KMV Sect. 3, the adjusted moments). The
+``s = sigma^2``, for which ``E t_p(x + e) = x^p`` (KMV's adjusted moments). The
 adjusted matrix ``Psi_als(s)`` is then unbiased for the noise-free ``Psi_ls(x)``, which has
 the true ``beta`` in its null space; ``beta`` is its eigenvector of the smallest eigenvalue
-(the norm constraint ``||beta|| = 1``), consistent as K grows (KMV Sect. 3-4).
+(the norm constraint ``||beta|| = 1``), consistent as K grows (KMV's consistency theorem).
 
-An unknown noise variance is estimated as KMV do (Sect. 5): ``Psi_als(s)`` loses its
+An unknown noise variance is estimated as KMV do: ``Psi_als(s)`` loses its
 positive definiteness at the true ``s`` in the limit, so ``s`` is the smallest root of
-``lambda_min(Psi_als(s)) = 0``; the same estimator is consistent. Renaudin et al. use this
-estimator with the variance estimated the same way.
+``lambda_min(Psi_als(s)) = 0``, and the estimator with it is consistent too.
 
-The data are centred on their mean and scaled by their RMS distance from it before the fit
-(the translation- and similarity-invariant form of Shklyar, Kukush, Markovsky and Van Huffel,
-J. Multivariate Anal. 98 (2007) 588-624, with the variance estimated), and the estimate is
-mapped back, so the fit scales and moves with the data.
+The data are centred on their mean and scaled by their RMS distance from it before the fit,
+and the estimate is mapped back. Shklyar, Kukush, Markovsky and Van Huffel (J. Multivariate
+Anal. 98 (2007) 588-624) show that ALS with the estimated variance is similarity invariant, so
+this changes the conditioning of the 10 x 10 eigenproblem, not the estimate.
 """
 
 from __future__ import annotations
@@ -123,7 +125,7 @@ def fit(samples: np.ndarray, *, noise_std: float | None = None) -> Calibration:
         Measurements ``y_k``.
     noise_std : float or None
         Standard deviation of the noise on each axis, in the samples' unit; None estimates it
-        from the data (KMV Sect. 5), as Renaudin et al. do.
+        from the data (KMV's variance estimator), as Renaudin et al. do.
 
     Returns
     -------
