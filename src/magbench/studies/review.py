@@ -233,19 +233,10 @@ def efficiency_intervals(trials: pd.DataFrame, by: Sequence[str], sweep: str) ->
     """Efficiency (Cramer-Rao bound / MSE over the meaningful runs, as in :func:`summarize`)
     with its 95 % paired-bootstrap interval, per group.
 
-    Parameters
-    ----------
-    trials : DataFrame
-        Rows with ``meaningful``, ``crb`` and ``sq_err`` (the columns of ``trials.csv``).
-    by : sequence of str
-        Grouping columns (the point's columns and ``algorithm``).
-    sweep : str
-        Name of the sweep, part of every group's bootstrap stream.
-
-    Returns
-    -------
-    DataFrame
-        ``by`` plus ``n``, ``n_meaningful``, ``efficiency``, ``eff_lo`` and ``eff_hi``.
+    ``trials`` needs ``meaningful``, ``crb`` and ``sq_err`` and the ``by`` columns; each
+    group's resamples are drawn from the stream named by ``sweep``, ``"efficiency"`` and the
+    group's values. Returns ``by`` plus ``n``, ``n_meaningful``, ``efficiency``, ``eff_lo``
+    and ``eff_hi``.
     """
     rows = []
     for key, g in trials.groupby(list(by), sort=False):
