@@ -54,7 +54,7 @@ def _tools(peers: Peers) -> list[tuple[str, Callable]]:
     ours = list(dict.fromkeys([c for _, (_, _, c) in peers.items()] + list(REFERENCES)))
     for name in ours:
         tools.append((f"magbench.{name}",
-                      lambda y, n=name: (lambda c: (c.T, c.h))(calibrate(y, n))))
+                      lambda y, n=name: (lambda c: (c.T, c.h))(calibrate(y, n, raw=True))))
     return tools
 
 
