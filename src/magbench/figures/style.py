@@ -36,7 +36,7 @@ METHOD_STYLE: dict[str, tuple[str, str]] = {
     "sar_ls": ("#CC6677", "H"), "sar_kf": ("#44AA99", "o"), "sar_aid": ("#EE8866", "s"),
     "magyc_ls": ("#77AADD", "^"), "magyc_nls": ("#BBCC33", "D"), "magyc_bfg": ("#FFAABB", "v"),
     "magyc_ifg": ("#99DDFF", "P"), "magfactor3": ("#AAAA00", "X"),
-    "diagonal": ("#44BB99", "8"),
+    "diagonal": ("#44BB99", "8"), "als": ("#6699CC", ">"),
 }
 #: Line style and width by family: the review's methods solid and heavier.
 FAMILY_LINE = {"review": ("-", 1.8), "extra": ("--", 1.2), "variant": ("-.", 1.2),

@@ -22,7 +22,7 @@ __all__ = ["DISPLAY_ORDER", "MODEL_PARAMETERS", "Method", "find_method", "get_me
 #: then the extra methods. Names not listed sort after these, alphabetically.
 DISPLAY_ORDER = (
     "twostep", "crassidis", "dorveaux", "vasconcelos", "ali", "wu_shi", "magical",
-    "wu_shi_nm", "ellipsoid", "fang", "diagonal", "sphere", "twostep_hi",
+    "wu_shi_nm", "ellipsoid", "als", "fang", "diagonal", "sphere", "twostep_hi",
     "vasconcelos_printed", "wu_shi_printed", "twostep_no_svd", "crassidis_prior",
 )
 

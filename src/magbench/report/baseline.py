@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from magbench.core.intervals import resampled_means
 from magbench.core.metrics import accuracy_cost
 from magbench.core.reference import paper_values
 from magbench.engine.trial import H_COLUMNS, T_COLUMNS
@@ -64,8 +65,7 @@ def _top_share(trials: pd.DataFrame, names: list[str], resamples: int = 2000) ->
     if wide.empty:
         return ""
     rng = np.random.default_rng(0)        # fixed: the report is a pure function of the CSV
-    picks = rng.integers(0, len(wide), size=(resamples, len(wide)))
-    means = wide.to_numpy()[picks].mean(axis=1)              # (resamples, methods)
+    means = resampled_means(wide.to_numpy(), rng, resamples)    # (resamples, methods)
     first = pd.Series(wide.columns[means.argmin(axis=1)]).value_counts(normalize=True)
     shares = ", ".join(f"{method_label(n)} {100 * f:.0f} %" for n, f in first.items())
     verdict = ("the first place is significant" if first.iloc[0] >= 0.95 else
