@@ -67,9 +67,10 @@ def test_cli_dispatches_the_gyro_sweep(tmp_path, capsys):
     assert list(trials["algorithm"]) == ["sar_ls", "magyc_nls"]
     assert (tmp_path / "gyro" / "section.md").exists()
     assert main(["sweep=gyro", "sweep.coverage=[nowhere]", f"results_dir={tmp_path}"]) == 2
-    from magbench.cli.config import compose_config, gyro_study
+    from magbench.cli.config import compose_config
+    from magbench.cli.kinds import study_for
 
-    spec, _ = gyro_study(compose_config(["sweep=gyro"]))
+    spec, _ = study_for(compose_config(["sweep=gyro"]))
     assert set(spec.algorithms) == set(magbench.methods())      # 'all' includes gyro methods
     assert len(spec.points) == 9 and spec.trials == 30
     assert "unknown coverage" in capsys.readouterr().err
