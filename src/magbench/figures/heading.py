@@ -28,7 +28,7 @@ _RANGE = (0.3, 180.0)
 
 def _ok_rows(trials: pd.DataFrame) -> pd.DataFrame:
     ok = trials[trials["ok"].astype(bool) & np.isfinite(trials["heading_rms"])].copy()
-    ok["dataset"] = ok["dataset"].fillna("")
+    ok["dataset"] = ok["dataset"].astype(object).fillna("")
     return ok
 
 

@@ -362,7 +362,7 @@ def correlations(trials: pd.DataFrame) -> pd.DataFrame:
     """Spearman's rank correlation of the heading RMS with J and with J_r over the ok rows,
     per (part, dataset) and pooled per part (``dataset = "pooled"``)."""
     ok = trials[trials["ok"].astype(bool)].copy()
-    ok["dataset"] = ok["dataset"].fillna("").replace("", "simulated")
+    ok["dataset"] = ok["dataset"].astype(object).fillna("").replace("", "simulated")
     rows = []
     groups = [((part, ds), g) for (part, ds), g in ok.groupby(["part", "dataset"], sort=False)]
     groups += [((part, "pooled"), g) for part, g in ok.groupby("part", sort=False)
