@@ -10,6 +10,7 @@ from omegaconf import DictConfig
 from magbench.cli.config import (
     Key,
     UsageError,
+    _flag,
     check_options,
     check_trials,
     field_default,
@@ -121,12 +122,6 @@ def _one_of(allowed: tuple[str, ...]):
             raise UsageError(f"{what} must be one of {', '.join(allowed)}, got {value!r}")
         return str(value)
     return check
-
-
-def _flag(value: object, what: str) -> bool:
-    if not isinstance(value, bool):
-        raise UsageError(f"{what} must be true or false, got {value!r}")
-    return value
 
 
 def _d(name: str) -> object:
