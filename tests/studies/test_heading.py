@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pandas as pd
@@ -106,6 +107,9 @@ def test_scored_field_keeps_a_returned_rotation_only_when_asked():
     y = np.random.default_rng(1).normal(size=(20, 3))
     assert np.allclose(scored_field(cal, y, True), cal.apply(y))
     assert np.allclose(scored_field(cal, y, False), (y - cal.h) / 1.1)
+    # an alignment to the inertial axes turns the symmetric gauge's field
+    aligned = SimpleNamespace(T=cal.T, h=cal.h, alignment=R.T)
+    assert np.allclose(scored_field(aligned, y, False), (y - cal.h) / 1.1 @ R)
 
 
 def test_correlations_rank_per_dataset_and_pooled():

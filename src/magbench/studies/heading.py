@@ -31,12 +31,14 @@ exceeds the field radius) and its estimate is mapped back.
 
 *Which rotation is scored.* A magnetometer-only method cannot know the sensor's rotation
 (eq. 70): what it writes is the symmetric gauge of :meth:`Calibration.safe`, and that is what
-is scored. A method that receives inertial data (gyro, accelerometer, attitude) can fix the
-rotation against the inertial axes, so its ``T`` is scored as returned (``gauge``: ``returned``
-or ``symmetric``). A method that needs an input a part cannot give (``needs_*`` of the
-registry, or a required keyword such as an accelerometer the recording lacks) gives a row with
-``ok=False`` and the reason. ``heading_floor`` is the heading error of the true calibration
-(``semi``, ``mc``) or of the recording as given (``given``).
+is scored. A calibration with an ``alignment`` (the rotation from that gauge to the inertial
+axes) is scored heading-true, ``R A (y - h)``; another method that receives inertial data
+(gyro, attitude) can fix the rotation in its ``T``, which is scored as returned (``gauge``:
+``heading-true``, ``returned`` or ``symmetric``). A method that needs an input a part cannot
+give (``needs_*`` of the registry, or a required keyword such as an accelerometer the
+recording lacks) gives a row with ``ok=False`` and the reason. ``heading_floor`` is the
+heading error of the true calibration (``semi``, ``mc``) or of the recording as given
+(``given``).
 """
 
 from __future__ import annotations
@@ -53,6 +55,7 @@ import pandas as pd
 
 from magbench.core.direction import direction_score, heading_bound
 from magbench.core.files import write_csv_atomic
+from magbench.core.gauge import symmetric_T
 from magbench.core.lag import magnetometer_lag, shift
 from magbench.core.metrics import accuracy_cost, real_cost
 from magbench.core.model import Calibration
@@ -270,9 +273,24 @@ def _inputs(name: str, fit: dict) -> tuple[dict, str]:
 
 
 def scored_field(cal: Calibration, y: np.ndarray, returned: bool) -> np.ndarray:
-    """The field a calibration gives: ``T`` as returned when the method had inertial data to
-    fix the rotation, else the symmetric gauge it would be written in (module notes)."""
-    return (cal if returned else cal.safe()).apply(y)
+    """The field a calibration gives, in the gauge it would be used in (module notes).
+
+    With an ``alignment`` ``R`` (the rotation from the symmetric gauge to the inertial axes,
+    set by the alignment methods) the field is ``R A (y - h)``, ``A = (T T^T)^(-1/2)``;
+    otherwise ``T^-1 (y - h)`` with ``T`` as returned when the method had inertial data
+    (``returned``), else in the symmetric gauge.
+    """
+    alignment = getattr(cal, "alignment", None)
+    if alignment is None and returned:
+        return cal.apply(y)
+    field_ = Calibration(symmetric_T(cal.T), cal.h).apply(y)
+    return field_ if alignment is None else field_ @ np.asarray(alignment, dtype=float).T
+
+
+def _gauge(cal: Calibration | None, returned: bool) -> str:
+    if cal is not None and getattr(cal, "alignment", None) is not None:
+        return "heading-true"
+    return "returned" if returned else "symmetric"
 
 
 def _scores(scene: Scene, field_: np.ndarray) -> dict:
@@ -293,7 +311,7 @@ def _floor(scene: Scene) -> float:
 def _method_row(spec: HeadingStudy, scene: Scene, name: str, stream: tuple) -> dict:
     kwargs, reason = _inputs(name, scene.fit)
     row = {"algorithm": name, "inputs": " ".join(sorted(kwargs)),
-           "gauge": "returned" if kwargs else "symmetric", "K_fit": len(scene.fit["y"])}
+           "gauge": _gauge(None, bool(kwargs)), "K_fit": len(scene.fit["y"])}
     if reason:
         return {**row, "ok": False, "error": reason, "time_s": 0.0, "n_iter": 0,
                 **estimate_columns(None, None)}
@@ -303,7 +321,7 @@ def _method_row(spec: HeadingStudy, scene: Scene, name: str, stream: tuple) -> d
                      options=spec.options.get(name) or {}, seed=spec.seed, stream=stream,
                      call_timeout_s=spec.call_timeout_s)
     row.update(ok=out.ok, error=out.error, time_s=out.time_s, n_iter=out.n_iter,
-               **estimate_columns(out.T, out.h))
+               gauge=_gauge(out.calibration, bool(kwargs)), **estimate_columns(out.T, out.h))
     if out.calibration is None:
         return row
     if scene.truth is not None:
