@@ -43,7 +43,7 @@ from __future__ import annotations
 
 import inspect
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import ClassVar
 
@@ -117,8 +117,9 @@ def fit_recording(rec: Recording, method: str, preprocess: str = "centre",
     if inputs is None and get_method(method).needs_gyro:
         extra = {"angular_rate": rec.gyro, "time": rec.t}
     cal = calibrate((rec.y - offset) / scale, method, **extra, **dict(options or {}))
-    return Calibration(scale * cal.T, scale * cal.h + offset, cal.n_iter, cal.converged,
-                       cal.message, cal.gyro_bias)
+    # replace() keeps every other field (the gyro bias, an alignment to the inertial axes),
+    # none of which a common scale and offset of the samples changes.
+    return replace(cal, T=scale * cal.T, h=scale * cal.h + offset)
 
 
 def calibrated_coverage(y: np.ndarray, T: np.ndarray, h: np.ndarray) -> float:
