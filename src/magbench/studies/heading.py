@@ -241,7 +241,10 @@ def mc_scene(spec: HeadingStudy, trial: int) -> Scene:
                "acceleration": tr.acceleration[ok], "R": tr.R[ok], "m0": tr.m0}
     score = {**streams, "attitude": q[ok], "mask": np.ones(int(ok.sum()), dtype=bool),
              "reference": tr.m0}
-    crb = heading_bound(T @ M, q[ok], tr.m0, spec.sigma)
+    # Resampling by a fraction f of a sample averages two noise draws: the samples scored
+    # carry sigma sqrt((1-f)^2 + f^2), and so does the bound.
+    f = float(np.mod(found * spec.rate_hz, 1.0)) if y is not tr.y else 0.0
+    crb = heading_bound(T @ M, q[ok], tr.m0, spec.sigma * np.hypot(1.0 - f, f))
     return Scene(streams, score, (T @ M, h),
                  {"mount_deg": angle, "lag_true_ms": 1e3 * lag, "lag_ms": 1e3 * found,
                   "crb": crb})
