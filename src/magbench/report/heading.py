@@ -153,8 +153,9 @@ def heading_report_section(results_dir: Path | str) -> str:
                                                             strict=True)
                              if "attitude" in str(inputs).split()})
     if given_attitude:
-        lines += [f"{', '.join(given_attitude)} also take the reference attitude and field as "
-                  "inputs (their design), so their heading is not a blind estimate.", ""]
+        verb = "takes" if len(given_attitude) == 1 else "take"
+        lines += [f"{', '.join(given_attitude)} also {verb} the reference attitude and field "
+                  "as inputs (by design), so its heading is not a blind estimate.", ""]
     lag = _lag_line(trials)
     if lag:
         lines += [lag, ""]
