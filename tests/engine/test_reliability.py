@@ -133,7 +133,7 @@ def test_cli_rejects_a_bad_backend_and_timeout(tmp_path, capsys):
     assert main(["backend=spark", f"results_dir={tmp_path}"]) == 2
     assert "backend must be 'loky' or 'dask'" in capsys.readouterr().err
     assert main(["call_timeout_s=-1", f"results_dir={tmp_path}"]) == 2
-    assert "call_timeout_s must be > 0" in capsys.readouterr().err
+    assert "call_timeout_s must be in (0," in capsys.readouterr().err
 
 
 @pytest.mark.skipif(os.name != "posix", reason="SIGALRM timers are POSIX only")

@@ -42,7 +42,7 @@ def test_sweep_end_to_end_writes_files_and_section(tmp_path):
     summary = spec.summarize(tmp_path / "gyro")
     write_gyro_figure(summary, tmp_path / "gyro")
     trials = read_trials(tmp_path / "gyro" / "trials.csv")
-    assert list(trials.columns) == GYRO_ROW_COLUMNS
+    assert list(trials.columns) == [*GYRO_ROW_COLUMNS, "time_s"]   # time_s from its sidecar
     assert len(trials) == len(spec.points) * spec.trials * len(ALGOS)
     on_disk = pd.read_csv(tmp_path / "gyro" / "trials.csv")
     assert len(on_disk) == len(trials)

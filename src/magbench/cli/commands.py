@@ -144,7 +144,7 @@ def reproduce(overrides: Sequence[str]) -> int:
         sweep_cfg = compose_config([*overrides, f"sweep={name}", "overwrite=true"])
         if kind_of(sweep_cfg).needs_data and not sweep_cfg.get("data_dir"):
             print(f"sweep {name} skipped: set MAGBENCH_DATA to a folder of recordings "
-                  "(see README, Real data)")
+                  "(see docs/sweeps.md, Real data)")
             continue
         study_for(sweep_cfg)  # every sweep's config is checked before any of them runs
         sweeps.append(sweep_cfg)
