@@ -116,7 +116,8 @@ def fit_recording(rec: Recording, method: str, preprocess: str = "centre",
     extra = dict(inputs or {})
     if inputs is None and get_method(method).needs_gyro:
         extra = {"angular_rate": rec.gyro, "time": rec.t}
-    cal = calibrate((rec.y - offset) / scale, method, **extra, **dict(options or {}))
+    cal = calibrate((rec.y - offset) / scale, method, raw=True, **extra,
+                    **dict(options or {}))
     # replace() keeps every other field (the gyro bias, an alignment to the inertial axes),
     # none of which a common scale and offset of the samples changes.
     return replace(cal, T=scale * cal.T, h=scale * cal.h + offset)
