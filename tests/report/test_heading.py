@@ -23,7 +23,8 @@ def fake_trials() -> pd.DataFrame:
                              "algorithm": name, "inputs": "", "ok": True, "error": "",
                              "heading_rms": heading + offset, "J": J if part == "semi"
                              else np.nan, "J_r": J / 10, "heading_floor": 3.0,
-                             "crb_heading": np.nan, "lag_ms": 15.0 if ds == "rec_a" else 12.0})
+                             "crb_heading": np.nan, "lag_ms": 15.0 if ds == "rec_a" else 12.0,
+                             "gyro_lag_ms": 4.0})
     frame = pd.DataFrame(rows)
     return frame.reindex(columns=HEADING_ROW_COLUMNS)
 
@@ -45,7 +46,7 @@ def test_section_tables_best_method_and_proxy_answer(tmp_path):
     assert "(1.4 x the 3.00 deg floor)" in text
     # per recording the ranks agree exactly; pooled, rec_b's offset breaks a few
     assert "(per dataset 1.00 to 1.00): a fair proxy" in text
-    assert "rec_a 15.0 ms, rec_b 12.0 ms" in text
+    assert "rec_a 15.0 ms (gyro 4.0 ms), rec_b 12.0 ms (gyro 4.0 ms)" in text
     assert "heading/heading_error.png" in text and "heading/heading_vs_J.png" in text
 
 

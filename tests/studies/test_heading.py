@@ -68,6 +68,7 @@ def test_the_study_writes_one_row_per_unit_and_method_and_its_summaries(tmp_path
     assert (abs(mc["lag_ms"] - mc["lag_true_ms"]) < 0.3 * 1000 / spec.rate_hz).all()
     semi = trials[trials["part"] == "semi"]
     assert (semi["mount_deg"] == 3.0).all() and semi["J"].notna().all()
+    assert (abs(semi["lag_ms"] - 12.0) < 2.0).all() and (abs(semi["gyro_lag_ms"]) < 2.0).all()
     assert trials[trials["part"] == "given"]["J"].isna().all()
 
 

@@ -120,12 +120,15 @@ def _answer(summary: pd.DataFrame, corr: pd.DataFrame) -> list[str]:
 
 
 def _lag_line(trials: pd.DataFrame) -> str:
-    given = trials[trials["part"] != "mc"].groupby("dataset")["lag_ms"].first()
-    if given.empty:
+    recorded = trials[trials["part"] != "mc"].groupby("dataset")[["lag_ms", "gyro_lag_ms"]]
+    lags = recorded.first()
+    if lags.empty:
         return ""
-    shown = ", ".join(f"{d} {v:.1f} ms" for d, v in given.items())
-    return ("Measured magnetometer lag behind the optical reference (removed before fitting "
-            f"and scoring): {shown}.")
+    shown = ", ".join(f"{d} {r['lag_ms']:.1f} ms" + (f" (gyro {r['gyro_lag_ms']:.1f} ms)"
+                                                     if np.isfinite(r["gyro_lag_ms"]) else "")
+                      for d, r in lags.iterrows())
+    return ("Measured lag behind the optical reference, magnetometer (gyro), removed by "
+            f"resampling before fitting and scoring: {shown}.")
 
 
 def heading_report_section(results_dir: Path | str) -> str:

@@ -87,7 +87,8 @@ _SCORES = ["heading_rms", "heading_median", "heading_p95", "inclination_rms",
 HEADING_ROW_COLUMNS = (
     ["part", "dataset", "distortion", "trial", "seed", "algorithm", "inputs", "gauge", "ok",
      "error", "time_s", "n_iter", "K_fit", "J", "J_h", "J_T", "J_r"] + _SCORES
-    + ["heading_floor", "crb_heading", "crb_alignment", "mount_deg", "lag_true_ms", "lag_ms"]
+    + ["heading_floor", "crb_heading", "crb_alignment", "mount_deg", "lag_true_ms", "lag_ms",
+       "gyro_lag_ms"]
     + TRUTH_COLUMNS + [f"h_{i}" for i in range(3)]
     + [f"T_{i}{j}" for i in range(3) for j in range(3)])
 
@@ -205,7 +206,8 @@ def semi_scene(spec: HeadingStudy, dataset: str, kind: str, draw: int) -> Scene:
     rows = np.flatnonzero(ok)[::_stride(int(ok.sum()), spec.max_samples)]
     return Scene(_recording_streams(p, rows, d.y),
                  _score_streams(p, d.y, ok & p.movement), (d.T, d.h),
-                 {"mount_deg": spec.mount_deg, "lag_ms": 1e3 * p.lag_s})
+                 {"mount_deg": spec.mount_deg, "lag_ms": 1e3 * p.lag_s,
+                  "gyro_lag_ms": 1e3 * p.gyro_lag_s})
 
 
 def given_scene(spec: HeadingStudy, dataset: str) -> Scene:
@@ -216,7 +218,7 @@ def given_scene(spec: HeadingStudy, dataset: str) -> Scene:
     rows = np.flatnonzero(has)[::_stride(int(has.sum()), spec.max_samples)]
     return Scene(_recording_streams(p, rows, y),
                  _score_streams(p, y, has & p.clean & p.movement), None,
-                 {"lag_ms": 1e3 * p.lag_s})
+                 {"lag_ms": 1e3 * p.lag_s, "gyro_lag_ms": 1e3 * p.gyro_lag_s})
 
 
 def mc_scene(spec: HeadingStudy, trial: int) -> Scene:
@@ -348,7 +350,8 @@ def heading_rows(spec: HeadingStudy, part: str, dataset: str, distortion: str,
     base = {"part": part, "dataset": dataset, "distortion": distortion, "trial": int(trial),
             "seed": int(spec.seed), "heading_floor": _floor(scene), "crb_heading":
             float(np.degrees(crb[0])), "crb_alignment": float(np.degrees(crb[1])),
-            **{k: scene.extra.get(k, np.nan) for k in ("mount_deg", "lag_true_ms", "lag_ms")},
+            **{k: scene.extra.get(k, np.nan) for k in ("mount_deg", "lag_true_ms", "lag_ms",
+                                                       "gyro_lag_ms")},
             **truth_columns(*(scene.truth if scene.truth is not None
                               else (np.full((3, 3), np.nan), np.full(3, np.nan))))}
     stream = ("heading", part, dataset, distortion, int(trial))
