@@ -54,7 +54,10 @@ def test_the_study_writes_one_row_per_unit_and_method_and_its_summaries(tmp_path
     assert len(spec.units()) == 2 + 1 + 1
     run_study(spec, tmp_path / "heading", n_jobs=1, chunk_size=1, progress=False)
     trials = read_trials(tmp_path / "heading" / "heading_trials.csv")
-    assert list(trials.columns) == HEADING_ROW_COLUMNS
+    on_disk = pd.read_csv(tmp_path / "heading" / "heading_trials.csv")
+    assert list(on_disk.columns) == HEADING_ROW_COLUMNS     # wall times in the sidecar
+    times = pd.read_csv(tmp_path / "heading" / "heading_trials_times.csv")
+    assert len(times) == len(on_disk) and (times["time_s"] >= 0).all()
     assert len(trials) == len(spec.units()) * len(ALGOS) and trials["ok"].all()
     assert set(trials["gauge"]) == {"symmetric", "returned"}
     spec.summarize(tmp_path / "heading")

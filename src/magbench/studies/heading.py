@@ -76,7 +76,8 @@ from magbench.sources.semisynthetic import (
 from magbench.sources.synthetic import Point, draw_distortion
 from magbench.sources.trajectory import simulate
 from magbench.studies.real import fit_recording
-from magbench.studies.review import TRUTH_COLUMNS, read_trials, truth_columns
+from magbench.studies.review import TIME_COLUMNS, TRUTH_COLUMNS, read_trials, truth_columns
+from magbench.studies.times import split_times
 
 __all__ = ["HEADING_ROW_COLUMNS", "PARTS", "HeadingStudy", "Scene", "correlations",
            "heading_rows", "scored_field", "summarize_heading"]
@@ -86,7 +87,7 @@ _SCORES = ["heading_rms", "heading_median", "heading_p95", "inclination_rms",
            "spread_median", "spread_rms", "spread_p95", "gyro_median", "dip_spread"]
 HEADING_ROW_COLUMNS = (
     ["part", "dataset", "distortion", "trial", "seed", "algorithm", "inputs", "gauge", "ok",
-     "error", "time_s", "n_iter", "K_fit", "J", "J_h", "J_T", "J_r"] + _SCORES
+     "error", "n_iter", "K_fit", "J", "J_h", "J_T", "J_r"] + _SCORES
     + ["heading_floor", "crb_heading", "crb_alignment", "mount_deg", "lag_true_ms", "lag_ms",
        "gyro_lag_ms"]
     + TRUTH_COLUMNS + [f"h_{i}" for i in range(3)]
@@ -145,7 +146,8 @@ class HeadingStudy(Study):
     plugins: Sequence[str] = ()
     name: str = "heading"
 
-    tables: ClassVar[dict] = {"trials": ("heading_trials.csv", HEADING_ROW_COLUMNS)}
+    tables: ClassVar[dict] = {"trials": ("heading_trials.csv", HEADING_ROW_COLUMNS),
+                              "times": ("heading_trials_times.csv", TIME_COLUMNS)}
 
     def units(self) -> list[tuple[str, str, str, int]]:
         out: list[tuple[str, str, str, int]] = []
@@ -159,7 +161,8 @@ class HeadingStudy(Study):
         return out
 
     def run_unit(self, unit: tuple[str, str, str, int]) -> dict[str, list[dict]]:
-        return {"trials": heading_rows(self, *unit)}
+        rows, times = split_times(heading_rows(self, *unit), "trial")
+        return {"trials": rows, "times": times}
 
     def summarize(self, out_dir: Path | str) -> pd.DataFrame:
         """Write ``summary.csv`` (per part and method) and ``correlation.csv`` (Spearman's
