@@ -47,3 +47,15 @@ def test_bootstrap_degenerate_inputs():
     assert bootstrap_inverse_mean([0.5, 0.5, 0.5], "x") == pytest.approx((2.0, 2.0))
     assert all(np.isnan(bootstrap_inverse_mean([], "x")))
     assert bootstrap_inverse_mean([np.nan, 0.25], "x") == pytest.approx((4.0, 4.0))
+
+
+def test_paired_ratio_sees_a_small_difference_on_shared_datasets():
+    from magbench.core.intervals import bootstrap_paired_ratio
+
+    difficulty = np.random.default_rng(3).gamma(1.0, 1.0, 200)   # varies 100x between datasets
+    lo, hi = bootstrap_paired_ratio(0.95 * difficulty, difficulty, "test")
+    assert lo == pytest.approx(0.95) and hi == pytest.approx(0.95)   # exact: no pair noise
+    noisy = difficulty * (1 + 0.05 * np.random.default_rng(4).standard_normal(200))
+    lo, hi = bootstrap_paired_ratio(0.9 * noisy, difficulty, "test")
+    assert lo < 0.9 < hi and hi < 1.0                 # a 10 % gain is seen despite the spread
+    assert all(np.isnan(bootstrap_paired_ratio([1.0], [2.0])))      # one pair: no interval

@@ -15,7 +15,7 @@ from pathlib import Path
 from matplotlib.figure import Figure
 
 from magbench.core.files import atomic_path
-from magbench.methods.registry import get_method
+from magbench.methods.registry import find_method
 
 __all__ = ["METHOD_STYLE", "MethodStyle", "method_style", "new_figure", "save_figure"]
 
@@ -77,12 +77,9 @@ def method_style(name: str) -> MethodStyle:
     run) gets a spare colour and marker (:func:`_spare_index`), the same in every figure and
     distinct from every other registered method's.
     """
-    try:
-        spec = get_method(name)
-        label = spec.label
-        family = "gyro" if spec.needs_gyro else spec.family
-    except ValueError:
-        label, family = name, "extra"
+    spec = find_method(name)
+    label = name if spec is None else spec.label
+    family = "extra" if spec is None else "gyro" if spec.needs_gyro else spec.family
     if name in METHOD_STYLE:
         colour, marker = METHOD_STYLE[name]
     else:

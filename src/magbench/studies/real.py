@@ -57,7 +57,7 @@ from magbench.core.model import Calibration
 from magbench.engine.sweep import Study
 from magbench.engine.trial import H_COLUMNS, T_COLUMNS, estimate_columns, run_method
 from magbench.methods.api import calibrate
-from magbench.methods.registry import get_method
+from magbench.methods.registry import get_method, method_label
 from magbench.sources.recordings import Recording, load_recording
 from magbench.studies.times import split_times, with_times
 
@@ -331,12 +331,8 @@ def method_summary(per_recording: pd.DataFrame) -> pd.DataFrame:
         out = good[np.isfinite(good["J_r_out"])]
         rho_in = float(good["J_r_in"].mean()) if len(good) else np.nan
         rho_out = float(out["J_r_out"].mean()) if len(out) else np.nan
-        try:
-            label = get_method(name).label
-        except ValueError:
-            label = name
         rows.append({
-            "preprocess": how, "algorithm": name, "label": label,
+            "preprocess": how, "algorithm": name, "label": method_label(name),
             "n_recordings": len(g), "n_applicable": len(applicable),
             "n_meaningful": len(good), "n_out": len(out),
             "RB_pct": 100.0 * len(good) / len(applicable) if len(applicable) else np.nan,
@@ -349,3 +345,50 @@ def method_summary(per_recording: pd.DataFrame) -> pd.DataFrame:
             "tau_s": float(good["time_s"].mean()) if len(good) else np.nan,
         })
     return pd.DataFrame(rows)
+
+
+#: The methods whose accuracy on a method's kept recordings is its selection's yardstick.
+SELECTION_REFERENCE = ("twostep", "crassidis", "dorveaux", "vasconcelos", "ali", "wu_shi",
+                       "magical")
+#: A kept subset whose recordings are this much easier for the reference methods sets the bar.
+SELECTION_FACTOR = 2.0
+
+
+def selection_inflation(per_recording: pd.DataFrame,
+                        reference: Sequence[str] = SELECTION_REFERENCE) -> pd.DataFrame:
+    """How much of a method's in-sample accuracy comes from which recordings it kept.
+
+    A method meaningful on only some recordings is scored on those (eq. 78): if they are the
+    easy ones its 1/mean J_r is high whatever it does. For every (preprocessing, method) that
+    kept a strict subset, the other reference methods' accuracy on that subset is set beside
+    their accuracy on all the recordings they solved; ``inflation`` is the median ratio over
+    them (1 = a representative subset) and ``others_on_kept`` their median accuracy on the
+    subset. ``set_by_selection`` flags an inflation of at least :data:`SELECTION_FACTOR`.
+
+    Returns
+    -------
+    DataFrame
+        ``preprocess``, ``algorithm``, ``n_kept``, ``others_on_kept``, ``inflation``,
+        ``set_by_selection``; only the methods that kept a strict, non-empty subset.
+    """
+    rows = []
+    usable = per_recording[~per_recording["skipped"].astype(bool)]
+    for (how, name), g in usable.groupby(["preprocess", "algorithm"], sort=False):
+        kept = set(g.loc[g["meaningful"].astype(bool), "dataset"])
+        if not kept or len(kept) == len(g):
+            continue
+        same = usable[(usable["preprocess"] == how) & usable["algorithm"].isin(reference)
+                      & (usable["algorithm"] != name) & usable["meaningful"].astype(bool)]
+        on_kept, ratio = [], []
+        for _, o in same.groupby("algorithm"):
+            sub = o[o["dataset"].isin(kept)]
+            if len(sub):
+                on_kept.append(1.0 / sub["J_r_in"].mean())
+                ratio.append(on_kept[-1] * o["J_r_in"].mean())
+        inflation = float(np.median(ratio)) if ratio else np.nan
+        rows.append({"preprocess": how, "algorithm": name, "n_kept": len(kept),
+                     "others_on_kept": float(np.median(on_kept)) if on_kept else np.nan,
+                     "inflation": inflation,
+                     "set_by_selection": bool(inflation >= SELECTION_FACTOR)})
+    return pd.DataFrame(rows, columns=["preprocess", "algorithm", "n_kept", "others_on_kept",
+                                       "inflation", "set_by_selection"])

@@ -29,6 +29,7 @@ from magbench.engine.trial import H_COLUMNS, T_COLUMNS, estimate_columns, run_me
 from magbench.methods.api import calibrate
 from magbench.methods.registry import get_method
 from magbench.sources.synthetic import Point, make_dataset
+from magbench.studies.selection import write_efficient_selection
 from magbench.studies.times import split_times, with_times
 
 __all__ = ["POINT_COLUMNS", "ROW_COLUMNS", "TIME_COLUMNS", "TRUTH_COLUMNS", "OptionAxis",
@@ -140,10 +141,15 @@ class ReviewStudy(Study):
         return out
 
     def summarize(self, out_dir: Path | str) -> pd.DataFrame:
-        """Write and return ``summary.csv`` from ``trials.csv``."""
+        """Write and return ``summary.csv`` from ``trials.csv``; with points of partial
+        coverage, also ``efficient_selection.csv`` (what the robustness test does to an
+        efficient estimator's scores there, :mod:`magbench.studies.selection`)."""
         trials = read_trials(Path(out_dir) / "trials.csv")
         summary = summarize_review(trials, [] if self.axis is None else [self.axis.column])
         write_csv_atomic(summary, Path(out_dir) / "summary.csv")
+        if any(p.cap_deg < 180 or p.band_deg < 90 for p in self.points):
+            write_efficient_selection(list(self.points), self.trials, self.seed, self.delta,
+                                      out_dir)
         return summary
 
 
