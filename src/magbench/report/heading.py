@@ -120,6 +120,8 @@ def _answer(summary: pd.DataFrame, corr: pd.DataFrame) -> list[str]:
 
 
 def _lag_line(trials: pd.DataFrame) -> str:
+    if "gyro_lag_ms" not in trials:          # results of a version without it
+        trials = trials.assign(gyro_lag_ms=np.nan)
     recorded = trials[trials["part"] != "mc"].groupby("dataset")[["lag_ms", "gyro_lag_ms"]]
     lags = recorded.first()
     if lags.empty:
