@@ -42,6 +42,9 @@ def kind_args(kind: str, tmp_path: Path) -> tuple[list[str], str, str]:
     if kind == "gyro":
         return (["sweep=gyro", "trials=3", "sweep.coverage=[wide]", "sweep.gyro_noise=[0.01]",
                  "sweep.duration_s=6"], "gyro", "trials.csv")
+    if kind == "heading":
+        return (["sweep=heading", "trials=3", "sweep.parts=[mc]", "sweep.duration_s=6"],
+                "heading", "heading_trials.csv")
     if kind == "compensation":
         return (["sweep=compensation", "trials=3", "sweep.strengths=[0.1]",
                  "sweep.duration_s=6"], "compensation", "trials.csv")
@@ -56,7 +59,7 @@ def kind_args(kind: str, tmp_path: Path) -> tuple[list[str], str, str]:
              "sweep.max_samples=100"], "real", "real_trials.csv")
 
 
-KINDS = ["review", "gyro", "wushi", "real", "compensation"]
+KINDS = ["review", "gyro", "wushi", "real", "heading", "compensation"]
 
 
 def table(folder: Path, name: str) -> pd.DataFrame:

@@ -9,7 +9,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from magbench.core.rotations import euler_zyx_to_quaternion
+from magbench.core.quaternions import matrix_to_quat
+from magbench.core.rotations import euler_zyx_to_matrix
 from magbench.sources.logs import MIN_LOG_SAMPLES, Stream, align, read_log
 from magbench.sources.recordings import log_recording, read_samples
 from tests.sources.log_writers import write_dataflash, write_ulog
@@ -46,6 +47,11 @@ def accel(t):
 
 def yaw_deg(t):
     return 10.0 * t
+
+
+def euler_zyx_to_quaternion(roll, pitch, yaw):
+    """Scalar-first quaternion of ``Rz(yaw) Ry(pitch) Rx(roll)`` (w >= 0)."""
+    return matrix_to_quat(euler_zyx_to_matrix(roll, pitch, yaw))
 
 
 def us(t: float) -> int:

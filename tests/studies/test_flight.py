@@ -10,7 +10,7 @@ import pandas as pd
 
 import magbench
 from magbench.core.mounting import AUTO_ROTATIONS, MIN_CONFIDENCE, ROTATIONS, rotation_matrix
-from magbench.core.rotations import matrix_to_quaternion
+from magbench.core.quaternions import matrix_to_quat
 from magbench.sources.recordings import read_samples
 from magbench.sources.trajectory import simulate
 from magbench.studies.flight import mounting_rotation
@@ -37,7 +37,7 @@ def simulated_ulog(path: Path, rotation: int, seed: int = 0, seconds: float = 30
     current = current_profile(traj.t)
     if motor is not None:
         y = y + current[:, None] * np.asarray(motor)
-    q = matrix_to_quaternion(traj.R)
+    q = matrix_to_quat(traj.R)
     us = np.round((traj.t + 1.0) * 1e6).astype(int)
     mag_fields = [("uint64_t", "timestamp"), ("float", "x"), ("float", "y"), ("float", "z")]
     battery = [("battery_status", 0, [("uint64_t", "timestamp"), ("float", "current_a")],

@@ -1,14 +1,15 @@
-"""Rotations: cross-product matrices, the exponential map and Euler angles.
+"""Rotations: cross-product matrices, the exponential map, Euler angles, running products.
 
-Shared by the gyro-aided methods (which integrate angular rate) and the trajectory simulator.
+Shared by the gyro-aided methods (which integrate angular rate), the trajectory simulator and
+the direction metrics (:mod:`magbench.core.direction`); quaternions are in
+:mod:`magbench.core.quaternions`.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["euler_zyx_to_matrix", "euler_zyx_to_quaternion", "matrix_to_quaternion",
-           "quaternion_to_matrix", "rotation_exp", "skew"]
+__all__ = ["cumulative_product", "euler_zyx_to_matrix", "rotation_exp", "skew"]
 
 
 def skew(v: np.ndarray) -> np.ndarray:
@@ -50,57 +51,11 @@ def euler_zyx_to_matrix(phi: np.ndarray, theta: np.ndarray, psi: np.ndarray) -> 
     return R
 
 
-def quaternion_to_matrix(q: np.ndarray) -> np.ndarray:
-    """Rotation matrices of ``(..., 4)`` Hamilton quaternions, scalar first ``(w, x, y, z)``.
-
-    A unit quaternion ``q`` and its matrix ``R`` rotate a vector the same way,
-    ``R v = q v q*``; for an attitude quaternion from body to world ``R`` is body-to-world.
-    The quaternion is normalised first (a logged one is only nearly unit).
-    """
-    q = np.asarray(q, dtype=float)
-    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
-    w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
-    R = np.empty(q.shape[:-1] + (3, 3))
-    R[..., 0, 0], R[..., 0, 1], R[..., 0, 2] = 1 - 2 * (y * y + z * z), 2 * (x * y - w * z), \
-        2 * (x * z + w * y)
-    R[..., 1, 0], R[..., 1, 1], R[..., 1, 2] = 2 * (x * y + w * z), 1 - 2 * (x * x + z * z), \
-        2 * (y * z - w * x)
-    R[..., 2, 0], R[..., 2, 1], R[..., 2, 2] = 2 * (x * z - w * y), 2 * (y * z + w * x), \
-        1 - 2 * (x * x + y * y)
-    return R
-
-
-def matrix_to_quaternion(R: np.ndarray) -> np.ndarray:
-    """The scalar-first unit quaternions (``w >= 0``) of ``(..., 3, 3)`` rotation matrices,
-    the inverse of :func:`quaternion_to_matrix` (from the largest of the four squared
-    components, which keeps the division well conditioned)."""
-    R = np.asarray(R, dtype=float)
-    tr = np.trace(R, axis1=-2, axis2=-1)
-    squares = np.stack([1 + tr, 1 + 2 * R[..., 0, 0] - tr, 1 + 2 * R[..., 1, 1] - tr,
-                        1 + 2 * R[..., 2, 2] - tr], axis=-1) / 4       # w^2, x^2, y^2, z^2
-    # 4 w x, 4 w y, 4 w z, 4 x y, 4 x z, 4 y z from the off-diagonal sums and differences.
-    wx = R[..., 2, 1] - R[..., 1, 2]
-    wy = R[..., 0, 2] - R[..., 2, 0]
-    wz = R[..., 1, 0] - R[..., 0, 1]
-    xy = R[..., 0, 1] + R[..., 1, 0]
-    xz = R[..., 0, 2] + R[..., 2, 0]
-    yz = R[..., 1, 2] + R[..., 2, 1]
-    products = np.stack([np.stack([4 * squares[..., 0], wx, wy, wz], -1),
-                         np.stack([wx, 4 * squares[..., 1], xy, xz], -1),
-                         np.stack([wy, xy, 4 * squares[..., 2], yz], -1),
-                         np.stack([wz, xz, yz, 4 * squares[..., 3]], -1)], -2)
-    pick = np.argmax(squares, axis=-1)
-    row = np.take_along_axis(products, pick[..., None, None], axis=-2)[..., 0, :]
-    q = row / np.linalg.norm(row, axis=-1, keepdims=True)
-    return np.where(q[..., :1] < 0, -q, q)
-
-
-def euler_zyx_to_quaternion(phi: np.ndarray, theta: np.ndarray, psi: np.ndarray) -> np.ndarray:
-    """The scalar-first quaternion of :func:`euler_zyx_to_matrix` (roll phi, pitch theta, yaw
-    psi; radians): ``q = q_z(psi) q_y(theta) q_x(phi)``, with ``w >= 0``."""
-    cr, sr = np.cos(np.asarray(phi) / 2), np.sin(np.asarray(phi) / 2)
-    cp, sp = np.cos(np.asarray(theta) / 2), np.sin(np.asarray(theta) / 2)
-    cy, sy = np.cos(np.asarray(psi) / 2), np.sin(np.asarray(psi) / 2)
-    q = np.stack([cr * cp * cy + sr * sp * sy, sr * cp * cy - cr * sp * sy,
-                  cr * sp * cy + sr * cp * sy, cr * cp * sy - sr * sp * cy], axis=-1)
-    return np.where(q[..., :1] < 0, -q, q)
+def cumulative_product(steps: np.ndarray) -> np.ndarray:
+    """``P_n = S_0 S_1 ... S_n`` for ``(N, 3, 3)`` steps, by a vectorised doubling scan."""
+    P = np.array(steps, dtype=float)
+    shift = 1
+    while shift < len(P):
+        P[shift:] = P[:-shift] @ P[shift:]
+        shift *= 2
+    return P

@@ -56,7 +56,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from magbench.core.rotations import euler_zyx_to_quaternion
+from magbench.core.quaternions import matrix_to_quat
+from magbench.core.rotations import euler_zyx_to_matrix
 
 __all__ = ["EXTRA_COLUMNS", "GAP_INTERVALS", "LOG_COLUMNS", "LOG_SUFFIXES", "MIN_LOG_SAMPLES",
            "FlightLog", "align", "is_log", "log_units", "rate_hz", "read_log"]
@@ -407,7 +408,7 @@ def _read_dataflash(path: Path) -> FlightLog:
     att = _frame(rows["ATT"])
     if att is not None:
         angles = np.deg2rad(att[["Roll", "Pitch", "Yaw"]].to_numpy(float))
-        q = euler_zyx_to_quaternion(angles[:, 0], angles[:, 1], angles[:, 2])
+        q = matrix_to_quat(euler_zyx_to_matrix(angles[:, 0], angles[:, 1], angles[:, 2]))
         log.streams["attitude"] = (("qw", "qx", "qy", "qz"),
                                    Stream(att["TimeUS"].to_numpy(float) / 1e6, q))
     bat = _frame(rows["BAT"])

@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 
 from magbench.core.mounting import MountingResult, detect_mounting
-from magbench.core.rotations import quaternion_to_matrix
+from magbench.core.quaternions import quat_to_matrix
 from magbench.methods.regressors import HeldOutChoice, StaticFit, held_out_choice
 from magbench.sources.recordings import Recording
 
@@ -51,7 +51,8 @@ def mounting_rotation(rec: Recording, A: np.ndarray, b: np.ndarray,
         q = rec.extra[QUATERNION].to_numpy(float)
         use = base & np.isfinite(q).all(axis=1)
         if use.sum() >= 2:
-            return detect_mounting(m[use], attitude=quaternion_to_matrix(q[use]))
+            unit = q[use] / np.linalg.norm(q[use], axis=1, keepdims=True)   # nearly unit
+            return detect_mounting(m[use], attitude=quat_to_matrix(unit))
     if all(c in rec.extra for c in ACCEL):
         a = rec.extra[ACCEL].to_numpy(float)
         use = base & np.isfinite(a).all(axis=1)

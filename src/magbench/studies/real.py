@@ -43,7 +43,7 @@ from __future__ import annotations
 
 import inspect
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import ClassVar
 
@@ -63,7 +63,7 @@ from magbench.studies.times import split_times, with_times
 
 __all__ = ["DEFAULT_MAX_SAMPLES", "PARTNERS", "PREPROCESSING", "REAL_ROW_COLUMNS", "RealStudy",
            "applicability", "calibrated_coverage", "evaluate_recording", "fit_recording",
-           "is_meaningful", "is_usable", "method_summary", "recording_summary"]
+           "is_meaningful", "is_usable", "method_summary", "preprocessing", "recording_summary"]
 
 DEFAULT_MAX_SAMPLES = 2000
 PREPROCESSING = ("none", "scale", "centre")
@@ -92,7 +92,7 @@ def applicability(name: str, rec: Recording) -> str:
     return ""
 
 
-def _preprocessing(y: np.ndarray, how: str) -> tuple[np.ndarray, float]:
+def preprocessing(y: np.ndarray, how: str) -> tuple[np.ndarray, float]:
     """Offset and scale with ``y' = (y - offset) / scale`` for the named preprocessing."""
     if how == "none":
         return np.zeros(3), 1.0
@@ -105,20 +105,22 @@ def _preprocessing(y: np.ndarray, how: str) -> tuple[np.ndarray, float]:
 
 
 def fit_recording(rec: Recording, method: str, preprocess: str = "centre",
-                  options: dict | None = None) -> Calibration:
+                  options: dict | None = None, inputs: dict | None = None) -> Calibration:
     """Calibrate ``rec`` with ``method`` after preprocessing; ``T, h`` in the recorded units.
 
     With ``y' = (y - o) / s`` and the method's ``y' = T' m + h'``, the recording obeys
-    ``y = (s T') m + (s h' + o)``.
+    ``y = (s T') m + (s h' + o)``. ``inputs`` are the method's inertial keywords; by default
+    a gyro-aided method gets the recording's ``angular_rate`` and ``time``.
     """
-    offset, scale = _preprocessing(rec.y, preprocess)
-    extra = {}
-    if get_method(method).needs_gyro:
+    offset, scale = preprocessing(rec.y, preprocess)
+    extra = dict(inputs or {})
+    if inputs is None and get_method(method).needs_gyro:
         extra = {"angular_rate": rec.gyro, "time": rec.t}
     cal = calibrate((rec.y - offset) / scale, method, raw=True, **extra,
                     **dict(options or {}))
-    return Calibration(scale * cal.T, scale * cal.h + offset, cal.n_iter, cal.converged,
-                       cal.message, cal.gyro_bias)
+    # replace() keeps every other field (the gyro bias, an alignment to the inertial axes),
+    # none of which a common scale and offset of the samples changes.
+    return replace(cal, T=scale * cal.T, h=scale * cal.h + offset)
 
 
 def calibrated_coverage(y: np.ndarray, T: np.ndarray, h: np.ndarray) -> float:
