@@ -65,6 +65,12 @@ def _apply(cfg: DictConfig) -> int:
     return run_apply(cfg)
 
 
+def _extract(cfg: DictConfig) -> int:
+    from magbench.cli.extract import run_extract
+
+    return run_extract(cfg)
+
+
 def _methods(cfg: DictConfig) -> int:
     from magbench.cli.config import check_common
 
@@ -84,12 +90,16 @@ COMMANDS: dict[str, tuple[Callable[..., int], str, str, tuple[str, ...]]] = {
     "calibrate": (_calibrate, "calibrate your own recording and write the correction",
                   "python -m magbench calibrate file=data.csv",
                   ("file", "method", "candidates", "columns", "out", "preprocess",
-                   "max_samples", "bootstrap", "seed", "units", "field_strength", "instance",
-                   "overwrite", "options", "call_timeout_s", "plugins")),
+                   "max_samples", "compensate", "bootstrap", "seed", "units", "field_strength",
+                   "instance", "overwrite", "options", "call_timeout_s", "plugins")),
     "apply": (_apply, "correct a recording with a saved calibration.json (m = A (y - b))",
               "python -m magbench apply calibration=cal/calibration.json file=flight.csv "
               "out=flight-corrected.csv", ("calibration", "file", "columns", "instance", "out",
                                             "overwrite")),
+    "extract": (_extract, "write a flight log's compass and its other streams, time-aligned, "
+                "as CSV (PX4 .ulg, ArduPilot .bin/.log)",
+                "python -m magbench extract file=flight.ulg instance=0 out=data.csv",
+                ("file", "instance", "out", "overwrite")),
     "reproduce": (_reproduce, "every sweep at its committed size, then the report (make "
                   "reproduce); per-step times to results/bench/reproduce_times.csv",
                   "python -m magbench reproduce",
