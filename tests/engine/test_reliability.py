@@ -226,3 +226,32 @@ def test_the_lock_of_a_killed_run_is_taken_over(tmp_path):
                            timeout=120)
     assert again.returncode == 0, again.stderr
     assert len(pd.read_csv(tmp_path / "baseline" / "trials.csv")) == 60
+
+
+def test_the_folder_lock_covers_every_step_of_a_run(tmp_path, monkeypatch):
+    """The timing, summary, tables, figures and report text are written under the same lock as
+    the trials: a second run that starts at any of those steps is refused."""
+    import magbench.cli.commands as commands
+    from magbench.cli import main
+    from magbench.engine.sweep import FolderBusy, folder_lock
+
+    seen = []
+
+    def second_run(name):
+        def step(*args, **kwargs):
+            with pytest.raises(FolderBusy, match="in use by a running magbench"), \
+                    folder_lock(tmp_path / "baseline"):
+                pass
+            seen.append(name)
+            return original[name](*args, **kwargs)
+        return step
+
+    original = {name: getattr(commands, name) for name in
+                ("write_timing", "write_sweep_tables", "draw_sweep_figures", "_write_section")}
+    for name in original:
+        monkeypatch.setattr(commands, name, second_run(name))
+    assert main(["trials=2", "algorithms=[sphere]", "n_jobs=1", "progress=false",
+                 f"results_dir={tmp_path}"]) == 0
+    assert seen == list(original)
+    with folder_lock(tmp_path / "baseline"):        # released once the run is done
+        pass

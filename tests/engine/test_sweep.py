@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 from dataclasses import dataclass
 from typing import ClassVar
 
@@ -181,3 +182,45 @@ def test_a_run_too_large_for_the_disk_or_memory_is_refused_before_any_work(tmp_p
     monkeypatch.setattr(sweep, "_free_bytes", lambda folder: (1000, 600))
     run_study(Toy(), tmp_path / "out", progress=False)          # just fits
     assert len(read(tmp_path / "out")) == 12
+
+
+#: Run in a fresh interpreter where ``import fcntl`` fails (as on Windows): ``calibrate`` works
+#: and a sweep still runs (without an OS lock, with a warning naming it).
+NO_FCNTL = """
+import sys, warnings
+class Block:
+    def find_spec(self, name, path=None, target=None):
+        if name == "fcntl":
+            raise ImportError("no fcntl on this system")
+sys.meta_path.insert(0, Block())
+sys.modules.pop("fcntl", None)
+import numpy as np, pandas as pd
+from magbench.cli import main
+from magbench.core.geometry import fibonacci_sphere
+from magbench.engine.sweep import run_study
+from tests.engine.test_sweep import Toy
+folder = sys.argv[1]
+y = fibonacci_sphere(200) * 50 + np.array([10.0, -5.0, 3.0])
+pd.DataFrame(y, columns=["mx", "my", "mz"]).to_csv(folder + "/rec.csv", index=False)
+code = main(["calibrate", "progress=false", f"file={folder}/rec.csv", "method=sphere",
+             f"out={folder}/cal", "bootstrap=0"])
+with warnings.catch_warnings(record=True) as seen:
+    warnings.simplefilter("always")
+    run_study(Toy(), folder + "/toy", progress=False)
+print(code, "fcntl" in sys.modules, [str(w.message)[:27] for w in seen])
+"""
+
+
+def test_calibrate_and_a_sweep_need_no_fcntl(tmp_path):
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    repo = Path(__file__).resolve().parents[2]
+    env = {**os.environ, "PYTHONPATH": f"{repo / 'src'}{os.pathsep}{repo}"}
+    done = subprocess.run([sys.executable, "-c", NO_FCNTL, str(tmp_path)], cwd=repo, env=env,
+                          capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.strip().splitlines()[-1] == "0 False ['no file locking on this sys']"
+    assert (tmp_path / "cal" / "calibration.json").exists()
+    assert len(read(tmp_path / "toy")) == 12

@@ -26,7 +26,7 @@ from magbench.cli.config import (
 )
 from magbench.core.files import write_csv_atomic, write_text_atomic
 from magbench.engine.record import cpu_model, cpu_seconds, git_commit, process_age_s
-from magbench.engine.sweep import run_study
+from magbench.engine.sweep import run_lock, run_study
 from magbench.figures.gyro import write_gyro_figure
 from magbench.figures.options import option_column, write_option_figure
 from magbench.figures.real import figure6, figure6_recordings
@@ -65,30 +65,31 @@ def run(cfg: DictConfig, figures: bool = True) -> int:
     """
     study, common = study_for(cfg)
     out_dir = writable_folder(common["results_dir"], "results_dir") / study.name
-    run_study(study, out_dir, n_jobs=common["n_jobs"], chunk_size=common["chunk_size"],
-              backend=common["backend"], scheduler_address=common["scheduler_address"],
-              progress=common["progress"], config=OmegaConf.to_container(cfg, resolve=True),
-              overwrite=common["overwrite"])
-    kind = cfg.sweep.get("kind", "review")
-    if kind == "review" and not timing_is_current(study, out_dir):
-        # The timing protocol for tau (studies/timing.py): after the trials, workers gone.
-        write_timing(study, out_dir, progress=common["progress"])
-    if kind == "wushi":
-        wushi.finish(study, out_dir)
-    else:
-        study.summarize(out_dir)
-    if kind == "review":
-        write_sweep_tables(study.name, pd.read_csv(out_dir / "summary.csv"), out_dir,
-                           delta=study.delta)
-    drawn = draw_sweep_figures(kind, study.name, out_dir) if figures else []
-    _write_section(kind, out_dir)
-    table = next(iter(study.tables.values()))[0]
-    trials = pd.read_csv(out_dir / table, usecols=["ok"])
-    n_bad = int((~trials["ok"].astype(bool)).sum())
-    shown = ", ".join(p.name for p in drawn) or ("no figure for this sweep" if figures
-                                                    else "drawn by the report")
-    _say(cfg, f"sweep {study.name}: {len(trials)} rows ({n_bad} not ok) -> {out_dir}/ "
-              f"({table}, figures: {shown})")
+    with run_lock(out_dir):    # held until the last file of the run is written
+        run_study(study, out_dir, n_jobs=common["n_jobs"], chunk_size=common["chunk_size"],
+                  backend=common["backend"], scheduler_address=common["scheduler_address"],
+                  progress=common["progress"], config=OmegaConf.to_container(cfg, resolve=True),
+                  overwrite=common["overwrite"])
+        kind = cfg.sweep.get("kind", "review")
+        if kind == "review" and not timing_is_current(study, out_dir):
+            # The timing protocol for tau (studies/timing.py): after the trials, workers gone.
+            write_timing(study, out_dir, progress=common["progress"])
+        if kind == "wushi":
+            wushi.finish(study, out_dir)
+        else:
+            study.summarize(out_dir)
+        if kind == "review":
+            write_sweep_tables(study.name, pd.read_csv(out_dir / "summary.csv"), out_dir,
+                               delta=study.delta)
+        drawn = draw_sweep_figures(kind, study.name, out_dir) if figures else []
+        _write_section(kind, out_dir)
+        table = next(iter(study.tables.values()))[0]
+        trials = pd.read_csv(out_dir / table, usecols=["ok"])
+        n_bad = int((~trials["ok"].astype(bool)).sum())
+        shown = ", ".join(p.name for p in drawn) or ("no figure for this sweep" if figures
+                                                        else "drawn by the report")
+        _say(cfg, f"sweep {study.name}: {len(trials)} rows ({n_bad} not ok) -> {out_dir}/ "
+                  f"({table}, figures: {shown})")
     return 0
 
 

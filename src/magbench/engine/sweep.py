@@ -24,7 +24,6 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
-import fcntl
 import hashlib
 import json
 import os
@@ -36,6 +35,7 @@ import warnings
 from collections.abc import Iterator, Mapping, Sequence
 from datetime import UTC, datetime
 from pathlib import Path
+from typing import IO
 
 import pandas as pd
 
@@ -44,7 +44,7 @@ from magbench.engine.plugins import load_plugins
 from magbench.engine.record import write_run_record
 
 __all__ = ["FolderBusy", "ResultsExist", "Study", "TooLarge", "check_capacity", "finished_run",
-           "folder_lock", "parallel_backend", "run_study"]
+           "folder_lock", "parallel_backend", "run_lock", "run_study"]
 
 
 class FolderBusy(RuntimeError):
@@ -101,21 +101,48 @@ class Study:
         return hashlib.sha256(text.encode()).hexdigest()[:16]
 
 
+def _lock_exclusive(handle: IO[str]) -> bool:
+    """Take the operating system's exclusive lock on an open file without waiting; False if
+    another process holds it. ``fcntl`` where it exists (POSIX), ``msvcrt`` on Windows, chosen
+    here rather than at import so that nothing that imports the engine needs either."""
+    try:
+        import fcntl
+    except ImportError:
+        fcntl = None
+    if fcntl is not None:
+        try:
+            fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            return False
+        return True
+    try:
+        import msvcrt
+    except ImportError:
+        _warn("no file locking on this system: two runs on one results folder are not refused")
+        return True
+    try:
+        handle.seek(0)
+        msvcrt.locking(handle.fileno(), msvcrt.LK_NBLCK, 1)
+    except OSError:
+        return False
+    return True
+
+
 @contextlib.contextmanager
 def folder_lock(folder: Path) -> Iterator[None]:
     """Hold an exclusive lock on ``folder`` (``.lock``) for the block; :class:`FolderBusy` if
-    another process holds it. The lock dies with its process, so a killed run leaves none."""
+    another holder (another process, or another block of this one) has it. The lock dies with
+    its process, so a killed run leaves none."""
+    folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     path = folder / ".lock"
     handle = open(path, "a+")
     try:
-        try:
-            fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
+        if not _lock_exclusive(handle):
             handle.seek(0)
             holder = handle.read().strip() or "another process"
             raise FolderBusy(f"{folder} is in use by a running magbench ({holder}); wait for "
-                             "it to finish or choose another results_dir") from None
+                             "it to finish or choose another results_dir")
         handle.seek(0)
         handle.truncate()
         handle.write(f"pid {os.getpid()} since {datetime.now(UTC):%Y-%m-%d %H:%M:%S} UTC")
@@ -123,6 +150,36 @@ def folder_lock(folder: Path) -> Iterator[None]:
         yield
     finally:
         handle.close()
+
+
+#: Folders held by :func:`run_lock` in this process: :func:`run_study` runs in them without
+#: taking the lock again.
+_HELD: set[Path] = set()
+
+
+@contextlib.contextmanager
+def run_lock(folder: Path | str) -> Iterator[None]:
+    """Hold ``folder`` for a whole command: the trials (:func:`run_study` inside the block uses
+    this lock), then the timing, statistics, figures and report text written after them, so
+    that no other run can start in the folder until all of its files are in place.
+
+    Raises
+    ------
+    FolderBusy
+        Another run holds ``folder``.
+    """
+    key = Path(folder).resolve()
+    with folder_lock(Path(folder)):
+        _HELD.add(key)
+        try:
+            yield
+        finally:
+            _HELD.discard(key)
+
+
+def _lock_for_run(folder: Path) -> contextlib.AbstractContextManager:
+    """The folder's lock, unless a :func:`run_lock` of this process holds it already."""
+    return contextlib.nullcontext() if folder.resolve() in _HELD else folder_lock(folder)
 
 
 @contextlib.contextmanager
@@ -390,7 +447,7 @@ def run_study(study: Study, out_dir: Path | str, *, n_jobs: int = 1, chunk_size:
     chunks = [(s, min(s + chunk_size, len(units))) for s in range(0, len(units), chunk_size)]
     written = {table: out_dir / file for table, (file, _) in study.tables.items()}
     check_capacity(study, units, out_dir)
-    with folder_lock(out_dir):
+    with _lock_for_run(out_dir):
         before = finished_run(study, out_dir)
         if before == "same" and not overwrite:
             print(f"{out_dir}: already holds this run (fingerprint {study.fingerprint()}); "
