@@ -32,7 +32,7 @@ import sys
 import threading
 import time
 import warnings
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import IO
@@ -40,6 +40,7 @@ from typing import IO
 import pandas as pd
 
 from magbench.core.files import atomic_path, file_sha256, write_csv_atomic, write_text_atomic
+from magbench.engine.isolation import die_with_parent, run_isolated, watch_calls
 from magbench.engine.plugins import load_plugins
 from magbench.engine.record import write_run_record
 
@@ -192,7 +193,7 @@ def parallel_backend(backend: str, n_jobs: int,
     single-threaded worker processes bound to 127.0.0.1.
     """
     if backend == "loky":
-        yield {"backend": "loky", "n_jobs": n_jobs}
+        yield {"backend": _loky_backend(), "n_jobs": n_jobs}
         return
     if backend != "dask":
         raise ValueError(f"backend must be 'loky' or 'dask', got {backend!r}")
@@ -203,12 +204,31 @@ def parallel_backend(backend: str, n_jobs: int,
         if scheduler_address:
             client = stack.enter_context(Client(scheduler_address))
         else:
+            # A task whose worker dies is failed at the first death, not retried on three
+            # more workers: the run finds the call that kills in a supervised process.
+            import dask
+
+            stack.enter_context(dask.config.set({"distributed.scheduler.allowed-failures": 0}))
             cluster = stack.enter_context(LocalCluster(
                 n_workers=max(n_jobs, 1), threads_per_worker=1, processes=True,
                 host="127.0.0.1", dashboard_address=None))
             client = stack.enter_context(Client(cluster))
         stack.enter_context(parallel_config(backend="dask"))
         yield {"n_jobs": -1, "client": client}
+
+
+def _loky_backend() -> object:
+    """joblib's loky backend whose workers, from their start, end with the run (even those
+    that never get a chunk)."""
+    from joblib.parallel import LokyBackend
+
+    return LokyBackend(initializer=_worker_start, initargs=(os.getpid(),))
+
+
+def _worker_start(parent_pid: int) -> None:
+    """A loky worker's first act: die with the run that started it."""
+    die_with_parent()
+    _exit_with_parent(parent_pid)
 
 
 _WATCHED_PARENT: list[int] = []
@@ -219,9 +239,9 @@ def _exit_with_parent(parent_pid: int | None, poll_s: float = 1.0) -> None:
 
     A run killed with SIGKILL cannot shut its worker pool down, and loky's idle workers (and,
     through them, the resource trackers) would otherwise live on, orphaned, for many minutes.
-    Polling the parent's pid from a daemon thread is portable across POSIX systems and costs
-    nothing while the run lives. ``parent_pid`` is None in-process and on Dask, whose workers
-    have their own parents.
+    On Linux the kernel's parent-death signal (:func:`die_with_parent`) ends them even inside
+    one long compiled call; polling the parent's pid from a daemon thread covers the other
+    POSIX systems. ``parent_pid`` is None on Dask, whose workers have their own parents.
     """
     if parent_pid is None or os.getpid() == parent_pid or _WATCHED_PARENT:
         return
@@ -235,10 +255,16 @@ def _exit_with_parent(parent_pid: int | None, poll_s: float = 1.0) -> None:
     threading.Thread(target=watch, name="magbench-parent-watch", daemon=True).start()
 
 
-def _run_chunk(study: Study, units: list, start: int,
-               parent_pid: int | None = None) -> tuple[int, dict[str, list[dict]]]:
+def _run_chunk(study: Study, units: list, start: int, parent_pid: int | None = None,
+               marker: str | None = None) -> tuple[int, dict[str, list[dict]]]:
+    """A worker's task: the rows of one chunk. ``marker`` is touched first, so that after a
+    worker's death the run knows which chunks were under way (:func:`_run_todo`)."""
     _exit_with_parent(parent_pid)
+    if marker is not None:
+        with contextlib.suppress(OSError):      # a remote worker may not see the folder
+            Path(marker).touch()
     load_plugins(study.plugins)
+    watch_calls()
     out: dict[str, list[dict]] = {name: [] for name in study.tables}
     for unit in units:
         for name, rows in study.run_unit(unit).items():
@@ -269,12 +295,27 @@ class _Parts:
             self.dir.mkdir(parents=True)
             write_text_atomic(json.dumps({"fingerprint": fingerprint, "study": study.name}),
                               manifest)
+        self.clear_markers()        # a killed run's markers say nothing about this one
 
     def _stem(self, start: int, stop: int) -> str:
         return f"c{start:07d}-{stop:07d}"
 
     def path(self, start: int, stop: int, table: str) -> Path:
         return self.dir / f"{self._stem(start, stop)}.{table}.csv"
+
+    def marker(self, start: int, stop: int) -> Path:
+        """Touched by the worker that starts the chunk."""
+        return self.dir / f"{self._stem(start, stop)}.started"
+
+    def started(self, start: int, stop: int) -> bool:
+        return self.marker(start, stop).exists()
+
+    def has_record(self, start: int, stop: int) -> bool:
+        return (self.dir / f"{self._stem(start, stop)}.json").exists()
+
+    def clear_markers(self) -> None:
+        for path in self.dir.glob("*.started"):
+            path.unlink(missing_ok=True)
 
     def done(self, start: int, stop: int) -> bool:
         """True if the chunk's parts are complete and unchanged; damaged ones are removed."""
@@ -397,6 +438,73 @@ def finished_run(study: Study, out_dir: Path | str) -> str | None:
     return f"a run of another configuration (fingerprint {found})"
 
 
+def _run_todo(study: Study, units: list, todo: list[tuple[int, int]], parts: _Parts,
+              done: Callable[[int, int, dict], None], n_jobs: int, backend: str,
+              scheduler_address: str | None) -> None:
+    """Run the unfinished chunks; a worker's death costs a rerun of the chunks under way.
+
+    ``n_jobs=1`` runs them in one supervised child process (:func:`run_isolated`), so that a
+    method that ends its process cannot end the run. With workers, a death (loky's
+    ``TerminatedWorkerError``, Dask's ``KilledWorker``, anything a task raises) stops the
+    pool: the chunks that were under way (their start markers) are rerun one unit at a time in
+    a supervised child, which finds the call that kills and makes it a row, and the rest go
+    back to the workers.
+    """
+    if n_jobs == 1 and backend == "loky":
+        run_isolated(study, units, todo, done)
+        return
+    while todo:
+        try:
+            _run_parallel(study, units, todo, parts, done, n_jobs, backend, scheduler_address)
+            return
+        except KeyboardInterrupt:
+            raise
+        except BaseException as exc:  # a worker died or a task failed: find which, in a child
+            todo = [c for c in todo if not parts.has_record(*c)]
+            suspects = [c for c in todo if parts.started(*c)] or todo
+            _warn(f"a worker of {study.name} stopped ({type(exc).__name__}); {len(suspects)} "
+                  "chunk(s) under way are rerun one unit at a time in a supervised process")
+            run_isolated(study, units, suspects, done)
+            todo = [c for c in todo if c not in suspects]
+            parts.clear_markers()
+
+
+def _run_parallel(study: Study, units: list, todo: list[tuple[int, int]], parts: _Parts,
+                  done: Callable[[int, int, dict], None], n_jobs: int, backend: str,
+                  scheduler_address: str | None) -> None:
+    """The chunks on joblib's workers or a Dask cluster, each written as it finishes."""
+    from joblib import Parallel, delayed
+
+    stops = dict(todo)
+    with parallel_backend(backend, n_jobs, scheduler_address) as engine:
+        if backend == "dask":
+            _run_on_dask(engine["client"], study, units, todo, parts, done)
+            return
+        with Parallel(n_jobs=engine["n_jobs"], backend=engine["backend"],
+                      return_as="generator_unordered") as parallel:
+            tasks = (delayed(_run_chunk)(study, units[a:b], a, os.getpid(),
+                                         str(parts.marker(a, b))) for a, b in todo)
+            for start, rows in parallel(tasks):
+                done(start, stops[start], rows)
+
+
+def _run_on_dask(client: object, study: Study, units: list, todo: list[tuple[int, int]],
+                 parts: _Parts, done: Callable[[int, int, dict], None]) -> None:
+    """The chunks as Dask futures: a task that failed, or whose workers died (``KilledWorker``),
+    raises here at once, and the tasks still pending are cancelled."""
+    from distributed import as_completed
+
+    futures = [client.submit(_run_chunk, study, units[a:b], a, None, str(parts.marker(a, b)),
+                             pure=False) for a, b in todo]
+    stops = dict(todo)
+    try:
+        for future in as_completed(futures):
+            start, rows = future.result()
+            done(start, stops[start], rows)
+    finally:
+        client.cancel(futures)
+
+
 def run_study(study: Study, out_dir: Path | str, *, n_jobs: int = 1, chunk_size: int = 25,
               backend: str = "loky", scheduler_address: str | None = None,
               progress: bool = True, config: Mapping | None = None,
@@ -437,7 +545,6 @@ def run_study(study: Study, out_dir: Path | str, *, n_jobs: int = 1, chunk_size:
     TooLarge
         The estimated output exceeds the free disk space or memory (:func:`check_capacity`).
     """
-    from joblib import Parallel, delayed
     from tqdm import tqdm
 
     out_dir = Path(out_dir)
@@ -463,16 +570,11 @@ def run_study(study: Study, out_dir: Path | str, *, n_jobs: int = 1, chunk_size:
         with tqdm(total=sum(weights), desc=f"{study.name}", unit="trial", file=sys.stderr,
                   disable=not progress, smoothing=0.1) as bar:
             bar.update(sum(weights) - sum(sum(weights[a:b]) for a, b in todo))
-            if todo:
-                with parallel_backend(backend, n_jobs, scheduler_address) as engine, \
-                        Parallel(n_jobs=engine["n_jobs"], backend=engine.get("backend"),
-                                 return_as="generator_unordered") as parallel:
-                    stops = dict(todo)
-                    watch = os.getpid() if backend == "loky" else None
-                    for start, rows in parallel(delayed(_run_chunk)(study, units[a:b], a, watch)
-                                                for a, b in todo):
-                        parts.write(start, stops[start], rows)
-                        bar.update(sum(weights[start:stops[start]]))
+            def done(start: int, stop: int, rows: dict[str, list[dict]]) -> None:
+                parts.write(start, stop, rows)
+                bar.update(sum(weights[start:stop]))
+
+            _run_todo(study, units, todo, parts, done, n_jobs, backend, scheduler_address)
         counts = {table: parts.merge(chunks, table, written[table]) for table in study.tables}
         finished = datetime.now(UTC)
         write_run_record(out_dir, study=study.name, fingerprint=study.fingerprint(),
