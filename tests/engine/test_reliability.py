@@ -255,3 +255,22 @@ def test_the_folder_lock_covers_every_step_of_a_run(tmp_path, monkeypatch):
     assert seen == list(original)
     with folder_lock(tmp_path / "baseline"):        # released once the run is done
         pass
+
+
+def test_a_damaged_finished_table_exits_2_and_no_summary_is_rebuilt(tmp_path, capsys):
+    from magbench.cli import main
+
+    args = ["trials=3", "algorithms=[sphere]", "n_jobs=1", "progress=false",
+            f"results_dir={tmp_path}"]
+    assert main(args) == 0
+    folder = tmp_path / "baseline"
+    summary = (folder / "summary.csv").read_bytes()
+    lines = (folder / "trials.csv").read_text().splitlines(keepends=True)
+    (folder / "trials.csv").write_text("".join(lines[:-1]))            # a row deleted
+    capsys.readouterr()
+    assert main(args) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "trials.csv (checksum differs from run.json)" in err[0], err
+    assert (folder / "summary.csv").read_bytes() == summary
+    assert main([*args, "overwrite=true"]) == 0
+    assert len(pd.read_csv(folder / "trials.csv")) == 3

@@ -224,3 +224,96 @@ def test_calibrate_and_a_sweep_need_no_fcntl(tmp_path):
     assert done.stdout.strip().splitlines()[-1] == "0 False ['no file locking on this sys']"
     assert (tmp_path / "cal" / "calibration.json").exists()
     assert len(read(tmp_path / "toy")) == 12
+
+
+def test_a_kill_between_the_tables_and_run_json_is_resumed(tmp_path, monkeypatch):
+    """Tables merged, run.json not yet written: the parts are complete, so a rerun finishes
+    the run instead of refusing the folder."""
+    import magbench.engine.sweep as sweep
+
+    run_study(Toy(), tmp_path / "full", chunk_size=4, progress=False)
+    real = sweep.write_run_record
+
+    def killed(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(sweep, "write_run_record", killed)
+    with pytest.raises(KeyboardInterrupt):
+        run_study(Toy(), tmp_path / "cut", chunk_size=4, progress=False)
+    assert (tmp_path / "cut" / "rows.csv").exists() and (tmp_path / "cut" / "parts").exists()
+    assert not (tmp_path / "cut" / "run.json").exists()
+    monkeypatch.setattr(sweep, "write_run_record", real)
+    run_study(Toy(), tmp_path / "cut", chunk_size=4, progress=False)
+    record = json.loads((tmp_path / "cut" / "run.json").read_text())
+    assert record["units_resumed"] == 12
+    for name in ("rows.csv", "extra.csv"):
+        pd.testing.assert_frame_equal(read(tmp_path / "cut", name), read(tmp_path / "full", name))
+
+
+@pytest.mark.parametrize("change", ["delete_rows", "cut_half", "edit_value", "remove"])
+def test_a_finished_table_changed_afterwards_is_refused_never_reused(tmp_path, change):
+    from magbench.core.files import file_sha256
+
+    run_study(Toy(), tmp_path, progress=False)
+    record = json.loads((tmp_path / "run.json").read_text())
+    assert record["tables"]["rows"] == {"file": "rows.csv", "rows": 12,
+                                        "sha256": file_sha256(tmp_path / "rows.csv")}
+    assert record["tables"]["extra"]["rows"] == 12
+    path = tmp_path / "rows.csv"
+    lines = path.read_text().splitlines(keepends=True)
+    if change == "delete_rows":
+        path.write_text("".join(lines[:-3]))
+    elif change == "cut_half":
+        path.write_text(path.read_text()[: len(path.read_text()) // 2])
+    elif change == "edit_value":
+        path.write_text("".join([lines[0], lines[1].replace(",", ",1", 1), *lines[2:]]))
+    else:
+        path.unlink()
+    with pytest.raises(ResultsExist, match=r"rows\.csv \((checksum differs from run\.json|"
+                                           r"missing)\).*changed after it ended.*overwrite"):
+        run_study(Toy(), tmp_path, progress=False)
+    run_study(Toy(), tmp_path, progress=False, overwrite=True)
+    run_study(Toy(), tmp_path / "fresh", progress=False)
+    pd.testing.assert_frame_equal(read(tmp_path), read(tmp_path / "fresh"))
+
+
+def test_chunks_of_another_configuration_are_never_reused_even_under_its_manifest(tmp_path):
+    """Chunk files copied from a run with another seed into this run's parts: every chunk
+    record carries its fingerprint, so they are recomputed, not merged."""
+    import shutil
+
+    interrupted(tmp_path / "seed7", chunk_size=2, stop_at=7)        # Toy(stop_at=7), seed 0
+    run_study(Toy(seed=2), tmp_path / "run", chunk_size=2, progress=False)
+    cut = tmp_path / "seed2"
+    original = Toy.run_unit
+    Toy.run_unit = lambda self, u: (_ for _ in ()).throw(KeyboardInterrupt) if u == 3 \
+        else original(self, u)
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            run_study(Toy(seed=2), cut, chunk_size=2, progress=False)
+    finally:
+        Toy.run_unit = original
+    for part in (tmp_path / "seed7" / "parts").glob("c*"):
+        if not (cut / "parts" / part.name).exists():
+            shutil.copy(part, cut / "parts" / part.name)
+    with pytest.warns(RuntimeWarning, match="written by another configuration"):
+        run_study(Toy(seed=2), cut, chunk_size=2, progress=False)
+    pd.testing.assert_frame_equal(read(cut), read(tmp_path / "run"))
+
+
+def test_another_chunk_size_on_resume_warns_and_gives_the_same_rows(tmp_path):
+    run_study(Toy(), tmp_path / "full", chunk_size=5, progress=False)
+    cut = tmp_path / "cut"
+    original = Toy.run_unit
+    Toy.run_unit = lambda self, u: (_ for _ in ()).throw(KeyboardInterrupt) if u == 7 \
+        else original(self, u)
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            run_study(Toy(), cut, chunk_size=2, progress=False)
+    finally:
+        Toy.run_unit = original
+    with pytest.warns(RuntimeWarning, match=r"3 finished chunk\(s\) \(6 units\) were cut with "
+                                            "another chunk_size"):
+        run_study(Toy(), cut, chunk_size=5, progress=False)
+    pd.testing.assert_frame_equal(read(cut), read(tmp_path / "full"))
+    assert json.loads((cut / "run.json").read_text())["units_resumed"] == 0

@@ -279,7 +279,7 @@ class _Parts:
         self.dir = out_dir / "parts"
         self.study = study
         manifest = self.dir / "manifest.json"
-        fingerprint = study.fingerprint()
+        self.fingerprint = fingerprint = study.fingerprint()
         if self.dir.exists():
             try:
                 found = json.loads(manifest.read_text()).get("fingerprint")
@@ -318,24 +318,42 @@ class _Parts:
             path.unlink(missing_ok=True)
 
     def done(self, start: int, stop: int) -> bool:
-        """True if the chunk's parts are complete and unchanged; damaged ones are removed."""
+        """True if the chunk's parts are complete and unchanged and were written by this
+        configuration (the fingerprint in its record); others are removed, with a warning."""
         record = self.dir / f"{self._stem(start, stop)}.json"
         if not record.exists():
             return False
         try:
             sums = json.loads(record.read_text())
-            intact = all(file_sha256(self.path(start, stop, t)) == sums[t]["sha256"]
-                         for t in self.study.tables)
-        except (OSError, ValueError, KeyError, TypeError):
-            intact = False
+            ours = sums.get("fingerprint") == self.fingerprint
+            intact = ours and all(file_sha256(self.path(start, stop, t)) == sums[t]["sha256"]
+                                  for t in self.study.tables)
+        except (OSError, ValueError, KeyError, TypeError, AttributeError):
+            ours = intact = False
         if not intact:
-            _warn(f"{record.name}: part files damaged or incomplete; units {start}-{stop - 1} "
-                  "are recomputed")
+            why = ("damaged or incomplete" if ours else
+                   "written by another configuration (its record's fingerprint)")
+            _warn(f"{record.name}: part files {why}; units {start}-{stop - 1} are recomputed")
             record.unlink(missing_ok=True)
         return intact
 
+    def drop_other_chunking(self, chunks: Sequence[tuple[int, int]]) -> None:
+        """Remove finished chunks whose unit ranges are not among ``chunks`` (a rerun with
+        another ``chunk_size``), saying how many units they held."""
+        wanted = {self._stem(a, b) for a, b in chunks}
+        other = [r for r in self.dir.glob("c*.json") if r.stem not in wanted]
+        if not other:
+            return
+        units = sum(int(b) - int(a[1:]) for a, b in (r.stem.split("-") for r in other))
+        _warn(f"{self.dir}: {len(other)} finished chunk(s) ({units} units) were cut with "
+              "another chunk_size and are not reused; their units are recomputed (rerun with "
+              "the first run's chunk_size to reuse them)")
+        for record in other:
+            for path in self.dir.glob(f"{record.stem}.*"):
+                path.unlink(missing_ok=True)
+
     def write(self, start: int, stop: int, rows: dict[str, list[dict]]) -> None:
-        sums = {}
+        sums: dict[str, object] = {"fingerprint": self.fingerprint}
         for table, (_, columns) in self.study.tables.items():
             path = self.path(start, stop, table)
             write_csv_atomic(pd.DataFrame(rows.get(table, []), columns=list(columns)), path)
@@ -414,28 +432,62 @@ def _warn(message: str) -> None:
 
 
 def finished_run(study: Study, out_dir: Path | str) -> str | None:
-    """What ``out_dir`` holds of a finished run of ``study``'s kind.
+    """What ``out_dir`` holds of a run of ``study``'s kind.
 
     Returns
     -------
     str or None
-        None when no table of the study is there; ``"same"`` when its ``run.json`` records the
-        study's fingerprint and every table is present; otherwise a short description of the
-        other run (its fingerprint, or why it cannot be identified).
+        None when no table of the study is there, or when the folder holds an unfinished run
+        of this configuration (its ``parts/``, perhaps with tables merged just before a kill)
+        to resume; ``"same"`` when its ``run.json`` records the study's fingerprint and every
+        table matches the checksum and row count recorded there; ``"changed: ..."`` naming
+        the tables that do not; otherwise a short description of the other run (its
+        fingerprint, or why it cannot be identified).
     """
     out_dir = Path(out_dir)
-    files = [out_dir / file for file, _ in study.tables.values()]
-    if not any(f.exists() for f in files):
-        return None
+    files = {table: out_dir / file for table, (file, _) in study.tables.items()}
     try:
-        found = json.loads((out_dir / "run.json").read_text()).get("fingerprint")
+        record = json.loads((out_dir / "run.json").read_text())
+        found = record.get("fingerprint")
     except (OSError, ValueError, AttributeError):
-        found = None
+        record, found = {}, None
+    if found != study.fingerprint() and _parts_of(study, out_dir):
+        return None
+    if not any(f.exists() for f in files.values()):
+        return None
     if found is None:
         return "a run with no readable run.json"
-    if found == study.fingerprint() and all(f.exists() for f in files):
-        return "same"
-    return f"a run of another configuration (fingerprint {found})"
+    if found != study.fingerprint():
+        return f"a run of another configuration (fingerprint {found})"
+    changed = _changed_tables(files, record.get("tables") or {})
+    return f"changed: {', '.join(changed)}" if changed else "same"
+
+
+def _parts_of(study: Study, out_dir: Path) -> bool:
+    """True if ``out_dir/parts`` holds an unfinished run of this configuration."""
+    try:
+        manifest = json.loads((out_dir / "parts" / "manifest.json").read_text())
+        return manifest.get("fingerprint") == study.fingerprint()
+    except (OSError, ValueError, AttributeError):
+        return False
+
+
+def _changed_tables(files: Mapping[str, Path], recorded: Mapping[str, dict]) -> list[str]:
+    """The tables that are missing or differ from the checksum and row count in run.json
+    (a run.json without them, from an older magbench, is trusted as it was)."""
+    changed = []
+    for table, path in files.items():
+        if not path.exists():
+            changed.append(f"{path.name} (missing)")
+        elif table in recorded and file_sha256(path) != recorded[table].get("sha256"):
+            changed.append(f"{path.name} (checksum differs from run.json)")
+    return changed
+
+
+def _table_record(files: Mapping[str, Path], counts: Mapping[str, int]) -> dict[str, dict]:
+    """For run.json: each table's file, row count and SHA-256."""
+    return {table: {"file": path.name, "rows": counts[table], "sha256": file_sha256(path)}
+            for table, path in files.items()}
 
 
 def _run_todo(study: Study, units: list, todo: list[tuple[int, int]], parts: _Parts,
@@ -560,10 +612,14 @@ def run_study(study: Study, out_dir: Path | str, *, n_jobs: int = 1, chunk_size:
             print(f"{out_dir}: already holds this run (fingerprint {study.fingerprint()}); "
                   "its tables are reused (overwrite=true recomputes them)", file=sys.stderr)
             return written
+        if before is not None and before.startswith("changed: ") and not overwrite:
+            raise ResultsExist(f"{out_dir}: {before[9:]}: the finished run's tables were "
+                               "changed after it ended; pass overwrite=true to recompute them")
         if before is not None and not overwrite:
             raise ResultsExist(f"{out_dir} holds {before}; choose another results_dir= or "
                                "pass overwrite=true to replace it")
         parts = _Parts(out_dir, study)
+        parts.drop_other_chunking(chunks)
         todo = [c for c in chunks if not parts.done(*c)]
         resumed = len(units) - sum(stop - start for start, stop in todo)
         weights = [study.unit_weight(u) for u in units]
@@ -583,6 +639,7 @@ def run_study(study: Study, out_dir: Path | str, *, n_jobs: int = 1, chunk_size:
                          started=started.isoformat(timespec="seconds"),
                          finished=finished.isoformat(timespec="seconds"),
                          wall_s=round(time.perf_counter() - clock, 3),
-                         units=len(units), units_resumed=resumed, rows=counts)
+                         units=len(units), units_resumed=resumed, rows=counts,
+                         tables=_table_record(written, counts))
         shutil.rmtree(parts.dir)
     return written
