@@ -274,3 +274,40 @@ def test_a_damaged_finished_table_exits_2_and_no_summary_is_rebuilt(tmp_path, ca
     assert (folder / "summary.csv").read_bytes() == summary
     assert main([*args, "overwrite=true"]) == 0
     assert len(pd.read_csv(folder / "trials.csv")) == 3
+
+
+def test_ctrl_c_to_the_process_group_prints_one_line_and_no_worker_speaks(tmp_path):
+    """A terminal's Ctrl-C reaches the run and its workers: the run prints its one line, and
+    neither a worker's traceback nor joblib's warning about a stopped worker appears."""
+    proc = subprocess.Popen(sweep_command(tmp_path, "n_jobs=2"), cwd=REPO,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            start_new_session=True)
+    wait_for_parts(tmp_path / "baseline" / "parts", 1, proc)
+    os.killpg(proc.pid, signal.SIGINT)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 130
+    assert err.strip().splitlines() == [
+        "magbench: interrupted; finished chunks are kept and a rerun completes the rest"]
+
+
+def test_workers_die_with_the_run_even_inside_one_long_compiled_call(tmp_path):
+    """One worker holds the interpreter in a compiled call, the other never got a chunk: a
+    SIGKILL of the run ends both within seconds (the kernel's parent-death signal)."""
+    psutil = pytest.importorskip("psutil")
+    command = [sys.executable, "-m", "magbench", f"plugins=[{FAULTY}]", "algorithms=[faulty_gil]",
+               "options.faulty_gil.seconds=120", "call_timeout_s=300", "trials=1",
+               "chunk_size=1", "n_jobs=2", "nominal.K=40", "progress=false",
+               f"results_dir={tmp_path}", "seed=3"]
+    proc = subprocess.Popen(command, cwd=REPO, stdout=subprocess.DEVNULL,
+                            stderr=subprocess.DEVNULL)
+    start = time.monotonic()
+    while not list((tmp_path / "baseline" / "parts").glob("*.started")):
+        assert proc.poll() is None and time.monotonic() - start < 120
+        time.sleep(0.1)
+    time.sleep(1.0)                                   # inside the call by now
+    children = psutil.Process(proc.pid).children(recursive=True)
+    assert len(children) >= 2
+    proc.send_signal(signal.SIGKILL)
+    proc.wait(timeout=30)
+    _, alive = psutil.wait_procs(children, timeout=10)
+    assert alive == [], f"orphaned after SIGKILL: {[p.cmdline()[-3:] for p in alive]}"

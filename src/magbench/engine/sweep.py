@@ -28,6 +28,7 @@ import hashlib
 import json
 import os
 import shutil
+import signal
 import sys
 import threading
 import time
@@ -223,6 +224,23 @@ def _loky_backend() -> object:
     from joblib.parallel import LokyBackend
 
     return LokyBackend(initializer=_worker_start, initargs=(os.getpid(),))
+
+
+@contextlib.contextmanager
+def _interrupt_blocked() -> Iterator[None]:
+    """Block SIGINT in this thread for the block: processes and threads started in it inherit
+    the block, so a Ctrl-C (sent to the whole process group) reaches only the run, which
+    stops its workers itself, and no worker prints a traceback of its own. A Ctrl-C in the
+    block is delivered when it ends."""
+    mask = getattr(signal, "pthread_sigmask", None)
+    if mask is None or threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = mask(signal.SIG_BLOCK, {signal.SIGINT})
+    try:
+        yield
+    finally:
+        mask(signal.SIG_SETMASK, previous)
 
 
 def _worker_start(parent_pid: int) -> None:
@@ -536,7 +554,9 @@ def _run_parallel(study: Study, units: list, todo: list[tuple[int, int]], parts:
                       return_as="generator_unordered") as parallel:
             tasks = (delayed(_run_chunk)(study, units[a:b], a, os.getpid(),
                                          str(parts.marker(a, b))) for a, b in todo)
-            for start, rows in parallel(tasks):
+            with _interrupt_blocked():          # the workers (and their manager) start here
+                results = parallel(tasks)
+            for start, rows in results:
                 done(start, stops[start], rows)
 
 
