@@ -184,16 +184,18 @@ def test_a_run_too_large_for_the_disk_or_memory_is_refused_before_any_work(tmp_p
     assert len(read(tmp_path / "out")) == 12
 
 
-#: Run in a fresh interpreter where ``import fcntl`` fails (as on Windows): ``calibrate`` works
-#: and a sweep still runs (without an OS lock, with a warning naming it).
+#: Run in a fresh interpreter where ``import fcntl`` and ``import resource`` fail (as on
+#: Windows): ``calibrate`` works and a sweep still runs (without an OS lock, with a warning
+#: naming it).
 NO_FCNTL = """
 import sys, warnings
 class Block:
     def find_spec(self, name, path=None, target=None):
-        if name == "fcntl":
-            raise ImportError("no fcntl on this system")
+        if name in ("fcntl", "resource"):
+            raise ImportError(f"no {name} on this system")
 sys.meta_path.insert(0, Block())
 sys.modules.pop("fcntl", None)
+sys.modules.pop("resource", None)
 import numpy as np, pandas as pd
 from magbench.cli import main
 from magbench.core.geometry import fibonacci_sphere
@@ -207,7 +209,8 @@ code = main(["calibrate", "progress=false", f"file={folder}/rec.csv", "method=sp
 with warnings.catch_warnings(record=True) as seen:
     warnings.simplefilter("always")
     run_study(Toy(), folder + "/toy", progress=False)
-print(code, "fcntl" in sys.modules, [str(w.message)[:27] for w in seen])
+print(code, "fcntl" in sys.modules or "resource" in sys.modules,
+      [str(w.message)[:27] for w in seen])
 """
 
 
