@@ -61,6 +61,24 @@ def interrupted(folder, chunk_size=2, stop_at=7):
         run_study(Toy(stop_at=stop_at), folder, chunk_size=chunk_size, progress=False)
 
 
+def cut_at(folder, unit, chunk_size=2, study=None):
+    """Run ``study`` (a Toy of the same settings by default) and stop it with a
+    KeyboardInterrupt at ``unit``, as a kill would (the fingerprint is unchanged)."""
+    original = Toy.run_unit
+
+    def stopping(self, u):
+        if u == unit:
+            raise KeyboardInterrupt
+        return original(self, u)
+
+    Toy.run_unit = stopping
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            run_study(study or Toy(), folder, chunk_size=chunk_size, progress=False)
+    finally:
+        Toy.run_unit = original
+
+
 def test_a_resumed_run_reuses_finished_chunks_and_gives_the_same_rows(tmp_path):
     run_study(Toy(), tmp_path / "full", chunk_size=2, progress=False)
     # The stop_at field changes the fingerprint, so interrupt with a study of the same settings
@@ -93,14 +111,7 @@ def test_a_resumed_run_reuses_finished_chunks_and_gives_the_same_rows(tmp_path):
 def test_damaged_parts_are_recomputed_never_reused(tmp_path, damage):
     run_study(Toy(), tmp_path / "full", chunk_size=4, progress=False)
     cut = tmp_path / "cut"
-    original = Toy.run_unit
-    Toy.run_unit = lambda self, u: (_ for _ in ()).throw(KeyboardInterrupt) if u == 9 \
-        else original(self, u)
-    try:
-        with pytest.raises(KeyboardInterrupt):
-            run_study(Toy(), cut, chunk_size=4, progress=False)
-    finally:
-        Toy.run_unit = original
+    cut_at(cut, 9, chunk_size=4)
     parts = cut / "parts"
     part = sorted(parts.glob("c*.rows.csv"))[0]
     text = part.read_text()
@@ -288,14 +299,7 @@ def test_chunks_of_another_configuration_are_never_reused_even_under_its_manifes
     interrupted(tmp_path / "seed7", chunk_size=2, stop_at=7)        # Toy(stop_at=7), seed 0
     run_study(Toy(seed=2), tmp_path / "run", chunk_size=2, progress=False)
     cut = tmp_path / "seed2"
-    original = Toy.run_unit
-    Toy.run_unit = lambda self, u: (_ for _ in ()).throw(KeyboardInterrupt) if u == 3 \
-        else original(self, u)
-    try:
-        with pytest.raises(KeyboardInterrupt):
-            run_study(Toy(seed=2), cut, chunk_size=2, progress=False)
-    finally:
-        Toy.run_unit = original
+    cut_at(cut, 3, study=Toy(seed=2))
     for part in (tmp_path / "seed7" / "parts").glob("c*"):
         if not (cut / "parts" / part.name).exists():
             shutil.copy(part, cut / "parts" / part.name)
@@ -307,14 +311,7 @@ def test_chunks_of_another_configuration_are_never_reused_even_under_its_manifes
 def test_another_chunk_size_on_resume_warns_and_gives_the_same_rows(tmp_path):
     run_study(Toy(), tmp_path / "full", chunk_size=5, progress=False)
     cut = tmp_path / "cut"
-    original = Toy.run_unit
-    Toy.run_unit = lambda self, u: (_ for _ in ()).throw(KeyboardInterrupt) if u == 7 \
-        else original(self, u)
-    try:
-        with pytest.raises(KeyboardInterrupt):
-            run_study(Toy(), cut, chunk_size=2, progress=False)
-    finally:
-        Toy.run_unit = original
+    cut_at(cut, 7)
     with pytest.warns(RuntimeWarning, match=r"3 finished chunk\(s\) \(6 units\) were cut with "
                                             "another chunk_size"):
         run_study(Toy(), cut, chunk_size=5, progress=False)
