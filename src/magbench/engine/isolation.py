@@ -99,14 +99,20 @@ def _child_main(study: object, units: Sequence, conn: object, parent: int) -> No
     if os.getppid() != parent:
         os._exit(1)
     load_plugins(study.plugins)
-    supervise_calls(lambda name, limit: conn.send(("call", name, limit)))
+
+    def before(name: str, limit: float | None) -> None:
+        conn.send(("call", name, limit))
+
+    def after() -> None:
+        conn.send(("called", None, None))
+
     while True:
         request = conn.recv()
         if request is None:
             return
         for index, skip in request:
             conn.send(("unit", index, None))
-            supervise_calls(lambda name, limit: conn.send(("call", name, limit)), skip)
+            supervise_calls(before, skip, after_call=after)
             try:
                 rows = study.run_unit(units[index])
             except BaseException as exc:  # the parent raises it (the study's own failure)
@@ -150,8 +156,9 @@ class _Child:
                 kind, index, payload = self.conn.recv()
             except (EOFError, OSError):
                 raise _DeathSignal(_Death(unit, method, self._exit_reason())) from None
-            if kind == "unit":
-                unit, method, deadline = index, None, None
+            if kind in ("unit", "called"):
+                unit = index if kind == "unit" else unit
+                method, deadline = None, None
             elif kind == "call":
                 method, limit = index, payload
                 deadline = None if not limit else time.monotonic() + hard_limit(limit)
