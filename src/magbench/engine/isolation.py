@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import contextlib
 import ctypes
+import faulthandler
 import multiprocessing
 import os
 import signal
@@ -73,8 +74,6 @@ def watch_calls() -> None:
     (a compiled call that never returns to Python, where the limit's own timer
     cannot act). The watchdog is faulthandler's thread, which needs no interpreter lock; the
     run sees a dead worker and finds the call again in a supervised child."""
-    import faulthandler
-
     if not _DEVNULL:
         _DEVNULL.append(open(os.devnull, "w"))      # open for the process's life
 
@@ -95,6 +94,7 @@ def _child_main(study: object, units: Sequence, conn: object, parent: int) -> No
     """The child: run the units the parent asks for, reporting each unit and call."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)        # the parent handles Ctrl-C
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    faulthandler.disable()          # a death is reported as a row, not as a traceback dump
     die_with_parent()
     if os.getppid() != parent:
         os._exit(1)

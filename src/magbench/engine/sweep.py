@@ -550,12 +550,14 @@ def _run_parallel(study: Study, units: list, todo: list[tuple[int, int]], parts:
         if backend == "dask":
             _run_on_dask(engine["client"], study, units, todo, parts, done)
             return
-        with Parallel(n_jobs=engine["n_jobs"], backend=engine["backend"],
-                      return_as="generator_unordered") as parallel:
-            tasks = (delayed(_run_chunk)(study, units[a:b], a, os.getpid(),
-                                         str(parts.marker(a, b))) for a, b in todo)
-            with _interrupt_blocked():          # the workers (and their manager) start here
-                results = parallel(tasks)
+        with contextlib.ExitStack() as stack:
+            with _interrupt_blocked():  # the workers, their manager and tracker start here
+                parallel = stack.enter_context(Parallel(
+                    n_jobs=engine["n_jobs"], backend=engine["backend"],
+                    return_as="generator_unordered"))
+                results = parallel(delayed(_run_chunk)(study, units[a:b], a, os.getpid(),
+                                                       str(parts.marker(a, b)))
+                                   for a, b in todo)
             for start, rows in results:
                 done(start, stops[start], rows)
 
