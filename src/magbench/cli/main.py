@@ -26,7 +26,10 @@ if TYPE_CHECKING:
 
     from magbench.cli.picture import PictureWorker
 
-__all__ = ["COMMANDS", "end_process", "main"]
+__all__ = ["COMMANDS", "INTERRUPTED", "end_process", "main"]
+
+#: The one line a Ctrl-C prints, whenever it comes.
+INTERRUPTED = "magbench: interrupted; finished chunks are kept and a rerun completes the rest"
 
 
 def _run(cfg: DictConfig) -> int:
@@ -271,6 +274,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         # Point stdout at /dev/null so the interpreter's final flush cannot raise again.
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         code = 128 + signal.SIGPIPE
+    except KeyboardInterrupt:       # a Ctrl-C before or after the command's own handling
+        print(INTERRUPTED, file=sys.stderr)
+        code = 130
     if argv is None:
         end_process(code)
     return code
@@ -364,8 +370,7 @@ def _dispatch(command: str, args: list[str], picture: PictureWorker | None,
         return 2
     except KeyboardInterrupt as stop:
         what = "terminated" if isinstance(stop, Terminated) else "interrupted"
-        print(f"magbench: {what}; finished chunks are kept and a rerun completes the rest",
-              file=sys.stderr)
+        print(INTERRUPTED.replace("interrupted", what), file=sys.stderr)
         return 143 if isinstance(stop, Terminated) else 130
     finally:
         if previous is not None:
