@@ -346,6 +346,7 @@ def _main(argv: Sequence[str] | None, start_up: bool = False) -> int:
 def _dispatch(command: str, args: list[str], picture: PictureWorker | None,
               start_up: bool = False) -> int:
     from magbench.cli.config import UsageError, compose_config
+    from magbench.engine.isolation import WorkerDied
     from magbench.engine.sweep import FolderBusy, ResultsExist, TooLarge
 
     previous = signal.signal(signal.SIGTERM, _terminate) if _main_thread() else None
@@ -361,6 +362,11 @@ def _dispatch(command: str, args: list[str], picture: PictureWorker | None,
     except (UsageError, FolderBusy, ResultsExist, TooLarge) as exc:
         print(f"magbench: error: {exc}", file=sys.stderr)
         return 2
+    except WorkerDied as exc:
+        # Not the user's input: a unit's own code (outside any method call) killed its
+        # process. One line and a failing status; finished chunks are kept.
+        print(f"magbench: error: {exc}", file=sys.stderr)
+        return 1
     except OSError as exc:
         # A file-system refusal the checks could not foresee (a disk that fills, a folder
         # removed under a run): one line naming the path, not a traceback.
