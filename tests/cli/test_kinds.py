@@ -128,7 +128,7 @@ def _sweep_section(name: str) -> dict:
     return data["sweep"] if isinstance(data.get("sweep"), dict) else data
 
 
-@pytest.mark.parametrize("name", ["gyro", "real", "wushi"])
+@pytest.mark.parametrize("name", ["gyro", "real", "wushi", "heading"])
 def test_a_kinds_conf_file_lists_every_key_at_its_default(name):
     kind = get_kind(name)
     section = _sweep_section(name)
@@ -172,7 +172,7 @@ def test_the_readme_key_table_agrees_with_conf():
         if key in base and not isinstance(base[key], dict):
             value = base[key]
             expected = str(value).lower() if isinstance(value, bool) else \
-                "[]" if value == [] else str(value)
+                "[]" if value == [] else "null" if value is None else str(value)
             assert default == expected, key
             checked += 1
     assert checked >= 8

@@ -47,7 +47,7 @@ def test_distortions_follow_the_model():
     assert np.allclose(plain.T, magnet.T)
     assert np.linalg.norm(magnet.h - plain.h) == pytest.approx(26.7 / 44.0)
     assert np.abs(plain.h).max() <= Point().gamma
-    with pytest.raises(ValueError, match="kind must be"):
+    with pytest.raises(ValueError, match="distortion must be"):
         distort(np.random.default_rng(1), p, "bogus")
 
 

@@ -42,23 +42,43 @@ from magbench.cli.config import (
     UsageError,
     check_columns,
     check_common,
+    check_compensate,
+    check_field_strength,
+    check_instance,
     check_integer,
     check_options,
+    check_out_calibration,
+    check_units,
     writable_folder,
 )
 from magbench.cli.picture import PictureWorker, draw_picture
-from magbench.core.exports import ardupilot_param_file, ardupilot_params, c_header, to_json_dict
+from magbench.core.exports import (
+    FIRMWARE_FILES,
+    c_header,
+    field_strength,
+    firmware_files,
+    to_json_dict,
+)
 from magbench.core.files import write_csv_atomic, write_text_atomic
 from magbench.core.gauge import safe_gauge
 from magbench.core.model import Calibration
+from magbench.core.units import UNKNOWN, Units, parse_units
+from magbench.methods.api import calibrate as magbench_calibrate
 from magbench.methods.registry import get_method, methods
+from magbench.sources.logs import is_log, log_units
 from magbench.sources.recordings import Recording, read_samples
+from magbench.studies.auto import candidate_rounds
 from magbench.studies.calibration import (
-    FIRST_ROUND,
     CalibrationResult,
     bootstrap_check,
     calibrate_recording,
     estimate,
+)
+from magbench.studies.flight import (
+    check_regressors,
+    mounting_rotation,
+    time_varying_terms,
+    usable_regressors,
 )
 from magbench.studies.real import DEFAULT_MAX_SAMPLES, PREPROCESSING, applicability
 
@@ -77,21 +97,13 @@ MIN_COVERAGE = 0.2
 def _candidates(cfg: DictConfig, rec_has_gyro: bool) -> tuple[list[str], list[str]]:
     """The first and second round of candidates (``second_round`` of
     :func:`~magbench.studies.calibration.calibrate_recording`) from ``method`` and
-    ``candidates``."""
+    ``candidates`` (:func:`magbench.studies.auto.candidate_rounds`, as the Python API)."""
     name = cfg.get("method")
     if name is not None:
         return [str(name)], []
     chosen = cfg.get("candidates", "auto")
-    if chosen not in ("auto", "all"):
-        return list(chosen), []
-    # The printed variants reproduce the review's misprints: benchmark rows, never a user's fit.
-    every = [m for m in methods() if get_method(m).family != "variant"
-             and (get_method(m).magnetometer_only
-                  or (rec_has_gyro and not get_method(m).needs_accel))]
-    if chosen == "all":
-        return every, []
-    return ([m for m in every if m in FIRST_ROUND],
-            [m for m in every if m not in FIRST_ROUND])
+    return candidate_rounds(rec_has_gyro, chosen if chosen in ("auto", "all") else
+                            [str(c) for c in chosen])
 
 
 def _check_candidates(cfg: DictConfig) -> None:
@@ -119,13 +131,15 @@ def default_out(path: Path) -> Path:
 
 
 def calibration_json(result: CalibrationResult, *, file: str, columns: list, n_file: int,
-                     preprocess: str) -> dict:
+                     preprocess: str, units: Units = UNKNOWN,
+                     expected_field: float | None = None) -> dict:
     """The chosen calibration as a JSON-ready dict: the correction in the safe gauge.
 
     The schema of :func:`magbench.core.exports.to_json_dict` (``A``, ``b`` of ``m = A (y - b)``,
     ``T = A^-1``, ``h = b``), plus the method, the choice, verdict, intervals, outliers and
     coverage; ``removed`` records the rotation angle taken out of the method's own ``T^-1``,
-    whether it was a mirror image, and the method's ``T`` itself.
+    whether it was a mirror image, and the method's ``T`` itself; ``unit`` the recording's unit
+    and ``field_strength_expected`` the ``field_strength`` key in file units (None if unset).
 
     Raises
     ------
@@ -136,7 +150,7 @@ def calibration_json(result: CalibrationResult, *, file: str, columns: list, n_f
     T, h = estimate(row)
     gauge = safe_gauge(T, h)
     return {
-        **to_json_dict(Calibration(T, h), units="as recorded in the file", columns=columns),
+        **to_json_dict(Calibration(T, h), units=units, columns=columns),
         "file": file, "method": row["algorithm"], "label": get_method(row["algorithm"]).label,
         "model": get_method(row["algorithm"]).model, "choice": result.how, "tie": result.tie,
         "candidates": {"fitted": sorted(set(result.trials["algorithm"])),
@@ -144,7 +158,8 @@ def calibration_json(result: CalibrationResult, *, file: str, columns: list, n_f
                        "second_round": result.second_round or None},
         "removed": {"rotation_deg": gauge.rotation_deg, "mirrored": gauge.mirrored,
                     "method_T": T.tolist()},
-        "field_strength": float(np.cbrt(abs(np.linalg.det(T)))),
+        "field_strength": field_strength(Calibration(T, h)),
+        "field_strength_expected": expected_field,
         "verdict": result.verdict,
         "intervals": result.intervals.to_dict() if result.intervals else None,
         "bootstrap": result.bootstrap,
@@ -171,7 +186,7 @@ def _verdict_lines(payload: dict) -> list[str]:
              f"(95th percentile), {f['max']:.2f} % (max); heading error of a level compass "
              f"about {hd['p95']:.2f} deg (95 %), {hd['max']:.2f} deg (worst case) in a "
              "horizontal field, about twice at 60 deg inclination",
-             f"field strength {payload['field_strength']:.4g} (file units); the method's own "
+             f"field strength {_field_text(payload)}; the method's own "
              f"correction held a {g['rotation_deg']:.1f} deg rotation"
              f"{' and a mirror image' if g['mirrored'] else ''}, removed (m = A (y - b), A "
              "symmetric positive definite)"]
@@ -195,6 +210,31 @@ def _verdict_lines(payload: dict) -> list[str]:
                      + a_part + "; well above 1 means the noise is not independent or the "
                      "model misses something")
     return lines
+
+
+def _instance_keys(rec: Recording) -> dict:
+    """``instance`` (the column and value kept) and what the firmware files take from it: an
+    ArduPilot ``I`` or ``instance`` of 0-3 numbers the parameter set, a ``device_id`` is PX4's
+    CAL_MAGn_ID."""
+    if rec.instance is None:
+        return {"instance": None}
+    column, value = rec.instance
+    number = int(float(value)) if value.lstrip("-").replace(".", "", 1).isdigit() else None
+    index = number if column != "device_id" and number is not None and 0 <= number <= 3 else 0
+    device = number if column == "device_id" else None
+    return {"instance": {"column": column, "value": value}, "instance_index": index,
+            "device_id": device}
+
+
+def _field_text(payload: dict) -> str:
+    """The field strength in the recording's unit, and against the expected one if given."""
+    units = Units.from_dict(payload.get("unit"))
+    text = units.show(payload["field_strength"])
+    expected = payload.get("field_strength_expected")
+    if expected:
+        change = 100 * (payload["field_strength"] / expected - 1)
+        text += f" (expected {units.show(expected)}: {change:+.1f} %)"
+    return text
 
 
 def _finite(x: float) -> float | None:
@@ -237,6 +277,14 @@ def run_calibrate(cfg: DictConfig, picture: PictureWorker | None = None) -> int:
     max_samples = check_integer(cfg.get("max_samples", DEFAULT_MAX_SAMPLES), "max_samples", 8)
     n_boot = check_integer(cfg.get("bootstrap", 50), "bootstrap", 0, 10_000)
     columns = check_columns(cfg)
+    units = check_units(cfg)
+    if not units.known and not units.counts and is_log(path):
+        units = parse_units(log_units(path))    # a log's compass unit is the firmware's
+    expected = check_field_strength(cfg, units)
+    instance = check_instance(cfg)
+    compensate = check_compensate(cfg)
+    out = Path(str(cfg.out)) if cfg.get("out") else default_out(path)
+    check_out_calibration(out, cfg.get("overwrite"))
     name = cfg.get("method")
     if name is not None and str(name) not in methods():
         raise UsageError(f"unknown method {name!r}; expected one of: {', '.join(methods())}")
@@ -248,11 +296,17 @@ def run_calibrate(cfg: DictConfig, picture: PictureWorker | None = None) -> int:
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         try:
-            rec = read_samples(path, columns, min_samples=need, min_coverage=MIN_COVERAGE)
+            rec = read_samples(path, columns, min_samples=need, min_coverage=MIN_COVERAGE,
+                               instance=instance)
         except ValueError as exc:
             raise UsageError(str(exc)) from None
     for w in caught:
         print(f"magbench: warning: {w.message}", file=sys.stderr)
+    if compensate:
+        try:
+            check_regressors(rec, compensate)
+        except ValueError as exc:
+            raise UsageError(str(exc)) from None
     candidates, second = _candidates(cfg, rec.has_gyro)
     options = check_options(cfg, candidates + second)
     thinned = rec.thinned(max_samples)
@@ -287,9 +341,13 @@ def run_calibrate(cfg: DictConfig, picture: PictureWorker | None = None) -> int:
                             "longer" if not name else "see the table")
                          + "); check that the sensor was turned through many orientations "
                          "in a steady field")
-    out = writable_folder(cfg.out if cfg.get("out") else default_out(path), "out")
+    out = writable_folder(out, "out")
     payload = calibration_json(result, file=str(path), columns=list(rec.columns),
-                               n_file=rec.K, preprocess=preprocess)
+                               n_file=rec.K, preprocess=preprocess, units=units,
+                               expected_field=expected)
+    payload |= _instance_keys(rec)
+    varying, corrected = _add_time_varying(result, payload, compensate, options)
+    mounting = _add_mounting(result, payload, corrected)
     job = {"path": out / "calibration.png", "dpi": PICTURE_DPI,
            "compress_level": PICTURE_COMPRESSION, "kwargs": _picture_arguments(result, payload)}
     sent = picture is not None and picture.send(job)
@@ -304,6 +362,10 @@ def run_calibrate(cfg: DictConfig, picture: PictureWorker | None = None) -> int:
     print(f"choice: {result.how}")
     print(f"chosen: {payload['label']} ({payload['model']} model)")
     print("\n".join(_verdict_lines(payload)))
+    if varying:
+        print(varying)
+    if mounting:
+        print(mounting)
     for warning in payload["warnings"]:
         print(f"magbench: warning: {warning}", file=sys.stderr)
     problem = picture.wait() if sent else ""
@@ -316,24 +378,80 @@ def run_calibrate(cfg: DictConfig, picture: PictureWorker | None = None) -> int:
     return 0
 
 
+def _add_mounting(result: CalibrationResult, payload: dict,
+                  corrected: np.ndarray | None = None) -> str:
+    """Adds the detected mounting rotation to ``payload`` (``mounting_rotation``: the id of
+    the autopilots' rotation enum, or None with the reason) when the recording has an
+    attitude or an accelerometer (:mod:`magbench.studies.flight`); its line, or "".
+    ``corrected``: the samples corrected with kept time-varying terms, used instead of
+    ``A (y - b)``."""
+    found = mounting_rotation(result.rec, np.array(payload["A"]), np.array(payload["b"]),
+                              result.inliers, corrected)
+    if found is None:
+        return ""
+    payload["mounting_rotation"] = found.to_dict()
+    return found.line()
+
+
+def _add_time_varying(result: CalibrationResult, payload: dict, wanted: list[str] | None,
+                      options: dict) -> tuple[str, np.ndarray | None]:
+    """Fits ``y = T m + h + C u`` after the chosen static fit and adds ``time_varying`` to
+    ``payload`` (regressors, held-out errors static and with the terms, kept or not, and the
+    fit's ``A``, ``b``, ``C``). The static start is the chosen method if it fits the full model
+    without a gyro, else Fang (the terms are fitted with a full ``A``). ``wanted``:
+    ``compensate`` (None: auto). Returns the line ("" when there is nothing to fit) and, when
+    the terms are kept, every sample corrected with them (NaN where ``u`` is missing)."""
+    rec: Recording = result.rec
+    names = usable_regressors(rec, wanted)
+    if not names:
+        return "", None
+    spec = get_method(payload["method"])
+    name = payload["method"] if spec.model == "full" and spec.magnetometer_only else "fang"
+    opts = options.get(name) or {}
+
+    def static_fit(samples: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        return magbench_calibrate(samples, name, **opts).correction()
+
+    choice = time_varying_terms(rec, names, static_fit, result.inliers)
+    payload["time_varying"] = {"method": name, **choice.to_dict(names)}
+    head = (f"time-varying terms (y = T m + h + C u, u = {', '.join(names)}; {name}; held out "
+            "on interleaved time blocks): ")
+    if choice.fit is None:
+        return head + f"not kept ({choice.reason})", None
+    terms = "; ".join(f"{n} ({', '.join(f'{c:.3g}' for c in choice.fit.C[:, j])})"
+                      for j, n in enumerate(names))
+    verdict = "kept" if choice.kept else f"not kept ({choice.reason})"
+    line = (head + f"held-out mean squared norm residual {choice.static_out:.3g} static, "
+            f"{choice.varying_out:.3g} with the terms: {verdict}; C per unit of u (file "
+            f"units): {terms}")
+    corrected = choice.fit.apply(rec.y, rec.extra[names].to_numpy(float)) if choice.kept \
+        else None
+    return line, corrected
+
+
 def _write_exports(cal: Calibration, payload: dict, out: Path) -> list[str]:
-    """calibration.h always; ardupilot.param when ArduPilot accepts the values (else one line
-    saying why not). Returns the names written."""
+    """calibration.h always; each firmware file of :func:`magbench.core.exports.firmware_files`
+    that can be written (one line says why not the others, each reason once; a stale one from
+    an earlier run in ``out`` is removed). Returns the names written."""
     f = payload["verdict"]["field_error_pct"]
     verdict = (f"{payload['label']}: field magnitude error {f['p95']:.2f} % (95th percentile), "
                f"{f['max']:.2f} % (max), "
                f"{'held out' if payload['verdict']['held_out'] else 'in sample'}; "
                f"from {Path(payload['file']).name}")
-    write_text_atomic(c_header(cal, "mag_cal", verdict=verdict), out / "calibration.h")
-    try:
-        params = ardupilot_params(cal)
-    except ValueError as exc:
-        print(f"not writing ardupilot.param: {exc}")
-        return ["calibration.h"]
-    note = ("magbench calibration for ArduPilot: corrected = M (COMPASS_SCALE (raw + OFS)), "
-            f"raw in milligauss\n{verdict}")
-    write_text_atomic(ardupilot_param_file(params, note), out / "ardupilot.param")
-    return ["calibration.h", "ardupilot.param"]
+    units = Units.from_dict(payload.get("unit"))
+    write_text_atomic(c_header(cal, "mag_cal", verdict=verdict, units=units),
+                      out / "calibration.h")
+    written, refused = firmware_files(cal, units, instance=payload.get("instance_index") or 0,
+                                      device_id=payload.get("device_id"), comment=verdict)
+    for file, text in written.items():
+        write_text_atomic(text, out / file)
+    for stale in set(FIRMWARE_FILES) - set(written):
+        (out / stale).unlink(missing_ok=True)
+    if refused:
+        print("not writing " + "; ".join(
+            f"{', '.join(n for n, r in refused.items() if r == reason)} ({reason})"
+            for reason in dict.fromkeys(refused.values())))
+    return ["calibration.h", *written]
 
 
 #: Samples drawn in the picture: enough to show the shape, few enough to draw fast.

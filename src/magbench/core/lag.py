@@ -17,6 +17,7 @@ from __future__ import annotations
 import numpy as np
 
 from magbench.core.quaternions import quat_conjugate, quat_multiply
+from magbench.core.rotations import skew
 
 __all__ = ["attitude_rate", "best_lag", "direction_rate", "gyro_lag", "magnetometer_lag", "shift",
            "stream_lag"]
@@ -127,22 +128,38 @@ def stream_lag(t: np.ndarray, reference: np.ndarray, late: np.ndarray,
                     max_lag_s)
 
 
+def _rate_fit(u: np.ndarray, rate: np.ndarray, observed: np.ndarray) -> np.ndarray:
+    """``[u]x A w`` with the 3x3 ``A`` that best fits ``observed`` (least squares over the
+    finite rows; NaN elsewhere)."""
+    design = np.einsum("kij,kl->kijl", skew(u), rate).reshape(len(u), 3, 9)
+    ok = np.isfinite(design).all(axis=(1, 2)) & np.isfinite(observed).all(axis=1)
+    out = np.full(observed.shape, np.nan)
+    if ok.sum() < 4:
+        return out
+    a = np.linalg.lstsq(design[ok].reshape(-1, 9), observed[ok].reshape(-1), rcond=None)[0]
+    out[ok] = design[ok] @ a
+    return out
+
+
 def magnetometer_lag(t: np.ndarray, field: np.ndarray, angular_rate: np.ndarray,
                      max_lag_s: float = 0.1) -> tuple[float, float]:
     """Lag (s) of the magnetometer behind a rate stream (gyro or :func:`attitude_rate`).
 
-    A field read ``L`` late obeys ``dm/dt (t) = -w(t - L) x m(t)``: the direction's rate
-    (central differences) is matched with ``-w(t - L) x m/|m|``, the rate resampled at
-    ``t - L`` (:func:`best_lag`). Only the rate stream is shifted: ``m`` stays at its own
-    times, so the match does not depend on how fast the field turns. ``field`` should be
-    roughly calibrated (centred), since a hard-iron offset bends the direction's rate. A
+    A field read ``L`` late obeys ``dm/dt (t) = m(t) x A w(t - L)``, with ``A`` the rotation
+    from the rate's axes to the magnetometer's (identity when they agree; any fixed matrix
+    absorbs a mounting rotation and the distortion left in a rough calibration, either of
+    which biased the lag by tens of ms when ``A = I`` was assumed). For each candidate lag the
+    rate is resampled at ``t - L`` and ``A`` fitted by linear least squares; the lag whose fit
+    correlates best with the direction's rate (central differences) wins (:func:`best_lag`).
+    Only the rate stream is shifted: ``m`` stays at its own times, so the match does not
+    depend on how fast the field turns. ``field`` should be centred (a sphere fit will do). A
     positive lag means the magnetometer sample at ``t`` shows the field of ``t - L``.
     """
     t = np.asarray(t, dtype=float)
     u = field / np.linalg.norm(field, axis=1, keepdims=True)
     rate = np.asarray(angular_rate, dtype=float)
-    return best_lag(direction_rate(t, field),
-                    lambda L: -np.cross(shift(t, rate, -L), u),
+    observed = direction_rate(t, field)
+    return best_lag(observed, lambda L: _rate_fit(u, shift(t, rate, -L), observed),
                     float(np.median(np.diff(t))), max_lag_s)
 
 

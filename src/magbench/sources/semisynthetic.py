@@ -17,7 +17,7 @@ applied to it gives real motion, real noise and a known truth. A recording is fi
 
 :func:`distort` then draws ``y = T M (m / B) + h`` from the review's eq. (68) at a point such
 as eq. (80) (``T = alpha I + E``, ``h = e``), a mounting rotation ``M`` of a given angle about a
-random axis and, for ``kind="magnet"``, an attached magnet: a constant offset of ``magnet``
+random axis and, for ``distortion="magnet"``, an attached magnet: a constant offset of ``magnet``
 field strengths in a random direction (broad33's magnet 2 cm from the sensor is 26.7 uT in a
 44 uT field, 0.61).
 """
@@ -145,19 +145,21 @@ def random_rotation(rng: np.random.Generator, angle_deg: float) -> np.ndarray:
     return rotation_exp(np.radians(angle_deg) * axis / np.linalg.norm(axis))
 
 
-def distort(rng: np.random.Generator, prepared: Prepared, kind: str = "eq80", *,
+def distort(rng: np.random.Generator, prepared: Prepared, distortion: str = "eq80", *,
             point: Point | None = None, mount_deg: float = 0.0,
             magnet: float = MAGNET_SHARE) -> Distorted:
     """A known distortion of the prepared recording's magnetometer (unit field strength).
 
     Draws, in order: ``alpha, E, e`` at ``point`` (eq. 68; eq. 80's nominal point by
-    default), the mounting rotation's axis, then for ``kind="magnet"`` the magnet's direction.
+    default), the mounting rotation's axis, then for ``distortion="magnet"`` the magnet's
+    direction.
     """
-    if kind not in DISTORTIONS:
-        raise ValueError(f"kind must be one of {', '.join(DISTORTIONS)}, got {kind!r}")
+    if distortion not in DISTORTIONS:
+        raise ValueError(f"distortion must be one of {', '.join(DISTORTIONS)}, got "
+                         f"{distortion!r}")
     T, h = draw_distortion(rng, point or Point())
     M = random_rotation(rng, mount_deg)
-    if kind == "magnet":
+    if distortion == "magnet":
         d = rng.normal(size=3)
         h = h + magnet * d / np.linalg.norm(d)
     G = T @ M

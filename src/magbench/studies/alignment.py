@@ -133,7 +133,8 @@ def fit_alignment(cal: Calibration, y: np.ndarray, inertial: Inertial,
         if not joint.converged:
             raise CalibrationFailed(f"alignment: the joint gyro and accelerometer fit did not "
                                     f"converge ({joint.message}); the rotation is unknown")
-        R = nearest_rotation(unit_rows(joint.apply(y)).T @ unit_rows(m))
+        A, b = joint.correction()                        # heading-true: the IMU's axes
+        R = nearest_rotation(unit_rows((y - b) @ A.T).T @ unit_rows(m))
     elif source == "accelerometer":
         rows = static_rows(inertial.acceleration, 0.05)
         up = unit_rows(inertial.acceleration[rows])

@@ -28,6 +28,7 @@ from magbench.engine.sweep import run_study
 from magbench.methods.api import calibrate
 from magbench.methods.registry import get_method, methods
 from magbench.sources.synthetic import Point, make_dataset
+from magbench.studies.peer_accuracy import peer_accuracy, summarize_peer_accuracy
 from magbench.studies.real import DEFAULT_MAX_SAMPLES
 from magbench.studies.review import ReviewStudy
 from magbench.studies.times import times_path
@@ -65,7 +66,7 @@ def _time_call(fn: Callable[[], object], repeats: int) -> np.ndarray:
 def _safe_call(name: str, y: np.ndarray) -> Callable[[], object]:
     def call() -> object:
         try:
-            return calibrate(y, name)
+            return calibrate(y, name, raw=True)
         except Exception as exc:  # a failing dataset still costs time; keep measuring
             return exc
     return call
@@ -115,7 +116,7 @@ times = []
 for _ in range(2):
     t = time.perf_counter()
     try:
-        calibrate(y, sys.argv[1])
+        calibrate(y, sys.argv[1], raw=True)
     except Exception:
         pass
     times.append(time.perf_counter() - t)
@@ -262,7 +263,7 @@ def _best_candidate(y: np.ndarray, candidates: Sequence[str]) -> str:
     best, best_r = candidates[0], np.inf
     for name in candidates:
         try:
-            cal = calibrate(y, name)
+            cal = calibrate(y, name, raw=True)
         except Exception:
             continue
         r = float(np.sqrt(np.mean((np.linalg.norm(cal.apply(y), axis=1) - 1.0) ** 2)))
@@ -307,11 +308,11 @@ def bench_peers(sizes: Sequence[int] = (300, 10000), datasets: int = 20, repeats
                         J_peer.append(accuracy_cost(T, h, d.T, d.h)[0])
                     except Exception:
                         failures += 1
-                    cal = calibrate(d.y[::step], name)
+                    cal = calibrate(d.y[::step], name, raw=True)
                     J_ours.append(accuracy_cost(cal.T, cal.h, d.T, d.h)[0])
                     t_peer.append(np.median(_time_call(lambda y=d.y, f=fn: f(y), repeats)))
                     t_ours.append(np.median(_time_call(
-                        lambda y=d.y[::step], o=name: calibrate(y, o), repeats)))
+                        lambda y=d.y[::step], o=name: calibrate(y, o, raw=True), repeats)))
                 rows.append({"peer": peer, "K": K, "magbench": name,
                              "peer_median_s": np.median(t_peer),
                              "magbench_median_s": np.median(t_ours),
@@ -401,7 +402,7 @@ def bench_calibrate(K: int = 10_000, repeats: int = 9, seed: int = 0) -> pd.Data
             path, index=False)
         tools = {"magbench calibrate": [sys.executable, "-m", "magbench", "calibrate",
                                         f"file={path}", f"out={Path(tmp) / 'out'}",
-                                        "progress=false"]}
+                                        "progress=false", "overwrite=true"]}
         for peer, (package, imports, fit) in PEER_FILE_FITS.items():
             if find_spec(package) is not None:
                 script = PEER_SCRIPT.format(imports=imports, fit=fit)
@@ -429,9 +430,12 @@ def malloc_thresholds() -> str:
 
 def run_bench(results_dir: Path | str, names: Sequence[str] | None = None,
               sizes: Sequence[int] = SIZES, parallel_trials: int = 250,
-              progress: Callable[[str], None] | None = print) -> Path:
+              progress: Callable[[str], None] | None = print,
+              peer_datasets: int = 200) -> Path:
     """Run every benchmark and write ``calls.csv``, ``first_calls.csv``, ``peers.csv``,
-    ``peer_install.csv``, ``calibrate.csv`` and ``parallel.csv`` under ``<results_dir>/bench``."""
+    ``peer_accuracy.csv`` and ``peer_accuracy_summary.csv`` (``peer_datasets`` datasets per
+    geometry, 0 = none; :mod:`magbench.studies.peer_accuracy`), ``peer_install.csv``,
+    ``calibrate.csv`` and ``parallel.csv`` under ``<results_dir>/bench``."""
     folder = Path(results_dir) / "bench"
     folder.mkdir(parents=True, exist_ok=True)
     names = list(names or [m for m in methods() if get_method(m).magnetometer_only])
@@ -454,6 +458,10 @@ def run_bench(results_dir: Path | str, names: Sequence[str] | None = None,
     calls["malloc"] = malloc
     write_csv_atomic(calls, folder / "calls.csv")
     write_csv_atomic(bench_peers(), folder / "peers.csv")
+    if peer_datasets:
+        accuracy = peer_accuracy(PEERS, datasets=peer_datasets)
+        write_csv_atomic(accuracy, folder / "peer_accuracy.csv")
+        write_csv_atomic(summarize_peer_accuracy(accuracy), folder / "peer_accuracy_summary.csv")
     write_csv_atomic(peer_install_size(), folder / "peer_install.csv")
     write_csv_atomic(cal := bench_calibrate(), folder / "calibrate.csv")
     if progress:

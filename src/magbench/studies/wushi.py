@@ -60,7 +60,7 @@ from magbench.engine.trial import run_method
 from magbench.methods.algorithms import wu_shi, wu_shi_nm
 from magbench.methods.algorithms._wu_shi_init import initial_estimate, upper_inverse
 from magbench.methods.api import calibrate, unit_scale
-from magbench.methods.registry import get_method, methods
+from magbench.methods.registry import get_method, method_label, methods
 from magbench.sources.wushi_sim import WuShiData, attitude_matrices, simulate, truth
 from magbench.studies.times import split_times, with_times
 
@@ -246,7 +246,7 @@ def _method_row(spec: WuShiStudy, name: str, data: WuShiData, run: int,
     (a capped one included, ``converged`` False)."""
     if offset_removed:
         data = WuShiData(data.y - data.h, data.m, data.C, data.S, np.zeros(3))
-    out = run_method(name, lambda o: calibrate(data.y, name, **o),
+    out = run_method(name, lambda o: calibrate(data.y, name, raw=True, **o),
                      options=spec.options.get(name) or {}, seed=spec.seed,
                      stream=(4 if offset_removed else 2, run),
                      call_timeout_s=spec.call_timeout_s)
@@ -329,7 +329,7 @@ def timing(spec: WuShiStudy) -> pd.DataFrame:
             for name in (ML, NM):
                 start = time.perf_counter()
                 try:
-                    cal = calibrate(y, name)
+                    cal = calibrate(y, name, raw=True)
                 except CalibrationFailed:
                     continue
                 best[key, name] = min(best[key, name], time.perf_counter() - start)
@@ -367,7 +367,7 @@ def table1(runs: pd.DataFrame, crb: dict[str, float] | None = None) -> pd.DataFr
         errors = group.loc[~group["ok"].astype(bool), "error"]
         capped = group.loc[group["ok"].astype(bool) & ~group["converged"].astype(bool), "error"]
         reasons = pd.concat([errors, capped])
-        label = get_method(name).label if name in methods() else name
+        label = method_label(name)
         row = {"algorithm": name, "label": label, "runs": len(group),
                "estimates": len(good), "failures": len(errors),
                "at_cap": len(capped),

@@ -228,7 +228,9 @@ def _solve(Q, p, y, a, w_mid, dt, g_w, weights, max_iter, xtol):
                 break
             lam *= 10.0
             if lam > 1e8:
-                return Q, p, it, False
+                # No step lowers the cost: a minimum if the gradient is at rounding level.
+                scale = np.sqrt(H.diagonal().sum() * cost) or 1.0
+                return Q, p, it, bool(np.linalg.norm(grad) <= 1e-6 * scale)
         Q, p, r, parts, cost, lam = Q_new, p_new, r_new, parts_new, new, max(lam / 10.0, 1e-9)
         if np.max(np.abs(step[3 * K:])) <= xtol:
             return Q, p, it, True
