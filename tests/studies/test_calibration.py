@@ -79,7 +79,8 @@ def test_5_percent_10x_spikes_are_set_aside_on_a_real_recording():
 
 def test_allowed_models_follow_the_coverage_sweep():
     assert all(allowed(m, 60.0) for m in FAST)
-    assert [m for m in FAST if allowed(m, 120.0)] == [m for m in FAST if m in ROBUST_ON_CAPS]
+    assert [m for m in FAST if allowed(m, 120.0)] == [m for m in FAST if m in ROBUST_ON_CAPS
+                                                      or m == "sphere"]
     assert [m for m in FAST if allowed(m, THIN_GAP_DEG + 1)] == ["sphere"]
 
 
@@ -114,10 +115,10 @@ def test_a_collapsing_method_is_never_chosen():
     assert not row["tie"] or row["note"].startswith("refused")
 
 
-def test_fisher_intervals_agree_with_the_bootstrap_on_synthetic_data():
+def test_fisher_intervals_agree_with_the_bootstrap_on_white_noise():
     result = calibrate_recording(synthetic(1000), ["fang"], bootstrap=60)
     b = result.bootstrap
-    assert b["replicates"] == 60
+    assert b["replicates"] == 60 and b["block"] <= 2          # white noise: short blocks
     assert all(0.7 < r < 1.4 for r in b["ratio_h"])
     assert 0.7 < b["ratio_A_median"] < 1.4
 
@@ -172,48 +173,6 @@ def test_every_written_A_is_spd_on_each_real_recording():
             check_gauge(cal.T, cal.h, rec.y)
             checked += 1
     assert checked > 0.7 * len(MAG_ONLY) * len(list_recordings(SHARED))
-
-
-def test_a_refused_fit_passes_the_choice_to_the_next_of_the_tie():
-    import pandas as pd
-
-    from magbench.studies.calibration import choose
-    from magbench.studies.real import evaluate_recording, recording_summary
-
-    rec = synthetic(600)
-    trials = pd.DataFrame(evaluate_recording(rec, ["ellipsoid", "fang"], ["centre"]))
-    summary = recording_summary(trials)
-    _, tie, first, _ = choose(summary, trials, rec, 30.0)
-    assert first is not None and first["algorithm"] in tie
-    ranked, _, second, how = choose(summary, trials, rec, 30.0, refuse=lambda r: (
-        "test refusal" if r["algorithm"] == first["algorithm"] else ""))
-    assert second is not None and second["algorithm"] != first["algorithm"]
-    note = ranked.set_index("algorithm").loc[first["algorithm"], "note"]
-    assert note == "refused: test refusal"
-    assert f"chosen {second['algorithm']}" in how
-
-
-def test_the_choice_does_not_depend_on_fit_times():
-    import pandas as pd
-
-    from magbench.studies.calibration import choose
-    from magbench.studies.real import evaluate_recording, recording_summary
-
-    rec = synthetic(600)
-    trials = pd.DataFrame(evaluate_recording(rec, ["ellipsoid", "fang", "twostep"],
-                                             ["centre"]))
-    summary = recording_summary(trials)
-    choices = set()
-    for times in ([1e-3, 2e-3, 3e-3], [3e-3, 2e-3, 1e-3]):
-        timed = summary.assign(time_s=times)
-        _, tie, chosen, _ = choose(timed, trials, rec, 30.0)
-        assert len(tie) > 1                              # the three closed forms tie here
-        choices.add(chosen["algorithm"])
-    assert len(choices) == 1                             # the same file, the same choice
-    ranked = choose(summary, trials, rec, 30.0)[0]
-    closed = ranked[ranked["tie"] & (ranked["n_iter"] == 0)]     # TWOSTEP iterates
-    assert len(closed) == 2
-    assert choices == {closed["algorithm"].iloc[0]}       # the better held out of the two
 
 
 @pytest.mark.parametrize("case", ["chosen", "none", "gap", "minimiser_out"])

@@ -41,8 +41,8 @@ DIRECTION_CELLS = 400
 CELL_CAP_FACTOR = 3.0
 #: ... and never fewer than this many samples.
 CELL_CAP_MIN = 3
-#: Cubes per axis of :func:`distinct_rows`'s grid over the samples' robust range.
-DISTINCT_GRID = 40
+#: :func:`distinct_rows`'s cube edge is this fraction of the samples' typical separation.
+DISTINCT_GRID = 20
 
 
 def fibonacci_sphere(K: int, radius: float = 1.0,
@@ -266,19 +266,24 @@ def thin_by_direction(directions: np.ndarray, *, cells: int = DIRECTION_CELLS,
 
 
 def distinct_rows(y: np.ndarray, *, grid: int = DISTINCT_GRID) -> np.ndarray:
-    """Indices of one sample per occupied cube of a ``grid``-per-axis grid (first in time).
+    """Indices of one sample per occupied cube of a grid over the samples (first in time).
 
-    The grid spans the 1st-99th percentile range of each axis, so a few spikes do not widen
-    the cubes; samples beyond the range fall in cubes of their own. Needs no centre: a still
-    stretch falls in a few cubes whatever the offset.
+    The cube's edge is ``1 / grid`` of the median distance between samples half a recording
+    apart in time (about the field radius for a recording that turns; robust to spikes and to
+    a still stretch of up to about three quarters of the recording, which a range or a spread of
+    the samples is not). Needs no centre: a still stretch falls in a few cubes whatever the
+    offset.
     """
     y = np.asarray(y, dtype=float)
-    low, high = np.percentile(y, [1.0, 99.0], axis=0)
-    size = float(np.max(high - low)) / grid
+    half = y.shape[0] // 2
+    if half == 0:
+        return np.arange(y.shape[0])
+    size = float(np.median(np.linalg.norm(y[half:2 * half] - y[:half], axis=1))) / grid
     if not size > 0:
-        return np.arange(min(1, y.shape[0]))
-    keys = np.clip(np.floor((y - low) / size), -1, grid + 1).astype(np.int64) + 1
-    flat = keys[:, 0] + (grid + 3) * (keys[:, 1] + (grid + 3) * keys[:, 2])
+        return np.arange(y.shape[0])
+    keys = np.floor((y - np.median(y, axis=0)) / size).astype(np.int64)
+    # one integer per cube (a rare collision far out merges two cubes, which does no harm)
+    flat = (keys[:, 0] * 2_097_143 + keys[:, 1]) * 2_097_169 + keys[:, 2]
     _, first = np.unique(flat, return_index=True)
     return np.sort(first)
 

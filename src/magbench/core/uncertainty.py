@@ -17,8 +17,8 @@ The intervals are ``estimate +- 1.96 sqrt(variance)``: model-based, exact only a
 noise is independent, Gaussian and isotropic and the model holds. Real noise is correlated in
 time (a slow rotation, a drifting offset, a model error that follows the rotation), so
 ``calibrate`` also refits on *block* resamples of the recording (:func:`block_resample`, blocks
-:data:`BLOCK_FACTOR` times the residuals' correlation length, :func:`correlation_length`) and
-reports the wider interval of the two.
+:data:`BLOCK_FACTOR` times the residuals' integrated correlation time,
+:func:`correlation_length`) and reports the wider interval of the two.
 """
 
 from __future__ import annotations
@@ -30,7 +30,7 @@ import numpy as np
 from magbench.core.crb import MODEL_PARAMETERS, parameter_covariance
 from magbench.core.gauge import safe_gauge
 
-__all__ = ["BLOCK_FACTOR", "MIN_BLOCKS", "Intervals", "a_jacobian", "block_length",
+__all__ = ["BLOCK_FACTOR", "MIN_BLOCKS", "WINDOW", "Intervals", "a_jacobian", "block_length",
            "block_resample", "correlation_length", "fisher_intervals", "noise_sigma"]
 
 Z95 = 1.959963984540054
@@ -130,36 +130,38 @@ def fisher_intervals(y: np.ndarray, T: np.ndarray, h: np.ndarray,
                      Z95 * np.sqrt(np.clip(var_A, 0, None)).reshape(3, 3), sigma, model)
 
 
-#: The block bootstrap's blocks are this many times the residuals' correlation length ...
-BLOCK_FACTOR = 3.0
+#: The block bootstrap's blocks are this many times the residuals' correlation time ...
+BLOCK_FACTOR = 5.0
 #: ... and no longer than the recording over this many blocks (enough blocks to resample).
-MIN_BLOCKS = 10
+MIN_BLOCKS = 8
+#: Sokal's window: the autocorrelations are summed up to the first lag M >= WINDOW * tau(M).
+WINDOW = 5.0
 
 
 def correlation_length(residuals: np.ndarray) -> float:
-    """Lag (in samples) at which the residuals' autocorrelation first falls below ``1/e``.
+    """Integrated autocorrelation time of the residuals, in samples.
 
-    For AR(1) noise ``e_k = phi e_(k-1) + w_k`` that is about ``-1 / ln(phi)``; 0 for white
-    noise. Computed with the FFT on the mean-removed series; the lag is interpolated linearly
-    between the two samples around ``1/e``.
+    ``tau = 1 + 2 sum_(k=1..M) rho(k)`` with Sokal's automatic window, the first ``M`` with
+    ``M >= 5 tau(M)`` (Sokal 1997; the usual choice for Markov-chain output): 1 for white noise,
+    ``(1 + phi) / (1 - phi)`` for AR(1) noise ``e_k = phi e_(k-1) + w_k``; a slow drift,
+    whose autocorrelation stays positive over long lags, gives a long time where the lag at
+    which the autocorrelation falls below ``1/e`` would not. Computed with the FFT on the
+    mean-removed series.
     """
     r = np.asarray(residuals, dtype=float)
     r = r - r.mean()
     n = r.size
     if n < 3 or not np.any(r):
-        return 0.0
+        return 1.0
     spectrum = np.fft.rfft(r, 2 * n)
     acf = np.fft.irfft(spectrum * np.conj(spectrum))[:n]
-    acf /= acf[0]
-    below = np.flatnonzero(acf < np.exp(-1.0))
-    if below.size == 0:
-        return float(n)
-    k = int(below[0])
-    return float(k - 1 + (acf[k - 1] - np.exp(-1.0)) / (acf[k - 1] - acf[k]))
+    tau = 1.0 + 2.0 * np.cumsum(acf[1:] / acf[0])
+    window = np.flatnonzero(np.arange(1, n) >= WINDOW * tau)
+    return float(max(1.0, tau[window[0]] if window.size else tau[-1]))
 
 
 def block_length(residuals: np.ndarray) -> int:
-    """Block length of :func:`block_resample`: :data:`BLOCK_FACTOR` correlation lengths,
+    """Block length of :func:`block_resample`: :data:`BLOCK_FACTOR` correlation times,
     at least 1, at most ``K / MIN_BLOCKS``."""
     K = int(np.asarray(residuals).size)
     want = int(np.ceil(BLOCK_FACTOR * correlation_length(residuals)))

@@ -362,19 +362,25 @@ def bootstrap_check(result: CalibrationResult, B: int, *, preprocess: str = "cen
     fits = [f for f in fits if f is not None]
     if len(fits) < max(10, B // 2):
         return None
-    return _bootstrap_summary(result.intervals, fits, block, correlation_length(residual))
+    return _bootstrap_summary(result.intervals, fits, block, correlation_length(residual),
+                              work.K)
 
 
-def _bootstrap_summary(iv: Intervals, fits: list, block: int, corr: float) -> dict:
-    h_half = 1.96 * np.std([f[0] for f in fits], axis=0, ddof=1)
-    A_half = 1.96 * np.std([f[1] for f in fits], axis=0, ddof=1)
+def _bootstrap_summary(iv: Intervals, fits: list, block: int, corr: float, K: int) -> dict:
+    # Student's quantile with one degree of freedom per block less one: with a dozen blocks
+    # the spread of the refits is itself uncertain, and 1.96 would cover too little.
+    from scipy.stats import t as student
+
+    z = float(student.ppf(0.975, max(1, int(np.ceil(K / block)) - 1)))
+    h_half = z * np.std([f[0] for f in fits], axis=0, ddof=1)
+    A_half = z * np.std([f[1] for f in fits], axis=0, ddof=1)
     fixed = iv.model == "bias"                      # A is not estimated: no interval at all
     if fixed:
         A_half = np.zeros((3, 3))
     with np.errstate(divide="ignore", invalid="ignore"):
         rh = h_half / iv.h_half
         rA = (A_half / iv.A_half)[iv.A_half > 0]
-    return {"kind": "circular block bootstrap over time", "block": int(block),
+    return {"kind": "circular block bootstrap over time", "block": int(block), "quantile": z,
             "correlation_samples": float(corr), "replicates": len(fits),
             "h_half_width": h_half.tolist(), "A_half_width": A_half.tolist(),
             "ratio_h": rh.tolist(),
