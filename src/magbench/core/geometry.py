@@ -268,17 +268,17 @@ def thin_by_direction(directions: np.ndarray, *, cells: int = DIRECTION_CELLS,
 def distinct_rows(y: np.ndarray, *, grid: int = DISTINCT_GRID) -> np.ndarray:
     """Indices of one sample per occupied cube of a grid over the samples (first in time).
 
-    The cube's edge is ``1 / grid`` of the median distance between samples half a recording
-    apart in time (about the field radius for a recording that turns; robust to spikes and to
-    a still stretch of up to about three quarters of the recording, which a range or a spread of
-    the samples is not). Needs no centre: a still stretch falls in a few cubes whatever the
+    The cube's edge is ``1 / grid`` of the upper quartile of the distances between samples half
+    a recording apart in time (about the field radius for a recording that turns; robust to
+    spikes and to a still stretch of up to about seven eighths of the recording, which a range
+    or a spread of the samples is not). Needs no centre: a still stretch falls in a few cubes whatever the
     offset.
     """
     y = np.asarray(y, dtype=float)
     half = y.shape[0] // 2
     if half == 0:
         return np.arange(y.shape[0])
-    size = float(np.median(np.linalg.norm(y[half:2 * half] - y[:half], axis=1))) / grid
+    size = float(np.percentile(np.linalg.norm(y[half:2 * half] - y[:half], axis=1), 75)) / grid
     if not size > 0:
         return np.arange(y.shape[0])
     keys = np.floor((y - np.median(y, axis=0)) / size).astype(np.int64)
