@@ -271,8 +271,8 @@ def distinct_rows(y: np.ndarray, *, grid: int = DISTINCT_GRID) -> np.ndarray:
     The cube's edge is ``1 / grid`` of the upper quartile of the distances between samples half
     a recording apart in time (about the field radius for a recording that turns; robust to
     spikes and to a still stretch of up to about seven eighths of the recording, which a range
-    or a spread of the samples is not). Needs no centre: a still stretch falls in a few cubes whatever the
-    offset.
+    or a spread of the samples is not). Needs no centre: a still stretch falls in a few cubes
+    whatever the offset.
     """
     y = np.asarray(y, dtype=float)
     half = y.shape[0] // 2

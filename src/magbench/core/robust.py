@@ -34,9 +34,9 @@ cells is not applied (:func:`keeps_directions`): outliers are the few, never the
 
 from __future__ import annotations
 
-import numpy as np
-
 from dataclasses import dataclass
+
+import numpy as np
 
 from magbench.core.geometry import (
     direction_cells,

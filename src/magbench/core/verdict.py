@@ -36,8 +36,17 @@ import numpy as np
 
 from magbench.core.geometry import coverage, largest_gap
 
-__all__ = ["MAX_GAP_DEG", "STATUSES", "Gate", "coverage_report", "fitness", "field_error_pct", "heading_error_deg",
-           "magnitude_verdict", "turn_advice"]
+__all__ = [
+    "MAX_GAP_DEG",
+    "STATUSES",
+    "Gate",
+    "coverage_report",
+    "field_error_pct",
+    "fitness",
+    "heading_error_deg",
+    "magnitude_verdict",
+    "turn_advice",
+]
 
 MAX_GAP_DEG = 100.0
 

@@ -51,8 +51,8 @@ from magbench.core.seeding import rng
 from magbench.core.uncertainty import (
     Intervals,
     block_length,
-    correlation_length,
     block_resample,
+    correlation_length,
     fisher_intervals,
 )
 from magbench.core.verdict import (
