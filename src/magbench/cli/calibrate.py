@@ -158,7 +158,7 @@ def calibration_json(result: CalibrationResult, *, file: str, columns: list, n_f
         "thinning": {"thinned": result.thinned, "distinct_directions": result.directions,
                      "band_half_width_deg": result.band_deg,
                      "rule": "equal-area direction cells of about 10 deg; no cell keeps more "
-                             "than 3x the median occupied cell's count"},
+                             "than 10x the median occupied cell's count"},
         "outliers": {"set_aside": result.outliers, "by_sphere_screen": result.screened,
                      "by_chosen_fit": result.trimmed, "applied": result.screen.applied,
                      "rule": "norm residual more than 5 robust sigmas (1.4826 MAD) from the "

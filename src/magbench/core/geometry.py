@@ -38,7 +38,7 @@ MIN_THICKNESS = 0.1
 #: Equal-area direction cells of :func:`direction_cells` (each about 10 deg across).
 DIRECTION_CELLS = 400
 #: A cell keeps at most this many times the median count of the occupied cells ...
-CELL_CAP_FACTOR = 3.0
+CELL_CAP_FACTOR = 10.0
 #: ... and never fewer than this many samples.
 CELL_CAP_MIN = 3
 #: :func:`distinct_rows`'s cube edge is this fraction of the samples' typical separation.

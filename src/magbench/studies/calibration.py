@@ -31,8 +31,8 @@ writes). :func:`calibrate_recording` runs these steps, each a small function:
    intervals (:func:`magbench.core.uncertainty.fisher_intervals`), and PASS / WARN / FAIL from
    the thresholds of :class:`magbench.core.verdict.Gate`.
 6. :func:`bootstrap_check` - *intervals that cover*: ``bootstrap`` refits on circular block
-   resamples of the kept samples in time order (blocks three times the residuals'
-   correlation length), so time-correlated error widens the intervals; the wider of the two
+   resamples of the kept samples in time order (blocks five times the residuals'
+   integrated correlation time), so time-correlated error widens the intervals; the wider of the two
    intervals is reported, and which it is.
 """
 
