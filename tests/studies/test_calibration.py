@@ -116,9 +116,9 @@ def test_a_collapsing_method_is_never_chosen():
 
 
 def test_fisher_intervals_agree_with_the_bootstrap_on_white_noise():
-    result = calibrate_recording(synthetic(1000), ["fang"], bootstrap=60)
+    result = calibrate_recording(synthetic(1000), ["fang"], bootstrap=150)
     b = result.bootstrap
-    assert b["replicates"] == 60 and b["block"] <= 6          # white noise: short blocks
+    assert b["replicates"] == 150 and b["block"] <= 6         # white noise: short blocks
     assert all(0.7 < r < 1.4 for r in b["ratio_h"])
     assert 0.7 < b["ratio_A_median"] < 1.4
 
