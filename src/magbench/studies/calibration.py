@@ -190,6 +190,23 @@ def _named_choice(choice: Choice, work: Recording, centre: np.ndarray) -> Choice
     return choice
 
 
+def _fit_and_choose(work: Recording, centre: np.ndarray, names: list[str], later: list[str],
+                    gap: float, named: bool, fit: dict) -> tuple[pd.DataFrame, Choice, str]:
+    """One round of fitting and choosing (module notes, steps 2-3): the first round's
+    candidates, then the second round's when :func:`second_round_reason` gives a reason (also
+    returned, "" otherwise)."""
+    limit = 0.0 if named else gap
+    trials = fit_round(work, names, **fit)
+    choice = _rank_trials(trials, work, limit, centre)
+    reason = second_round_reason(choice.tie, choice.chosen, gap, names) if later else ""
+    if reason:
+        trials = pd.concat([trials, fit_round(work, later, **fit)], ignore_index=True)
+        choice = _rank_trials(trials, work, limit, centre)
+    if named:
+        choice = _named_choice(choice, work, centre)
+    return trials, choice, reason
+
+
 def retrim(rec: Recording, current: Screen, chosen: pd.Series) -> Screen:
     """The screen redone on the chosen fit's norm residuals (module notes, step 4)."""
     T, h = estimate(chosen)
@@ -282,16 +299,10 @@ def calibrate_recording(rec: Recording, candidates: Sequence[str], *,
     for _ in range(rounds):
         work, stride = prepare(rec, current, max_samples)
         cover = coverage_report(work.y - current.centre)
-        gap = cover["largest_gap_deg"]
-        limit = 0.0 if named else gap
-        trials = fit_round(work, names, **fit)
-        choice = _rank_trials(trials, work, limit, current.centre)
-        if later and (escalated := second_round_reason(choice.tie, choice.chosen, gap, names)):
-            trials = pd.concat([trials, fit_round(work, later, **fit)], ignore_index=True)
-            names, later = names + later, []
-            choice = _rank_trials(trials, work, limit, current.centre)
-        if named:
-            choice = _named_choice(choice, work, current.centre)
+        trials, choice, reason = _fit_and_choose(work, current.centre, names, later,
+                                                 cover["largest_gap_deg"], named, fit)
+        if reason:
+            names, later, escalated = names + later, [], reason
         if choice.chosen is None:
             break
         new = retrim(rec, current, choice.chosen)
