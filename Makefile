@@ -1,7 +1,7 @@
 # magbench — run `make help` for the list of targets.
 PYTHON ?= $(if $(wildcard .venv/bin/python),.venv/bin/python,python)
 VENV ?= .venv
-# The real recordings stay outside the repository (see README, "Real data").
+# The real recordings stay outside the repository (see docs/sweeps.md, "Real data").
 MAGBENCH_DATA ?= $(if $(wildcard ../shared/data/real),$(abspath ../shared/data/real),)
 export MAGBENCH_DATA
 
@@ -29,7 +29,7 @@ lint: ## ruff over the package and the tests
 
 sweep-real: ## Every method on the real recordings in MAGBENCH_DATA (skipped when unset)
 	@if [ -z "$(MAGBENCH_DATA)" ]; then \
-	  echo "sweep real skipped: set MAGBENCH_DATA to a folder of recordings (see README, Real data)"; \
+	  echo "sweep real skipped: set MAGBENCH_DATA to a folder of recordings (see docs/sweeps.md, Real data)"; \
 	else $(PYTHON) -m magbench sweep=real $(SWEEP_ARGS) $(ARGS); fi
 
 # A static pattern rule: make never applies an implicit `sweep-%:` rule to .PHONY targets.

@@ -78,8 +78,8 @@ CASES = [
     (["sweep=gyro", "n_jobs=abc", *SWEEP], "n_jobs must be a non-zero integer"),
     (["sweep=gyro", "n_jobs=0", *SWEEP], "n_jobs must be a non-zero integer"),
     (["sweep=gyro", "seed=-1", *SWEEP], "seed must be an integer >= 0"),
-    (["sweep=gyro", "nominal.sigma=-1", *SWEEP], "nominal.sigma must be >= 0"),
-    (["sweep=gyro", "sweep.rate_hz=0", *SWEEP], "sweep.rate_hz must be > 0"),
+    (["sweep=gyro", "nominal.sigma=-1", *SWEEP], "nominal.sigma must be in [0,"),
+    (["sweep=gyro", "sweep.rate_hz=0", *SWEEP], "sweep.rate_hz must be in (0,"),
     (["sweep=gyro", "+sweep.trials=0", "progress=false"], "unknown key(s) sweep.trials"),
     (["sweep=gyro", "trials=0", "progress=false"], "trials must be an integer >= 1"),
     (["sweep=gyro", "trials=2.7", "progress=false"], "trials must be an integer >= 1, got 2.7"),
@@ -88,6 +88,31 @@ CASES = [
     (["sweep=wushi", "+options.magical.bogus=1", "progress=false", "trials=1"],
      "unknown option(s) bogus for magical"),
     (["sweep=wushi", "sweep.N=9", *SWEEP], "sweep.N must be an integer >= 10"),
+    # misspelt keys: one line with the key meant
+    (["trails=5"], "unknown key 'trails'; did you mean 'trials'?"),
+    (["+trails=5"], "unknown key 'trails'; did you mean 'trials'?"),
+    (["nominal.Kk=5"], "did you mean 'nominal.K'?"),
+    (["sweep=gyro", "sweep.rate_hx=5"], "(did you mean sweep.rate_hz?)"),
+    # values that once ran out of memory, overflowed or failed every row
+    (["nominal.K=100000000", *SWEEP], "nominal.K must be an integer in"),
+    (["nominal.sigma=1e308", *SWEEP], "nominal.sigma must be in [0,"),
+    (["nominal.beta=1e308", *SWEEP], "nominal.beta must be in [0,"),
+    (["nominal.gamma=1e308", *SWEEP], "nominal.gamma must be in [0,"),
+    (["nominal.alpha=[1e308,1e308]", *SWEEP], "nominal.alpha[0] must be in"),
+    (["sweep=gyro", "sweep.rate_hz=1e9", *SWEEP], "sweep.rate_hz must be in"),
+    (["sweep=wushi", "sweep.time_N=[1000000000]", *SWEEP], "sweep.time_N[0] must be an integer"),
+    (["options.magical.max_iter=abc", "progress=false"], "options.magical.max_iter must be"),
+    (["options.magical.max_iter=-5", "progress=false"], "options.magical.max_iter must be"),
+    (["options.magical.max_iter=1.5", "progress=false"], "options.magical.max_iter must be"),
+    (["options.magical.max_iter=[1,2]", "progress=false"], "options.magical.max_iter must be"),
+    (["call_timeout_s=1e300", *SWEEP], "call_timeout_s must be in (0,"),
+    (["algorithms=[fang,fang]", "progress=false"], "algorithms lists fang more than once"),
+    (["results_dir=null", *SWEEP], "results_dir must be a folder path"),
+    (["progress=abc", "trials=1"], "progress must be true or false"),
+    (["algorithms=[sar_ls]", "progress=false"], "sar_ls need(s) gyro data"),
+    (["plugins=[.evil]", *SWEEP], "plugin module '.evil' is relative"),
+    (["plugins=[tests.plugins.raises_on_import]", *SWEEP], "failed to import: RuntimeError"),
+    (["backend=dask", "scheduler_address=garbage", *SWEEP], "scheduler_address must be"),
     (["sweep=baseline", "+sweep.rate_hz=3", *SWEEP], "unknown key(s) sweep.rate_hz"),
     (["calibrate", "file={rec}", "seed=-1"], "seed must be an integer >= 0"),
     (["calibrate", "file={rec}", "max_samples=0"], "max_samples must be an integer >= 8"),
@@ -120,3 +145,14 @@ def test_gzip_input_is_read_as_the_plain_file(files, tmp_path):
     a = json.loads((tmp_path / "gz" / "calibration.json").read_text())
     b = json.loads(files["cal"].read_text())
     assert a["T"] == b["T"] and a["h"] == b["h"]
+
+
+@pytest.mark.parametrize("methods_key", ["plugins", "methods"])
+def test_a_plugin_with_a_syntax_error_is_one_line(methods_key, tmp_path, monkeypatch, capsys):
+    (tmp_path / "broken_plugin.py").write_text("def fit(:\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    args = (["plugins=[broken_plugin]", *SWEEP] if methods_key == "plugins"
+            else ["methods", "plugins=[broken_plugin]"])
+    assert main(args) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "failed to import: SyntaxError" in err[0], err

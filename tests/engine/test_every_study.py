@@ -57,7 +57,7 @@ KINDS = ["review", "gyro", "wushi", "real"]
 
 
 def table(folder: Path, name: str) -> pd.DataFrame:
-    return pd.read_csv(folder / name, keep_default_na=False).drop(columns="time_s")
+    return pd.read_csv(folder / name, keep_default_na=False)
 
 
 @pytest.mark.parametrize("n_jobs", [1, 2])

@@ -62,7 +62,7 @@ def wait_for_parts(folder: Path, count: int, proc: subprocess.Popen, limit: floa
 
 
 def read_without_time(path: Path) -> pd.DataFrame:
-    return pd.read_csv(path, keep_default_na=False).drop(columns="time_s")
+    return pd.read_csv(path, keep_default_na=False)
 
 
 def test_a_killed_sweep_resumes_to_the_same_rows(tmp_path):
@@ -117,7 +117,7 @@ def test_dask_backend_gives_the_same_rows(tmp_path):
     s = spec(["magical", "dorveaux"], trials=6, plugins=())
     local, _ = run_sweep(s, tmp_path / "local", n_jobs=1, chunk_size=2)
     dask, _ = run_sweep(s, tmp_path / "dask", n_jobs=2, chunk_size=2, backend="dask")
-    pd.testing.assert_frame_equal(local.drop(columns="time_s"), dask.drop(columns="time_s"))
+    pd.testing.assert_frame_equal(local, dask)
 
 
 def test_cli_rejects_a_missing_plugin(tmp_path):
@@ -133,7 +133,7 @@ def test_cli_rejects_a_bad_backend_and_timeout(tmp_path, capsys):
     assert main(["backend=spark", f"results_dir={tmp_path}"]) == 2
     assert "backend must be 'loky' or 'dask'" in capsys.readouterr().err
     assert main(["call_timeout_s=-1", f"results_dir={tmp_path}"]) == 2
-    assert "call_timeout_s must be > 0" in capsys.readouterr().err
+    assert "call_timeout_s must be in (0," in capsys.readouterr().err
 
 
 @pytest.mark.skipif(os.name != "posix", reason="SIGALRM timers are POSIX only")

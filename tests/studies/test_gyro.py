@@ -42,7 +42,7 @@ def test_sweep_end_to_end_writes_files_and_section(tmp_path):
     summary = spec.summarize(tmp_path / "gyro")
     write_gyro_figure(summary, tmp_path / "gyro")
     trials = read_trials(tmp_path / "gyro" / "trials.csv")
-    assert list(trials.columns) == GYRO_ROW_COLUMNS
+    assert list(trials.columns) == [*GYRO_ROW_COLUMNS, "time_s"]   # time_s from its sidecar
     assert len(trials) == len(spec.points) * spec.trials * len(ALGOS)
     on_disk = pd.read_csv(tmp_path / "gyro" / "trials.csv")
     assert len(on_disk) == len(trials)
@@ -67,9 +67,10 @@ def test_cli_dispatches_the_gyro_sweep(tmp_path, capsys):
     assert list(trials["algorithm"]) == ["sar_ls", "magyc_nls"]
     assert (tmp_path / "gyro" / "section.md").exists()
     assert main(["sweep=gyro", "sweep.coverage=[nowhere]", f"results_dir={tmp_path}"]) == 2
-    from magbench.cli.config import compose_config, gyro_study
+    from magbench.cli.config import compose_config
+    from magbench.cli.kinds import study_for
 
-    spec, _ = gyro_study(compose_config(["sweep=gyro"]))
+    spec, _ = study_for(compose_config(["sweep=gyro"]))
     assert set(spec.algorithms) == set(magbench.methods())      # 'all' includes gyro methods
     assert len(spec.points) == 9 and spec.trials == 30
     assert "unknown coverage" in capsys.readouterr().err

@@ -60,7 +60,7 @@ def test_report_section_reads_the_csv_files(tmp_path):
 def test_reproduce_times_add_up_and_read_the_calls_time(tmp_path):
     (tmp_path / "gamma").mkdir()
     pd.DataFrame({"algorithm": ["a", "b", "a"], "time_s": [1.0, 2.0, 0.5]}).to_csv(
-        tmp_path / "gamma" / "trials.csv", index=False)
+        tmp_path / "gamma" / "trials_times.csv", index=False)
     steps = [{"step": "start-up", "wall_s": 1.0, "cpu_s": 1.0, "load_1min": 0.1},
              {"step": "gamma", "wall_s": 3.0, "cpu_s": 5.0, "load_1min": 0.2},
              {"step": "report", "wall_s": 6.0, "cpu_s": 6.0, "load_1min": 0.3}]

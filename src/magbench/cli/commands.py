@@ -21,41 +21,20 @@ from magbench.cli.config import (
     check_common,
     compose_config,
     config_dir,
-    study_for,
     writable_folder,
 )
+from magbench.cli.kinds import Kind, get_kind, kind_names, kind_of, kind_of_sweep, study_for
 from magbench.core.files import write_csv_atomic, write_text_atomic
 from magbench.engine.record import cpu_model, cpu_seconds, git_commit, process_age_s
 from magbench.engine.sweep import run_study
-from magbench.figures.gyro import write_gyro_figure
-from magbench.figures.options import option_column, write_option_figure
-from magbench.figures.real import figure6, figure6_recordings
 from magbench.figures.speed import plot_scaling
-from magbench.figures.style import save_figure
-from magbench.figures.sweeps import FIGURES, write_figure
-from magbench.figures.wushi import write_wushi_figures
 from magbench.report import write_report
-from magbench.report.build import write_sweep_tables
-from magbench.report.gyro import gyro_report_section
-from magbench.report.real import real_report_section
 from magbench.report.speed import bench_report_section
-from magbench.report.wushi import evaluate_claims, wushi_report_section
-from magbench.studies import wushi
-from magbench.studies.review import with_coverage_column
 from magbench.studies.speed import format_reproduce_times, reproduce_times, run_bench
-from magbench.studies.timing import (
-    read_timing,
-    repeat_timing,
-    timing_is_current,
-    write_timing,
-)
+from magbench.studies.timing import repeat_timing
 
-__all__ = ["bench", "draw_figures", "report", "reproduce", "reproduce_sweeps", "run",
+__all__ = ["bench", "draw_figures", "report", "reproduce", "run", "sweep_names",
            "timing_check"]
-
-
-def _say(cfg: DictConfig, text: str) -> None:
-    print(text)
 
 
 def run(cfg: DictConfig, figures: bool = True) -> int:
@@ -63,92 +42,44 @@ def run(cfg: DictConfig, figures: bool = True) -> int:
 
     ``figures=False`` leaves the figures to a later ``report`` (as :func:`reproduce` does).
     """
+    kind = kind_of(cfg)
     study, common = study_for(cfg)
     out_dir = writable_folder(common["results_dir"], "results_dir") / study.name
     run_study(study, out_dir, n_jobs=common["n_jobs"], chunk_size=common["chunk_size"],
               backend=common["backend"], scheduler_address=common["scheduler_address"],
               progress=common["progress"], config=OmegaConf.to_container(cfg, resolve=True),
               overwrite=common["overwrite"])
-    kind = cfg.sweep.get("kind", "review")
-    if kind == "review" and not timing_is_current(study, out_dir):
-        # The timing protocol for tau (studies/timing.py): after the trials, workers gone.
-        write_timing(study, out_dir, progress=common["progress"])
-    if kind == "wushi":
-        wushi.finish(study, out_dir)
-    else:
-        study.summarize(out_dir)
-    if kind == "review":
-        write_sweep_tables(study.name, pd.read_csv(out_dir / "summary.csv"), out_dir,
-                           delta=study.delta)
-    drawn = draw_sweep_figures(kind, study.name, out_dir) if figures else []
-    _write_section(kind, out_dir)
+    kind.finish(study, out_dir, common)
+    drawn = kind.figures(study.name, out_dir) if figures else []
+    if kind.section is not None:
+        kind.section(out_dir)
     table = next(iter(study.tables.values()))[0]
     trials = pd.read_csv(out_dir / table, usecols=["ok"])
     n_bad = int((~trials["ok"].astype(bool)).sum())
     shown = ", ".join(p.name for p in drawn) or ("no figure for this sweep" if figures
                                                     else "drawn by the report")
-    _say(cfg, f"sweep {study.name}: {len(trials)} rows ({n_bad} not ok) -> {out_dir}/ "
-              f"({table}, figures: {shown})")
+    print(f"sweep {study.name}: {len(trials)} rows ({n_bad} not ok) -> {out_dir}/ "
+          f"({table}, figures: {shown})")
     return 0
 
 
-def draw_sweep_figures(kind: str, name: str, out_dir: Path) -> list[Path]:
-    """Draw the figures of one sweep from its CSV files; the paths written."""
-    out_dir = Path(out_dir)
-    if kind == "review":
-        if not (out_dir / "summary.csv").exists():
-            return []
-        summary = pd.read_csv(out_dir / "summary.csv")
-        if option_column(summary):       # a method-option sweep (vary: options.<m>.<option>)
-            return [write_option_figure(summary, out_dir, name)]
-        if name not in FIGURES:
-            return []
-        timing = read_timing(out_dir)
-        if name == "coverage":
-            summary = with_coverage_column(summary)
-            timing = None if timing is None else with_coverage_column(timing)
-        return list(write_figure(summary, name, out_dir, timing))[:1]
-    if kind == "gyro" and (out_dir / "summary.csv").exists():
-        return [write_gyro_figure(pd.read_csv(out_dir / "summary.csv"), out_dir)]
-    if kind == "real" and (out_dir / "fig6_real.csv").exists():
-        per_method = pd.read_csv(out_dir / "fig6_real.csv")
-        per_recording = pd.read_csv(out_dir / "real_summary.csv")
-        return [save_figure(figure6(per_method), out_dir / "fig6_real.png"),
-                save_figure(figure6_recordings(per_method, per_recording),
-                            out_dir / "fig6_real_recordings.png")]
-    if kind == "wushi" and (out_dir / "fig5_time.csv").exists():
-        return write_wushi_figures(out_dir)
-    return []
-
-
-def _write_section(kind: str, out_dir: Path) -> None:
-    """The sweep's own Markdown beside its files (the gyro, real and Wu-Shi studies)."""
-    if kind == "gyro":
-        write_text_atomic(gyro_report_section(out_dir.parent), out_dir / "section.md")
-    elif kind == "real":
-        write_text_atomic(real_report_section(out_dir.parent, "fig6_real.png") + "\n",
-                          out_dir / "real.md")
-    elif kind == "wushi":
-        settings = wushi.read_settings(out_dir)
-        claims = evaluate_claims(out_dir.parent, int(float(settings["converge_within"])),
-                                 float(settings["claimed_ratio"]))
-        write_csv_atomic(claims, out_dir / "claims.csv")
-        write_text_atomic(wushi_report_section(out_dir.parent, link_prefix=""),
-                          out_dir / "wushi.md")
-
-
-#: Result folders and their sweep kinds, as ``make reproduce`` writes them.
-SWEEP_FOLDERS = {"gamma": "review", "beta": "review", "K": "review", "sigma": "review",
-                 "coverage": "review", "p0": "review", "gyro": "gyro", "real": "real",
-                 "wushi": "wushi"}
+def result_folders(results_dir: Path) -> dict[str, Kind]:
+    """The sweeps of ``conf/sweep/`` that have a folder under ``results_dir``, with their
+    kinds."""
+    out = {}
+    for name in sweep_names():
+        kind = kind_of_sweep(name)
+        if kind is not None and (results_dir / name).is_dir():
+            out[name] = kind
+    return out
 
 
 def draw_figures(results_dir: Path | str) -> list[Path]:
     """Redraw every figure under ``results_dir`` from its CSV files."""
     results_dir = Path(results_dir)
     written = []
-    for name, kind in SWEEP_FOLDERS.items():
-        written += draw_sweep_figures(kind, name, results_dir / name)
+    for name, kind in result_folders(results_dir).items():
+        written += kind.figures(name, results_dir / name)
     if (results_dir / "bench" / "calls.csv").exists():
         written.append(plot_scaling(pd.read_csv(results_dir / "bench" / "calls.csv"),
                                     results_dir / "bench" / "scaling.png"))
@@ -178,11 +109,12 @@ def bench(cfg: DictConfig) -> int:
 REPRODUCE_ORDER = ("baseline", "gamma", "beta", "K", "sigma", "coverage", "wushi", "gyro", "real")
 
 
-def reproduce_sweeps() -> list[str]:
+def sweep_names() -> list[str]:
     """Every sweep of ``conf/sweep/``, in :data:`REPRODUCE_ORDER` and then by name."""
     found = sorted(p.stem for p in (config_dir() / "sweep").glob("*.yaml"))
     return [s for s in REPRODUCE_ORDER if s in found] + [s for s in found
                                                          if s not in REPRODUCE_ORDER]
+
 
 
 def reproduce(overrides: Sequence[str]) -> int:
@@ -208,11 +140,11 @@ def reproduce(overrides: Sequence[str]) -> int:
                       "cpu_s": cpu_seconds() - cpu, "load_1min": load})
 
     sweeps = []
-    for name in reproduce_sweeps():
+    for name in sweep_names():
         sweep_cfg = compose_config([*overrides, f"sweep={name}", "overwrite=true"])
-        if sweep_cfg.sweep.get("kind") == "real" and not sweep_cfg.get("data_dir"):
+        if kind_of(sweep_cfg).needs_data and not sweep_cfg.get("data_dir"):
             print(f"sweep {name} skipped: set MAGBENCH_DATA to a folder of recordings "
-                  "(see README, Real data)")
+                  "(see docs/sweeps.md, Real data)")
             continue
         study_for(sweep_cfg)  # every sweep's config is checked before any of them runs
         sweeps.append(sweep_cfg)
@@ -237,10 +169,11 @@ def timing_check(cfg: DictConfig) -> int:
     10 %) and prints the comparison."""
     from magbench.cli.config import UsageError
 
+    if not kind_of(cfg).timed:
+        timed = [k.name for k in map(get_kind, kind_names()) if k.timed]
+        raise UsageError(f"timing_check times a sweep with a timing protocol (kind "
+                         f"{', '.join(timed)}), got sweep={cfg.sweep.name}")
     study, common = study_for(cfg)
-    if cfg.sweep.get("kind", "review") != "review":
-        raise UsageError(f"timing_check times a review sweep (baseline, gamma, beta, K, sigma, "
-                         f"coverage), got sweep={study.name}")
     folder = common["results_dir"] / "bench"
     passes, comparison = repeat_timing(
         study, progress=(lambda line: print(line, file=sys.stderr)) if common["progress"]
@@ -264,6 +197,7 @@ def report(cfg: DictConfig) -> int:
                          "folder a sweep wrote (python -m magbench sweep=NAME results_dir=...)")
     writable_folder(results_dir, "results_dir")
     figures = draw_figures(results_dir)
-    path = write_report(results_dir)
+    sections = [k.report for k in map(get_kind, kind_names()) if k.report is not None]
+    path = write_report(results_dir, sections)
     print(f"report written to {path} ({len(figures)} figures redrawn from the CSV files)")
     return 0

@@ -1,17 +1,21 @@
 """The one configuration check: every command's composed config is checked here, once.
 
 A bad value gives :class:`UsageError`, printed as one line naming the key and what is expected,
-with exit status 2, before any result is touched. Each study gets its settings from one
-builder here (:func:`review_study`, :func:`gyro_study`, :func:`real_study`,
-:func:`wushi_study`); ``calibrate`` uses the same checks for its keys.
+with exit status 2, before any result is touched. The checks of the keys every sweep shares are
+here; each study kind declares its own ``sweep.*`` keys as :class:`Key` s (default, meaning,
+check) in its module of :mod:`magbench.cli.kinds`, read by :func:`read_keys`; ``calibrate`` uses
+the same checks for its keys.
 """
 
 from __future__ import annotations
 
+import dataclasses
+import difflib
 import math
 import os
 import tempfile
 from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -20,22 +24,34 @@ from omegaconf import DictConfig, OmegaConf
 from magbench.engine.plugins import load_plugins
 from magbench.methods.registry import get_method, methods
 
-# Each study is imported by its own builder, so that a command loads only what it runs
-# (``calibrate`` starts in a third of the time without the gyro and Wu-Shi studies).
 if TYPE_CHECKING:
     from magbench.sources.synthetic import Point
-    from magbench.studies.gyro import GyroStudy
-    from magbench.studies.real import RealStudy
-    from magbench.studies.review import OptionAxis, ReviewStudy
-    from magbench.studies.wushi import WuShiStudy
 
-__all__ = ["KINDS", "UsageError", "check_columns", "check_common", "check_integer", "check_number",
-           "check_options", "compose_config", "config_dir", "gyro_study", "real_study",
-           "review_study", "selected_algorithms", "study_for", "writable_folder",
-           "wushi_study"]
-
-#: Sweep kinds: the review's sweeps and coverage are "review"; the others name their study.
-KINDS = ("review", "gyro", "real", "wushi")
+__all__ = [
+    "Key",
+    "UsageError",
+    "base_config",
+    "check_columns",
+    "check_common",
+    "check_integer",
+    "check_number",
+    "check_options",
+    "check_override_keys",
+    "check_trials",
+    "compose_config",
+    "config_dir",
+    "did_you_mean",
+    "field_default",
+    "integer",
+    "is_list_of",
+    "nominal_point",
+    "number",
+    "plain",
+    "point_checks",
+    "read_keys",
+    "selected_algorithms",
+    "writable_folder",
+]
 
 
 class UsageError(Exception):
@@ -56,8 +72,55 @@ def config_dir() -> Path:
                      "MAGBENCH_CONF")
 
 
+def did_you_mean(word: str, choices: Sequence[str] | dict) -> str | None:
+    """The closest of ``choices`` to a misspelt ``word``, or None when none is close."""
+    close = difflib.get_close_matches(word, list(choices), n=1, cutoff=0.6)
+    return close[0] if close else None
+
+
+def base_config() -> dict:
+    """``conf/config.yaml`` as plain data, without its defaults list."""
+    import yaml
+
+    data = yaml.safe_load((config_dir() / "config.yaml").read_text()) or {}
+    data.pop("defaults", None)
+    return data
+
+
+#: Sections whose keys are open: a sweep's keys are checked by its kind once composed, a
+#: method's options by :func:`check_options`, Hydra's own by Hydra.
+_OPEN_SECTIONS = ("sweep", "options", "hydra")
+
+
+def check_override_keys(overrides: Sequence[str]) -> None:
+    """Refuse an override of a key the configuration does not have, with a suggestion.
+
+    Hydra would advise ``+key=value``, which then runs with the misspelt key ignored.
+    """
+    base = base_config()
+    for override in overrides:
+        path = override.lstrip("+~").split("=", 1)[0].split(".")
+        if path[0] in _OPEN_SECTIONS:
+            continue
+        node: object = base
+        for depth, key in enumerate(path):
+            if not isinstance(node, dict):
+                break
+            if key not in node:
+                where = ".".join(path[:depth])
+                known = [f"{where}.{k}" if where else k for k in node]
+                full = ".".join(path[:depth + 1])
+                close = did_you_mean(full, known)
+                hint = f"; did you mean {close!r}?" if close else ""
+                raise UsageError(f"unknown key {full!r}{hint} (python -m magbench COMMAND "
+                                 "--help lists the keys a command reads)")
+            node = node[key]
+
+
 def compose_config(overrides: Sequence[str]) -> DictConfig:
-    """Compose ``conf/config.yaml`` with Hydra overrides (``key=value`` strings)."""
+    """Compose ``conf/config.yaml`` with Hydra overrides (``key=value`` strings), after
+    :func:`check_override_keys`."""
+    check_override_keys(overrides)
     from hydra import compose, initialize_config_dir
     from hydra.errors import HydraException
     from omegaconf.errors import OmegaConfBaseException
@@ -80,6 +143,14 @@ def check_integer(value: object, what: str, low: int, high: int | None = None) -
         raise UsageError(f"{what} must be an integer <= {high}, got {value!r}")
     return value
 
+
+#: The largest dataset a synthetic point may ask for: every trial holds K x 3 samples and a few
+#: copies per method; beyond this a worker runs out of memory rather than failing in one line.
+MAX_K = 1_000_000
+
+#: The largest sigma, beta, gamma or alpha (field units, the field has norm 1): larger values
+#: overflow in squares of the samples and no calibration problem is that distorted.
+MAX_DISTORTION = 1000.0
 
 #: The most trials a sweep accepts: its work units are listed in memory before the run (a
 #: million trials of eight points is 8e6 units, about 1 GB), and 250 is the review's size.
@@ -107,7 +178,60 @@ def check_number(value: object, what: str, ok: Callable[[float], bool], expected
     return float(value)
 
 
-def _plain(node: object) -> object:
+@dataclass(frozen=True)
+class Key:
+    """One ``sweep.*`` key of a study kind: its default, what it means, and its check.
+
+    ``check(value, what)`` returns the checked value (converted if need be) or raises
+    :class:`UsageError` naming ``what``, the full key.
+    """
+
+    name: str
+    default: object
+    meaning: str
+    check: Callable[[object, str], object]
+
+
+def read_keys(section: DictConfig, keys: Sequence[Key], prefix: str) -> dict:
+    """``name -> checked value`` of ``keys`` in ``section`` (each key's default when absent)."""
+    return {k.name: k.check(plain(section.get(k.name, k.default)), f"{prefix}{k.name}")
+            for k in keys}
+
+
+def field_default(cls: type, name: str) -> object:
+    """The default of the dataclass field ``name`` of ``cls`` (the study's single source)."""
+    for f in dataclasses.fields(cls):
+        if f.name == name:
+            if f.default is not dataclasses.MISSING:
+                return f.default
+            if f.default_factory is not dataclasses.MISSING:
+                return f.default_factory()
+    raise KeyError(f"{cls.__name__} has no field {name!r} with a default")
+
+
+def number(ok: Callable[[float], bool], expected: str) -> Callable[[object, str], float]:
+    """A :class:`Key` check: a finite number for which ``ok`` holds."""
+    return lambda value, what: check_number(value, what, ok, expected)
+
+
+def integer(low: int, high: int | None = None) -> Callable[[object, str], int]:
+    """A :class:`Key` check: an integer in [``low``, ``high``]."""
+    return lambda value, what: check_integer(value, what, low, high)
+
+
+def is_list_of(check: Callable[[object, str], object]) -> Callable[[object, str], list]:
+    """A :class:`Key` check: a non-empty list whose every item passes ``check``."""
+    def check_list(value: object, what: str) -> list:
+        value = plain(value)
+        if not isinstance(value, list | tuple) or not value:
+            raise UsageError(f"{what} must be a non-empty list, e.g. {what}=[1,2], "
+                             f"got {value!r}")
+        return [check(v, f"{what}[{i}]") for i, v in enumerate(value)]
+    return check_list
+
+
+def plain(node: object, what: str = "") -> object:
+    """``node`` as plain Python data (lists, dicts) if it is an OmegaConf node."""
     return OmegaConf.to_container(node, resolve=True) if OmegaConf.is_config(node) else node
 
 
@@ -118,7 +242,7 @@ def selected_algorithms(cfg: DictConfig, include_gyro: bool = False) -> list[str
     ``include_gyro`` (for data that have angular rate: the gyro sweep, real recordings).
     """
     known = methods()
-    chosen = _plain(cfg.algorithms)
+    chosen = plain(cfg.algorithms)
     if chosen == "all":
         return [m for m in known if include_gyro or not get_method(m).needs_gyro]
     chosen = [chosen] if isinstance(chosen, str) else list(chosen or [])
@@ -126,13 +250,21 @@ def selected_algorithms(cfg: DictConfig, include_gyro: bool = False) -> list[str
     if unknown or not chosen:
         raise UsageError(f"unknown algorithm(s) {', '.join(map(str, unknown)) or '(none given)'}"
                          f"; expected 'all' or a list from: {', '.join(known)}")
+    twice = sorted({a for a in chosen if chosen.count(a) > 1})
+    if twice:
+        raise UsageError(f"algorithms lists {', '.join(twice)} more than once; name each "
+                         "method once")
+    gyro = [a for a in chosen if get_method(a).needs_gyro]
+    if gyro and not include_gyro:
+        raise UsageError(f"{', '.join(gyro)} need(s) gyro data, which this sweep does not "
+                         "simulate; run them with sweep=gyro or sweep=real")
     return chosen
 
 
 def check_options(cfg: DictConfig, algorithms: Sequence[str]) -> dict[str, dict]:
     """``options.<method>.<option>`` values, each naming a selected method and one of its
     options (:meth:`magbench.methods.registry.Method.option_names`)."""
-    options = _plain(cfg.get("options")) or {}
+    options = plain(cfg.get("options")) or {}
     if not isinstance(options, dict):
         raise UsageError("options must map method names to option dicts, e.g. "
                          "options.magical.max_iter=100")
@@ -149,18 +281,40 @@ def check_options(cfg: DictConfig, algorithms: Sequence[str]) -> dict[str, dict]
         if bad:
             raise UsageError(f"unknown option(s) {', '.join(bad)} for {name}; it accepts: "
                              f"{', '.join(accepted) or 'no options'}")
+        defaults = option_defaults(name)
+        for option, value in opts.items():
+            check_option_value(value, defaults.get(option), f"options.{name}.{option}")
         out[name] = dict(opts)
     return out
+
+
+def option_defaults(name: str) -> dict[str, object]:
+    """``option -> default`` of the registered method ``name`` (options without one omitted)."""
+    import inspect
+
+    params = inspect.signature(get_method(name).fit).parameters
+    return {o: params[o].default for o in get_method(name).option_names()
+            if params[o].default is not inspect.Parameter.empty}
+
+
+def check_option_value(value: object, default: object, what: str) -> object:
+    """``value`` if it has the type of the option's ``default`` (an integer option takes a
+    non-negative integer, a float option a finite number, a flag true or false)."""
+    if isinstance(default, bool):
+        return _flag(value, what)
+    if isinstance(default, int):
+        return check_integer(value, what, 0)
+    if isinstance(default, float):
+        return check_number(value, what, lambda v: True, "(a finite number)")
+    if isinstance(default, str) and not isinstance(value, str):
+        raise UsageError(f"{what} must be a name like its default {default!r}, got {value!r}")
+    return value
 
 
 def check_common(cfg: DictConfig) -> dict:
     """Keys every sweep shares: seed, n_jobs, chunk_size, delta, backend, call_timeout_s,
     plugins (imported here, so their methods are known to the checks that follow)."""
-    plugins = [str(p) for p in (_plain(cfg.get("plugins")) or [])]
-    try:
-        load_plugins(plugins)
-    except ValueError as exc:
-        raise UsageError(str(exc)) from None
+    plugins = _plugins(cfg)
     n_jobs = cfg.n_jobs
     if isinstance(n_jobs, bool) or not isinstance(n_jobs, int) or n_jobs == 0:
         raise UsageError(f"n_jobs must be a non-zero integer (-1 = every core), got {n_jobs!r}")
@@ -173,14 +327,53 @@ def check_common(cfg: DictConfig) -> dict:
         "chunk_size": check_integer(cfg.chunk_size, "chunk_size", 1),
         "delta": check_number(cfg.delta, "delta", lambda d: 0 < d < 1, "in (0, 1)"),
         "backend": str(cfg.backend),
-        "scheduler_address": cfg.get("scheduler_address"),
+        "scheduler_address": _scheduler_address(cfg.get("scheduler_address")),
         "call_timeout_s": None if timeout is None else check_number(
-            timeout, "call_timeout_s", lambda t: t > 0, "> 0 seconds (or null for no limit)"),
+            timeout, "call_timeout_s", lambda t: 0 < t <= MAX_TIMEOUT_S,
+            f"in (0, {MAX_TIMEOUT_S:g}] seconds (or null for no limit)"),
         "plugins": tuple(plugins),
-        "progress": bool(cfg.progress),
+        "progress": _flag(cfg.progress, "progress"),
         "overwrite": _flag(cfg.get("overwrite", False), "overwrite"),
         "results_dir": _results_dir(cfg),
     }
+
+
+#: The longest time limit of one call (a week): beyond it the deadline overflows the clock.
+MAX_TIMEOUT_S = 604_800.0
+
+
+def _plugins(cfg: DictConfig) -> list[str]:
+    """The ``plugins`` list, each module imported: any failure to import is one line."""
+    plugins = plain(cfg.get("plugins")) or []
+    if not isinstance(plugins, list) or not all(isinstance(p, str) and p for p in plugins):
+        raise UsageError(f"plugins must be a list of module names, e.g. plugins=[mylab.method], "
+                         f"got {plugins!r}")
+    for name in plugins:
+        if name.startswith("."):
+            raise UsageError(f"plugin module {name!r} is relative; give its full name, e.g. "
+                             "mylab.method")
+        try:
+            load_plugins([name])
+        except ValueError as exc:
+            raise UsageError(str(exc)) from None
+        except Exception as exc:   # a plugin's own code failing at import, of any kind
+            text = " ".join(str(exc).split())
+            raise UsageError(f"plugin module {name!r} failed to import: "
+                             f"{type(exc).__name__}: {text}") from None
+    return plugins
+
+
+def _scheduler_address(value: object) -> str | None:
+    """A Dask scheduler address such as tcp://10.0.0.5:8786, or None."""
+    import re
+
+    if value is None:
+        return None
+    if not isinstance(value, str) or not re.fullmatch(
+            r"((tcp|tls|ucx|ws|wss)://)?[^\s:/]+:\d{1,5}", value):
+        raise UsageError(f"scheduler_address must be a Dask scheduler address such as "
+                         f"tcp://10.0.0.5:8786, or null for a local cluster, got {value!r}")
+    return value
 
 
 def _flag(value: object, key: str) -> bool:
@@ -190,250 +383,62 @@ def _flag(value: object, key: str) -> bool:
 
 
 def _results_dir(cfg: DictConfig) -> Path:
+    if not isinstance(cfg.get("results_dir"), str) or not cfg.results_dir:
+        raise UsageError(f"results_dir must be a folder path, e.g. results_dir=results, got "
+                         f"{cfg.get('results_dir')!r}")
     path = Path(str(cfg.results_dir)).expanduser()
-    for parent in [path, *path.parents]:
-        if parent.exists():
-            if not parent.is_dir():
-                raise UsageError(f"results_dir {path} cannot be created: {parent} is a file; "
-                                 "expected a folder")
-            if not os.access(parent, os.W_OK | os.X_OK):
-                raise UsageError(f"results_dir {path} is not writable ({parent}); choose a "
-                                 "folder you can write to")
-            break
+    _no_file_in_the_way(path, "results_dir")
     return path
 
 
-def _trials(cfg: DictConfig, what: str) -> int:
+def check_trials(cfg: DictConfig, what: str) -> int:
+    """The top-level ``trials``, required by ``what``."""
     if cfg.get("trials") is None:
         raise UsageError(f"trials must be set for {what}")
     return check_integer(cfg.trials, "trials", 1, MAX_TRIALS)
 
 
-def _nominal(cfg: DictConfig, min_k: int) -> Point:
+def nominal_point(cfg: DictConfig, min_k: int) -> Point:
+    """The checked nominal point of eq. (80) (``nominal.*``)."""
     from magbench.sources.synthetic import Point
     from magbench.studies.review import POINT_COLUMNS
 
     nominal = cfg.nominal
-    alpha = _plain(nominal.alpha)
+    alpha = plain(nominal.alpha)
     if not isinstance(alpha, list) or len(alpha) != 2:
         raise UsageError(f"nominal.alpha must be a list [low, high], got {alpha!r}")
-    lo = check_number(alpha[0], "nominal.alpha[0]", lambda a: a > 0, "> 0")
-    hi = check_number(alpha[1], "nominal.alpha[1]", lambda a: a >= lo, f">= {lo}")
+    lo = check_number(alpha[0], "nominal.alpha[0]", lambda a: 0 < a <= MAX_DISTORTION,
+                      f"in (0, {MAX_DISTORTION}]")
+    hi = check_number(alpha[1], "nominal.alpha[1]", lambda a: lo <= a <= MAX_DISTORTION,
+                      f"in [{lo}, {MAX_DISTORTION}]")
     for key in POINT_COLUMNS:
         if key in nominal:
-            check_number(nominal[key], f"nominal.{key}", *_POINT_CHECKS(min_k)[key])
+            check_number(nominal[key], f"nominal.{key}", *point_checks(min_k)[key])
     return Point(int(nominal.K), float(nominal.sigma), float(nominal.beta),
                  float(nominal.gamma), lo, hi)
 
 
-def _POINT_CHECKS(min_k: int) -> dict:
-    return {"K": (lambda k: k >= min_k and k == int(k),
-                  f"an integer >= {min_k} (the largest minimum of the chosen methods)"),
-            "sigma": (lambda s: s >= 0, ">= 0"), "beta": (lambda b: b >= 0, ">= 0"),
-            "gamma": (lambda g: g >= 0, ">= 0"),
+def point_checks(min_k: int) -> dict:
+    """``key -> (ok, expected)`` for every parameter of a review point."""
+    return {"K": (lambda k: min_k <= k <= MAX_K and k == int(k),
+                  f"an integer in [{min_k}, {MAX_K}] (the low end is the largest minimum "
+                  "of the chosen methods)"),
+            "sigma": (lambda s: 0 <= s <= MAX_DISTORTION, f"in [0, {MAX_DISTORTION}]"),
+            "beta": (lambda b: 0 <= b <= MAX_DISTORTION, f"in [0, {MAX_DISTORTION}]"),
+            "gamma": (lambda g: 0 <= g <= MAX_DISTORTION, f"in [0, {MAX_DISTORTION}]"),
             "cap_deg": (lambda c: 0 < c <= 180, "in (0, 180] degrees"),
             "band_deg": (lambda b: 0 < b <= 90, "in (0, 90] degrees")}
 
 
-def review_study(cfg: DictConfig) -> tuple[ReviewStudy, dict]:
-    """The review sweep (baseline, gamma, beta, K, sigma, coverage) and the common values."""
-    from magbench.studies.review import POINT_COLUMNS, ReviewStudy, point_with
-
-    common = check_common(cfg)
-    algorithms = selected_algorithms(cfg)
-    min_k = max(get_method(a).min_samples for a in algorithms)
-    base = _nominal(cfg, min_k)
-    sweep = cfg.sweep
-    vary = sweep.get("vary")
-    values = list(_plain(sweep.get("values")) or [])
-    if vary and not values:
-        raise UsageError(f"sweep {sweep.name!r} varies {vary} but lists no values")
-    axis = None
-    if isinstance(vary, str) and vary.startswith("options."):
-        # A method's option varied on the same datasets, at the nominal point.
-        axis = _option_axis(vary, values, algorithms)
-        vary = None
-    if vary is not None and vary not in POINT_COLUMNS:
-        raise UsageError(f"sweep.vary must be one of {', '.join(POINT_COLUMNS)}, "
-                         f"options.<method>.<option> or null, got {vary!r}")
-    # A sweep either varies one parameter over `values`, or lists its points explicitly as
-    # changes to the nominal point (`points: [{cap_deg: 90}, {band_deg: 10}]`).
-    changes = ([{vary: v} for v in values] if vary else
-               [dict(c) for c in (sweep.get("points") or [{}])])
-    checks = _POINT_CHECKS(min_k)
-    for change in changes:
-        for key, v in change.items():
-            if key not in checks:
-                raise UsageError(f"sweep point sets {key!r}; a point has "
-                                 f"{', '.join(POINT_COLUMNS)}")
-            check_number(v, f"sweep value {key}", *checks[key])
-    study = ReviewStudy(str(sweep.name), [point_with(base, c) for c in changes],
-                        _trials(cfg, f"sweep {sweep.name}"), common["seed"], algorithms,
-                        check_options(cfg, algorithms), common["delta"],
-                        common["call_timeout_s"], common["plugins"], axis)
-    return study, common
-
-
-def _option_axis(vary: str, values: list, algorithms: Sequence[str]) -> OptionAxis:
-    """The :class:`OptionAxis` of ``sweep.vary=options.<method>.<option>``, checked."""
-    from magbench.studies.review import OptionAxis
-
-    try:
-        axis = OptionAxis.parse(vary, values)
-    except ValueError as exc:
-        raise UsageError(str(exc)) from None
-    if axis.method not in algorithms:
-        raise UsageError(f"sweep.vary {vary} names {axis.method!r}, which is not among the "
-                         f"selected algorithms ({', '.join(algorithms)})")
-    accepted = get_method(axis.method).option_names()
-    if axis.option not in accepted:
-        raise UsageError(f"sweep.vary {vary}: {axis.method} has no option {axis.option!r}; it "
-                         f"accepts: {', '.join(accepted) or 'no options'}")
-    if any(v is None or isinstance(v, bool | dict) for v in values):
-        raise UsageError(f"sweep.values of {vary} must be numbers, strings or lists, got "
-                         f"{values!r}")
-    return axis
-
-
-def gyro_study(cfg: DictConfig) -> tuple[GyroStudy, dict]:
-    """The gyro sweep: coverages x gyro noise levels, ``trials`` manoeuvres each."""
-    from magbench.studies.gyro import DEFAULT_COVERAGES, GyroPoint, GyroStudy
-
-    common = check_common(cfg)
-    sweep = cfg.sweep
-    coverages = _plain(sweep.get("coverages")) or dict(DEFAULT_COVERAGES)
-    chosen = list(_plain(sweep.get("coverage")) or coverages)
-    unknown = [c for c in chosen if c not in coverages]
-    if unknown:
-        raise UsageError(f"unknown coverage(s) {', '.join(map(str, unknown))}; defined: "
-                         f"{', '.join(coverages)}")
-    noises = [check_number(g, "sweep.gyro_noise", lambda x: x >= 0, ">= 0 rad/s")
-              for g in (_plain(sweep.get("gyro_noise")) or [0.0])]
-    rate = check_number(sweep.get("rate_hz", 25.0), "sweep.rate_hz", lambda r: r > 0, "> 0 Hz")
-    duration = check_number(sweep.get("duration_s", 24.0), "sweep.duration_s",
-                            lambda d: d > 0, "> 0 s")
-    bias = check_number(sweep.get("gyro_bias_max", 0.02), "sweep.gyro_bias_max",
-                        lambda b: b >= 0, ">= 0 rad/s")
-    algorithms = selected_algorithms(cfg, include_gyro=True)
-    nominal = _nominal(cfg, 4)
-    study = GyroStudy(points=[GyroPoint(c, g, nominal.sigma) for c in chosen for g in noises],
-                      trials=_trials(cfg, "sweep gyro"), seed=common["seed"],
-                      algorithms=algorithms, options=check_options(cfg, algorithms),
-                      coverages=coverages, rate_hz=rate, duration_s=duration,
-                      beta=nominal.beta, gamma=nominal.gamma,
-                      alpha=(nominal.alpha_low, nominal.alpha_high), gyro_bias_max=bias,
-                      delta=common["delta"], call_timeout_s=common["call_timeout_s"],
-                      plugins=common["plugins"], name=str(sweep.name))
-    return study, common
-
-
-def real_study(cfg: DictConfig) -> tuple[RealStudy, dict]:
-    """The real-data sweep over the recordings in ``data_dir`` (one fit per recording: no
-    trials)."""
-    from magbench.sources.recordings import data_dir, list_recordings
-    from magbench.studies.real import DEFAULT_MAX_SAMPLES, PREPROCESSING, RealStudy
-
-    common = check_common(cfg)
-    if cfg.get("trials") is not None:
-        raise UsageError("trials does not apply to sweep=real (every recording is fitted once, "
-                         "deterministically); drop trials=")
-    try:
-        root = data_dir(cfg.get("data_dir"))
-    except ValueError as exc:
-        raise UsageError(str(exc)) from None
-    sweep = cfg.sweep
-    known = list_recordings(root)
-    chosen = _plain(sweep.get("datasets", "all"))
-    chosen = known if chosen == "all" else [chosen] if isinstance(chosen, str) else list(chosen)
-    unknown = [d for d in chosen if d not in known]
-    if unknown or not chosen:
-        raise UsageError(f"unknown recording(s) {', '.join(map(str, unknown)) or '(none)'} in "
-                         f"{root}; expected 'all' or a list from: {', '.join(known)}")
-    preprocess = _plain(sweep.get("preprocess", ["scale", "centre"]))
-    preprocess = [preprocess] if isinstance(preprocess, str) else list(preprocess)
-    bad = [p for p in preprocess if p not in PREPROCESSING]
-    if bad or not preprocess:
-        raise UsageError(f"sweep.preprocess must be a list from {', '.join(PREPROCESSING)}, "
-                         f"got {preprocess}")
-    algorithms = selected_algorithms(cfg, include_gyro=True)
-    study = RealStudy(
-        str(root), chosen, algorithms, tuple(preprocess),
-        check_integer(sweep.get("max_samples", DEFAULT_MAX_SAMPLES), "sweep.max_samples", 8),
-        check_options(cfg, algorithms), common["seed"], common["call_timeout_s"],
-        check_number(sweep.get("coverage_ratio", 0.5), "sweep.coverage_ratio",
-                     lambda r: 0 <= r <= 1, "in [0, 1]"),
-        check_number(sweep.get("sphere_factor", 2.0), "sweep.sphere_factor",
-                     lambda f: f > 0, "> 0"),
-        common["plugins"], str(sweep.name))
-    return study, common
-
-
-def wushi_study(cfg: DictConfig) -> tuple[WuShiStudy, dict]:
-    """Wu and Shi's simulation study: ``trials`` Monte Carlo runs of their section IV."""
-    from magbench.studies.wushi import ML, NM, WuShiStudy
-
-    common = check_common(cfg)
-    s = cfg.sweep
-
-    def integer(key: str, default: int, low: int = 1) -> int:
-        return check_integer(s.get(key, default), f"sweep.{key}", low)
-
-    algorithms = selected_algorithms(cfg)
-    min_n = max(get_method(m).min_samples for m in dict.fromkeys([ML, NM, *algorithms]))
-    N = integer("N", 300, min_n)
-    sigma = check_number(s.get("sigma", 0.003), "sweep.sigma", lambda x: x >= 0, ">= 0")
-    alphas = [check_number(a, "sweep.alphas_pct", lambda x: x >= 0, ">= 0")
-              for a in _plain(s.get("alphas_pct", [0, 1, 2, 3, 4, 5, 6, 7]))]
-    time_N = [check_integer(n, "sweep.time_N", min_n)
-              for n in _plain(s.get("time_N", [100, 200, 500, 1000, 2000, 3000]))]
-    thresholds = _plain(s.get("thresholds", {"ML": 0.004, "NM": 0.018}))
-    if not isinstance(thresholds, dict) or set(thresholds) != {"ML", "NM"}:
-        raise UsageError(f"sweep.thresholds must have keys ML and NM, got {thresholds!r}")
-    study = WuShiStudy(
-        runs=_trials(cfg, "sweep wushi"), N=N, sigma=sigma, seed=common["seed"],
-        algorithms=tuple(algorithms), alphas_pct=tuple(alphas),
-        thresholds={k: check_number(v, f"sweep.thresholds.{k}", lambda x: x > 0, "> 0")
-                    for k, v in thresholds.items()},
-        time_N=tuple(time_N), time_repeats=integer("time_repeats", 5),
-        time_calls=integer("time_calls", 3), max_iter=integer("max_iter", 50),
-        converge_within=integer("converge_within", 5),
-        control_runs=integer("control_runs", 10, low=0),
-        claimed_ratio=check_number(s.get("claimed_ratio", 10.0), "sweep.claimed_ratio",
-                                   lambda x: x > 0, "> 0"),
-        options=check_options(cfg, [*dict.fromkeys([ML, NM, *algorithms])]),
-        call_timeout_s=common["call_timeout_s"],
-        plugins=common["plugins"], name=str(s.name))
-    return study, common
-
-
-#: The ``sweep.*`` keys each kind reads; any other is refused rather than silently ignored
-#: (``+sweep.trials=0`` once ran a full gyro sweep: the count is the top-level ``trials``).
-SWEEP_KEYS = {
-    "review": ("name", "kind", "vary", "values", "points"),
-    "gyro": ("name", "kind", "vary", "values", "rate_hz", "duration_s", "gyro_bias_max",
-             "gyro_noise", "coverage", "coverages"),
-    "real": ("name", "kind", "vary", "values", "datasets", "max_samples", "preprocess",
-             "coverage_ratio", "sphere_factor"),
-    "wushi": ("name", "kind", "vary", "values", "N", "sigma", "alphas_pct", "thresholds",
-              "max_iter", "converge_within", "time_N", "time_repeats", "time_calls",
-              "claimed_ratio", "control_runs"),
-}
-
-
-def study_for(cfg: DictConfig):
-    """The study and common values of the sweep chosen by ``sweep=``."""
-    kind = cfg.sweep.get("kind", "review")
-    builders = {"review": review_study, "gyro": gyro_study, "real": real_study,
-                "wushi": wushi_study}
-    if kind not in builders:
-        raise UsageError(f"sweep.kind must be one of {', '.join(KINDS)}, got {kind!r}")
-    unknown = [str(k) for k in cfg.sweep if k not in SWEEP_KEYS[kind]]
-    if unknown:
-        hint = (" (the number of trials is the top-level key: trials=N)"
-                if "trials" in unknown else "")
-        raise UsageError(f"unknown key(s) sweep.{', sweep.'.join(unknown)} for a {kind} sweep"
-                         f"{hint}; it reads sweep.{', sweep.'.join(SWEEP_KEYS[kind][2:])}")
-    return builders[kind](cfg)
+def _no_file_in_the_way(path: Path, key: str) -> None:
+    """Refuse a folder ``path`` that is a file or lies below one (the check of a folder that
+    is not created yet: whether it can be written is tried by :func:`writable_folder`)."""
+    for parent in [path, *path.parents]:
+        if parent.exists() and not parent.is_dir():
+            what = "is" if parent == path else f"cannot be created: {parent} is"
+            raise UsageError(f"{key}={path} {what} a file; expected a folder")
+        if parent.exists():
+            return
 
 
 def writable_folder(path: Path | str, key: str) -> Path:
@@ -448,12 +453,7 @@ def writable_folder(path: Path | str, key: str) -> Path:
         ``path`` or one of its parents is a file, or the folder cannot be created or written.
     """
     path = Path(path).expanduser()
-    for parent in [path, *path.parents]:
-        if parent.exists() and not parent.is_dir():
-            what = "is" if parent == path else f"cannot be created: {parent} is"
-            raise UsageError(f"{key}={path} {what} a file; expected a folder")
-        if parent.exists():
-            break
+    _no_file_in_the_way(path, key)
     try:
         path.mkdir(parents=True, exist_ok=True)
         with tempfile.TemporaryFile(dir=path):

@@ -127,6 +127,23 @@ def sweep_kinds() -> list[tuple[str, str]]:
     return out
 
 
+def kind_keys_help() -> list[str]:
+    """The ``sweep.*`` keys of every registered study kind: default and meaning."""
+    from magbench.cli.kinds import get_kind, kind_names
+
+    lines = ["sweep keys by kind (sweep.<key>=value; default, meaning):"]
+    for name in kind_names():
+        kind = get_kind(name)
+        lines.append(f"  {name}: {kind.what}")
+        lines += [f"    {k.name:<16} {_short(k.default):<22} {k.meaning}" for k in kind.keys]
+    return lines
+
+
+def _short(value: object, width: int = 22) -> str:
+    text = str(value).replace("'", "")
+    return text if len(text) <= width else text[:width - 3] + "..."
+
+
 def methods_table() -> str:
     """The registry as text: name, label, family, gyro, minimum K, options and defaults."""
     import inspect
@@ -187,6 +204,8 @@ def command_help(command: str) -> str:
         lines.append(f"  {key:<18} {default:<22} {meaning}")
     if "sweep" in keys:
         lines += ["", "sweeps:"] + [f"  {n:<10} {w}" for n, w in sweep_kinds()]
+    if command == "run":
+        lines += ["", *kind_keys_help()]
     if command in ("run", "calibrate", "bench"):
         from magbench.methods.registry import methods
 
@@ -203,7 +222,9 @@ def _plain_keys(args: list[str]) -> list[str]:
     out = []
     for arg in args:
         bare = arg.lstrip("+")
-        if bare.startswith("options."):
+        if bare.startswith(("options.", "sweep.")):
+            # Added if new, so that a misspelt sweep key reaches the kind's check, which names
+            # the keys it reads, instead of Hydra's advice to add it with '+'.
             out.append(f"++{bare}")
         elif arg.startswith("+") and not arg.startswith("++") and \
                 bare.split("=", 1)[0].split(".", 1)[0] in known:

@@ -31,7 +31,7 @@ METHOD_STYLE: dict[str, tuple[str, str]] = {
     "wu_shi_nm": ("#882255", "<"), "ellipsoid": ("#332288", ">"), "fang": ("#117733", "h"),
     "sphere": ("#999933", "*"), "twostep_hi": ("#DDCC77", "p"),
     "vasconcelos_printed": ("#88CCEE", "d"), "wu_shi_printed": ("#AA4499", "8"),
-    # issue 14's hypotheses (Tol dark teal, a neutral grey; unfilled markers used nowhere else)
+    # Table 2's hypotheses (Tol dark teal, a neutral grey; unfilled markers used nowhere else)
     "twostep_no_svd": ("#225555", "x"), "crassidis_prior": ("#555555", "+"),
     "sar_ls": ("#CC6677", "H"), "sar_kf": ("#44AA99", "o"), "sar_aid": ("#EE8866", "s"),
     "magyc_ls": ("#77AADD", "^"), "magyc_nls": ("#BBCC33", "D"), "magyc_bfg": ("#FFAABB", "v"),

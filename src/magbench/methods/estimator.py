@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from magbench.core.model import Calibration
+from magbench.core.model import Calibration, as_samples
 from magbench.methods.api import calibrate
 from magbench.methods.registry import get_method
 
@@ -172,7 +172,10 @@ class _NotFitted(ValueError, AttributeError):
 
 
 def _as_array(X: object, *, allow_single: bool = False) -> np.ndarray:
-    """``X`` as a float array of shape (K, 3) (or (3,) where allowed); one-line errors."""
+    """``X`` as a float array of shape (K, 3) (or (3,) where allowed); one-line errors.
+
+    Sparse and complex input get scikit-learn's messages; the rest is the one input check,
+    :func:`magbench.core.model.as_samples`."""
     if hasattr(X, "toarray") or type(X).__module__.startswith("scipy.sparse"):
         raise TypeError("sparse input is not supported: magnetometer samples are dense (K, 3)")
     arr = np.asarray(X)
@@ -183,8 +186,4 @@ def _as_array(X: object, *, allow_single: bool = False) -> np.ndarray:
         if not np.all(np.isfinite(arr)):
             raise ValueError("the sample holds NaN or infinite values")
         return arr
-    if arr.ndim != 2 or arr.shape[1] != 3:
-        raise ValueError(f"expected samples of shape (K, 3), got shape {arr.shape}")
-    if not np.all(np.isfinite(arr)):
-        raise ValueError("samples hold NaN or infinite values")
-    return arr
+    return as_samples(arr)

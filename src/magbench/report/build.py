@@ -5,7 +5,7 @@ Nothing here simulates: every table is computed from ``summary.csv`` (or ``trial
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -19,7 +19,6 @@ from magbench.methods.registry import Method, get_method
 from magbench.report.format import format_number
 from magbench.report.format import label as _label
 from magbench.report.format import md_table as _md_table
-from magbench.report.gyro import gyro_report_section
 from magbench.report.intervals import (
     annotate,
     cell,
@@ -28,10 +27,7 @@ from magbench.report.intervals import (
     run_note,
     significantly_different,
 )
-from magbench.report.real import real_report_section
 from magbench.report.speed import bench_report_section
-from magbench.report.variants import variants_report_section
-from magbench.report.wushi import wushi_report_section
 from magbench.studies.review import with_coverage_column
 
 __all__ = ["ClaimCheck", "build_report", "format_number", "metric_hypotheses", "paper_values",
@@ -831,8 +827,13 @@ def _trials(folder: Path, estimates: bool = False) -> pd.DataFrame | None:
     return pd.read_csv(path, usecols=lambda c: c in wanted)
 
 
-def build_report(results_dir: Path | str) -> str:
-    """The Markdown of ``results/report.md``, from the CSV files under ``results_dir``."""
+def build_report(results_dir: Path | str,
+                 sections: Sequence[Callable[[Path], str]] = ()) -> str:
+    """The Markdown of ``results/report.md``, from the CSV files under ``results_dir``.
+
+    ``sections`` are the study kinds' own parts (``section(results_dir) -> str``, '' when the
+    kind has no results), in order, before the benchmark's.
+    """
     results_dir = Path(results_dir)
     baseline = _load(results_dir, "baseline")
     summaries = {s: _load(results_dir, s) for s in FIGURE_SWEEPS}
@@ -953,17 +954,18 @@ def build_report(results_dir: Path | str) -> str:
             "| figure | claim | evidence | verdict |", "|---|---|---|---|"]
     out += [f"| {c.figure} | {c.claim} | {c.evidence} | **{c.verdict}** |" for c in checks]
     out.append("")
-    for section_of in (variants_report_section, real_report_section, wushi_report_section,
-                       gyro_report_section, bench_report_section):
+    for section_of in (*sections, bench_report_section):
         section = section_of(results_dir)
         if section:
             out += [section.strip(), ""]
     return "\n".join(out)
 
 
-def write_report(results_dir: Path | str) -> Path:
-    """Write ``<results_dir>/report.md`` from the CSV files (figures are drawn separately)."""
+def write_report(results_dir: Path | str,
+                 sections: Sequence[Callable[[Path], str]] = ()) -> Path:
+    """Write ``<results_dir>/report.md`` from the CSV files (figures are drawn separately);
+    ``sections`` as in :func:`build_report`."""
     results_dir = Path(results_dir)
     path = results_dir / "report.md"
-    write_text_atomic(build_report(results_dir), path)
+    write_text_atomic(build_report(results_dir, sections), path)
     return path

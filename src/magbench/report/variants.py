@@ -1,4 +1,4 @@
-"""Table 2's TWOSTEP and EKF rows beside the paper, with the hypotheses of issue 14.
+"""Table 2's TWOSTEP and EKF rows beside the paper, with the hypotheses that explain them.
 
 Reads only CSV files: ``baseline/trials.csv`` (the squared-form accuracy and RB % at several
 robustness thresholds delta, recomputed per trial) and ``p0/summary.csv`` (the EKF's initial

@@ -31,24 +31,23 @@ from magbench.core.metrics import accuracy_cost, summarize, trivial_cost
 from magbench.core.model import Calibration
 from magbench.core.seeding import rng
 from magbench.engine.sweep import Study
-from magbench.engine.trial import estimate_columns, run_method
+from magbench.engine.trial import H_COLUMNS, T_COLUMNS, estimate_columns, run_method
 from magbench.methods.api import calibrate
 from magbench.methods.registry import get_method
 from magbench.sources.trajectory import Trajectory, simulate
-from magbench.studies.review import TRUTH_COLUMNS, read_trials, truth_columns
+from magbench.studies.review import TIME_COLUMNS, TRUTH_COLUMNS, read_trials, truth_columns
+from magbench.studies.times import split_times
 
 __all__ = ["DEFAULT_COVERAGES", "GYRO_POINT_COLUMNS", "GYRO_ROW_COLUMNS", "GyroPoint",
            "GyroStudy", "draw_trajectory", "gyro_trial_rows", "summarize_gyro"]
 
 GYRO_POINT_COLUMNS = ["coverage", "gyro_noise", "sigma"]
-_T_COLUMNS = [f"T_{i}{j}" for i in range(3) for j in range(3)]
-_H_COLUMNS = [f"h_{i}" for i in range(3)]
 _WB_TRUE = [f"wb_true_{i}" for i in range(3)]
 _WB = [f"wb_{i}" for i in range(3)]
 GYRO_ROW_COLUMNS = (GYRO_POINT_COLUMNS + ["K", "trial", "seed", "algorithm", "gyro", "ok",
-                                          "error", "time_s", "n_iter", "J", "J_h", "J_T", "J0",
+                                          "error", "n_iter", "J", "J_h", "J_T", "J0",
                                           "meaningful", "J_wb"]
-                    + TRUTH_COLUMNS + _H_COLUMNS + _T_COLUMNS + _WB_TRUE + _WB)
+                    + TRUTH_COLUMNS + H_COLUMNS + T_COLUMNS + _WB_TRUE + _WB)
 
 #: Named coverages (simulator settings): a full tumble, Wu and Shi's pattern, mostly yaw.
 DEFAULT_COVERAGES: dict[str, dict] = {
@@ -107,8 +106,8 @@ class GyroStudy(Study):
     algorithms: Sequence[str] = ()
     options: dict = field(default_factory=dict)
     coverages: dict = field(default_factory=lambda: dict(DEFAULT_COVERAGES))
-    rate_hz: float = 25.0
-    duration_s: float = 24.0
+    rate_hz: float = 20.0
+    duration_s: float = 15.0
     beta: float = 0.05
     gamma: float = 0.05
     alpha: tuple[float, float] = (0.8, 1.2)
@@ -118,14 +117,17 @@ class GyroStudy(Study):
     plugins: Sequence[str] = ()
     name: str = "gyro"
 
-    tables: ClassVar[dict] = {"trials": ("trials.csv", GYRO_ROW_COLUMNS)}
+    tables: ClassVar[dict] = {"trials": ("trials.csv", GYRO_ROW_COLUMNS),
+                              "times": ("trials_times.csv", TIME_COLUMNS)}
 
     def units(self) -> list[tuple[int, int]]:
         return [(i, t) for i in range(len(self.points)) for t in range(self.trials)]
 
     def run_unit(self, unit: tuple[int, int]) -> dict[str, list[dict]]:
         point_index, trial = unit
-        return {"trials": gyro_trial_rows(self, self.points[point_index], trial)}
+        rows, times = split_times(gyro_trial_rows(self, self.points[point_index], trial),
+                                  "trial")
+        return {"trials": rows, "times": times}
 
     def summarize(self, out_dir: Path | str) -> pd.DataFrame:
         """Write and return ``summary.csv`` from ``trials.csv``."""

@@ -55,10 +55,11 @@ from magbench.core.geometry import coverage, sphere_fit
 from magbench.core.metrics import real_cost
 from magbench.core.model import Calibration
 from magbench.engine.sweep import Study
-from magbench.engine.trial import estimate_columns, run_method
+from magbench.engine.trial import H_COLUMNS, T_COLUMNS, estimate_columns, run_method
 from magbench.methods.api import calibrate
 from magbench.methods.registry import get_method
 from magbench.sources.recordings import Recording, load_recording
+from magbench.studies.times import split_times, with_times
 
 __all__ = ["DEFAULT_MAX_SAMPLES", "PARTNERS", "PREPROCESSING", "REAL_ROW_COLUMNS", "RealStudy",
            "applicability", "calibrated_coverage", "evaluate_recording", "fit_recording",
@@ -68,13 +69,11 @@ DEFAULT_MAX_SAMPLES = 2000
 PREPROCESSING = ("none", "scale", "centre")
 #: Recordings of the same sensor: a fit on one is also evaluated on the other.
 PARTNERS = {"qmc5883l_filtered": "qmc5883l_noisy", "qmc5883l_noisy": "qmc5883l_filtered"}
-_T_COLUMNS = [f"T_{i}{j}" for i in range(3) for j in range(3)]
-_H_COLUMNS = [f"h_{i}" for i in range(3)]
 REAL_ROW_COLUMNS = (["dataset", "n_rows", "stride", "preprocess", "algorithm", "fit_on", "K_fit",
-                     "test_on", "K_test", "skipped", "ok", "error", "time_s", "n_iter",
+                     "test_on", "K_test", "skipped", "ok", "error", "n_iter",
                      "J_r_fit", "J_r_test", "J_r_sphere_fit", "J_r_sphere_test",
                      "coverage_fit", "coverage_sphere_fit", "usable", "meaningful"]
-                    + _H_COLUMNS + _T_COLUMNS)
+                    + H_COLUMNS + T_COLUMNS)
 
 
 def applicability(name: str, rec: Recording) -> str:
@@ -250,7 +249,9 @@ class RealStudy(Study):
     plugins: Sequence[str] = ()
     name: str = "real"
 
-    tables: ClassVar[dict] = {"trials": ("real_trials.csv", REAL_ROW_COLUMNS)}
+    tables: ClassVar[dict] = {"trials": ("real_trials.csv", REAL_ROW_COLUMNS),
+                              "times": ("real_trials_times.csv",
+                                        ["dataset", "algorithm", "time_s"])}
 
     def units(self) -> list[str]:
         return list(self.datasets)
@@ -264,10 +265,11 @@ class RealStudy(Study):
         if name in PARTNERS and PARTNERS[name] in self.datasets:
             partner = load_recording(self.root, PARTNERS[name],
                                      check=False).thinned(self.max_samples)
-        return {"trials": evaluate_recording(
+        rows, times = split_times(evaluate_recording(
             rec, self.algorithms, self.preprocess, options=self.options, seed=self.seed,
             partner=partner, call_timeout_s=self.call_timeout_s,
-            coverage_ratio=self.coverage_ratio, sphere_factor=self.sphere_factor)}
+            coverage_ratio=self.coverage_ratio, sphere_factor=self.sphere_factor), "dataset")
+        return {"trials": rows, "times": times}
 
     def summarize(self, out_dir: Path | str) -> tuple[pd.DataFrame, pd.DataFrame]:
         """Write ``real_summary.csv`` (per recording) and ``fig6_real.csv`` (per method)."""
@@ -276,6 +278,7 @@ class RealStudy(Study):
                              keep_default_na=True)
         trials["error"] = trials["error"].fillna("")
         trials["test_on"] = trials["test_on"].fillna("")
+        trials = with_times(trials, out_dir / "real_trials.csv", "dataset")
         per_recording = recording_summary(trials)
         per_method = method_summary(per_recording)
         write_csv_atomic(per_recording, out_dir / "real_summary.csv")
@@ -313,7 +316,7 @@ def recording_summary(trials: pd.DataFrame) -> pd.DataFrame:
             "J_r_cross": float(cross["J_r_test"].iloc[0]) if len(cross) else np.nan,
             "coverage": float(full["coverage_fit"]),
             "coverage_sphere": float(full["coverage_sphere_fit"]),
-            **{c: float(full[c]) for c in _H_COLUMNS + _T_COLUMNS},
+            **{c: float(full[c]) for c in H_COLUMNS + T_COLUMNS},
         })
     return pd.DataFrame(rows)
 

@@ -25,23 +25,24 @@ from magbench.core.files import write_csv_atomic
 from magbench.core.metrics import accuracy_cost, summarize, trivial_cost
 from magbench.core.seeding import rng
 from magbench.engine.sweep import Study
-from magbench.engine.trial import estimate_columns, run_method
+from magbench.engine.trial import H_COLUMNS, T_COLUMNS, estimate_columns, run_method
 from magbench.methods.api import calibrate
 from magbench.methods.registry import get_method
 from magbench.sources.synthetic import Point, make_dataset
+from magbench.studies.times import split_times, with_times
 
-__all__ = ["POINT_COLUMNS", "ROW_COLUMNS", "TRUTH_COLUMNS", "OptionAxis", "ReviewStudy",
-           "coverage_label", "method_options", "point_with", "points_for", "read_trials",
-           "summarize_review", "trial_rows", "with_coverage_column"]
+__all__ = ["POINT_COLUMNS", "ROW_COLUMNS", "TIME_COLUMNS", "TRUTH_COLUMNS", "OptionAxis",
+           "ReviewStudy", "coverage_label", "method_options", "point_with", "points_for",
+           "read_trials", "summarize_review", "trial_rows", "with_coverage_column"]
 
 POINT_COLUMNS = ["K", "sigma", "beta", "gamma", "cap_deg", "band_deg"]
-_T_COLUMNS = [f"T_{i}{j}" for i in range(3) for j in range(3)]
-_H_COLUMNS = [f"h_{i}" for i in range(3)]
 TRUTH_COLUMNS = [f"h_true_{i}" for i in range(3)] + [f"T_true_{i}{j}" for i in range(3)
                                                       for j in range(3)]
-ROW_COLUMNS = (POINT_COLUMNS + ["trial", "seed", "algorithm", "ok", "error", "time_s", "n_iter",
+ROW_COLUMNS = (POINT_COLUMNS + ["trial", "seed", "algorithm", "ok", "error", "n_iter",
                                 "J", "J_h", "J_T", "J0", "meaningful", "sq_err", "crb", "crb_J"]
-               + TRUTH_COLUMNS + _H_COLUMNS + _T_COLUMNS)
+               + TRUTH_COLUMNS + H_COLUMNS + T_COLUMNS)
+#: The columns of a study's times sidecar (:mod:`magbench.studies.times`).
+TIME_COLUMNS = ["trial", "algorithm", "time_s"]
 
 
 def truth_columns(T: np.ndarray, h: np.ndarray) -> dict:
@@ -120,16 +121,18 @@ class ReviewStudy(Study):
     @property
     def tables(self) -> dict:
         columns = ROW_COLUMNS if self.axis is None else [*ROW_COLUMNS, self.axis.column]
-        return {"trials": ("trials.csv", columns)}
+        return {"trials": ("trials.csv", columns),
+                "times": ("trials_times.csv", TIME_COLUMNS)}
 
     def units(self) -> list[tuple[int, int]]:
         return [(i, t) for i in range(len(self.points)) for t in range(self.trials)]
 
     def run_unit(self, unit: tuple[int, int]) -> dict[str, list[dict]]:
         point_index, trial = unit
-        return {"trials": trial_rows(self.points[point_index], trial, self.seed,
-                                     self.algorithms, self.options, self.delta,
-                                     self.call_timeout_s, self.axis)}
+        rows, times = split_times(trial_rows(self.points[point_index], trial, self.seed,
+                                             self.algorithms, self.options, self.delta,
+                                             self.call_timeout_s, self.axis), "trial")
+        return {"trials": rows, "times": times}
 
     def describe(self) -> dict:
         out = super().describe()
@@ -197,9 +200,9 @@ def method_options(name: str, point: Point, options: dict | None = None) -> dict
 
 
 def read_trials(path: Path | str) -> pd.DataFrame:
-    """A trials CSV with ``error`` as text (empty where ok)."""
+    """A trials CSV with ``error`` as text (empty where ok) and ``time_s`` from its sidecar."""
     frame = pd.read_csv(path, dtype={"error": "string"})
-    return frame.assign(error=frame["error"].fillna(""))
+    return with_times(frame.assign(error=frame["error"].fillna("")), path, "trial")
 
 
 def summarize_review(trials: pd.DataFrame, extra: Sequence[str] = ()) -> pd.DataFrame:

@@ -30,6 +30,7 @@ from magbench.methods.registry import get_method, methods
 from magbench.sources.synthetic import Point, make_dataset
 from magbench.studies.real import DEFAULT_MAX_SAMPLES
 from magbench.studies.review import ReviewStudy
+from magbench.studies.times import times_path
 
 __all__ = ["SIZES", "bench_calibrate", "bench_calls", "bench_first_calls", "bench_parallel",
            "bench_peers", "format_reproduce_times", "peer_install_size", "reproduce_times",
@@ -279,7 +280,7 @@ def bench_peers(sizes: Sequence[int] = (300, 10000), datasets: int = 20, repeats
     thins it to at most :data:`~magbench.studies.real.DEFAULT_MAX_SAMPLES` samples (every
     ``ceil(K / 2000)``-th) and keeps the method with the smallest magnitude residual among the
     non-variant, gyro-free ones (chosen here on the first dataset of each K, timed on all).
-    The 10 000-sample row of ``best`` is the user-facing comparison of issue 16; the peers fit
+    The 10 000-sample row of ``best`` is the user-facing comparison; the peers fit
     every sample. K above 1000 uses ``large_datasets`` datasets. A peer that is not installed
     gives one row per K saying so (``pip install 'magbench[peers]'``).
     """
@@ -436,9 +437,8 @@ def run_bench(results_dir: Path | str, names: Sequence[str] | None = None,
     names = list(names or [m for m in methods() if not get_method(m).needs_gyro])
     threads = blas_threads()
     if threads != "1" and progress:
-        # Seen in the committed calls.csv of 2026-11-23: with BLAS threads, every call above a
-        # size threshold (K ~ 1000-3000) paid a constant 15-60 ms of thread wake-up on a busy
-        # machine, which looked like nonlinear growth with K (TWOSTEP 110x from 1000 to 10000).
+        # BLAS threads wake up for every call above a size threshold, which looks like
+        # nonlinear growth with K (docs/decisions.md, "One BLAS thread").
         progress(f"warning: BLAS threads {threads!r}, not 1: large-K timings include thread "
                  "start-up (python -m magbench sets 1 unless OPENBLAS_NUM_THREADS is set)")
     malloc = malloc_thresholds()
@@ -480,7 +480,7 @@ def reproduce_times(steps: Sequence[Mapping[str, object]], results_dir: Path | s
         kept as columns.
     results_dir : path
         Where the sweeps wrote their tables: ``method_s``, the sum of the timed calibration
-        calls (column ``time_s`` of ``<step>/trials.csv``), is read from there; NaN for steps
+        calls (column ``time_s`` of ``<step>/trials_times.csv``), is read from there; NaN for steps
         without one (the report, the Wu-Shi study).
     machine : mapping, optional
         Columns repeated on every row (CPU model, core count, workers, commit).
@@ -501,7 +501,7 @@ def reproduce_times(steps: Sequence[Mapping[str, object]], results_dir: Path | s
         table = pd.DataFrame(columns=["step", "wall_s", "cpu_s"])
     method = []
     for step in table["step"]:
-        path = Path(results_dir) / str(step) / "trials.csv"
+        path = times_path(Path(results_dir) / str(step) / "trials.csv")
         try:
             method.append(float(pd.read_csv(path, usecols=["time_s"])["time_s"].sum()))
         except (OSError, ValueError):  # no such table, or one without timed calls

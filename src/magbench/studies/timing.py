@@ -1,9 +1,8 @@
 """The timing protocol for tau (eq. 79): a dedicated pass, after a sweep's trials.
 
-The per-trial ``time_s`` in ``trials.csv`` is measured while the sweep's workers share the
-machine, so it carries their load, worker start-up and first-call costs (issue 14: TWOSTEP at
-the same nominal point ran at 987/s, 590/s, 510/s in three sweeps). This pass measures speed on
-its own, in the sweep's process once the workers are gone:
+The per-trial ``time_s`` (``trials_times.csv``) is measured while the sweep's workers share
+the machine, so it carries their load, worker start-up and first-call costs. This pass
+measures speed on its own, in the sweep's process once the workers are gone:
 
 * every method is timed on the *same* datasets: the first ``datasets`` trials of each sweep
   point, drawn exactly as the sweep drew them (``rng(seed, point.key, trial)``);
@@ -25,23 +24,15 @@ its own, in the sweep's process once the workers are gone:
   process waited for a core, which is the other work's cost, not the method's. The wall-clock
   median is kept beside it (``wall_median_s``).
 
-Budget (issue 14 item 4: under 15 s for every review sweep of ``make reproduce`` on 2 cores):
-the committed sweeps have 27 points and 14 methods, whose mean calls sum to about 0.83 s over
-all (point, method) cells. Each dataset gets at least 3 calls, a fast method more until 3 ms
-are spent on it (at most 30), and a call longer than 10 ms only one (Dorveaux failing on a
-60-degree cap takes 40 ms; its length dwarfs the jitter): a sub-millisecond method gets 9-30
-timed calls per point. Plus two warm-up calls per method and sweep. Measured on this 2-core
-machine while other work kept it loaded (load average 4-5): 1.2, 2.2, 1.9, 0.9, 1.0 and 5.0 s
-for the baseline, gamma, beta, K, sigma and coverage sweeps, 12 s in one process; each
-sweep's own process adds about 0.5 s for loading the compiled loops in its warm-up. On a quiet
-machine about half of that.
-A method whose second warm-up call
+The budget: each dataset gets at least 3 calls, a fast method more until 3 ms are spent on it
+(at most 30), and a call longer than 10 ms only one (a long call's length dwarfs the jitter);
+docs/decisions.md records what this costs per sweep. A method whose second warm-up call
 takes more than ``slow_call_s`` is timed on one dataset, once per point, so a slow or hanging
 method cannot blow the budget. Calls go through the one trial loop
 (:func:`magbench.engine.trial.run_method`), so exactly what a trial times is timed here.
 
 The result is ``timing.csv`` in the sweep's folder; figures' speed panels and the report's
-speed columns read it when it is there (``trials.csv`` keeps its per-trial times).
+speed columns read it when it is there (``trials_times.csv`` keeps the per-trial times).
 :func:`compare_timings` compares two passes (``python -m magbench bench timing_check=true``).
 """
 
@@ -50,6 +41,7 @@ from __future__ import annotations
 import sys
 import time
 from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
 
@@ -132,72 +124,104 @@ def time_methods(points: Sequence[Point], seed: int, algorithms: Sequence[str],
         raise ValueError(f"datasets and repeats must be >= 1, got {datasets}, {repeats}")
     options = options or {}
     names = list(algorithms)
+    budget = _Budget(repeats, min_time_s, max_repeats, long_call_s)
     stamp = (clock or (lambda: datetime.now(UTC).isoformat(timespec="seconds")))()
     machine = cpu_model()
-    slow = set()
-    if points:
-        first = make_dataset(rng(seed, points[0].key, 0), points[0])
-        for name in names:
-            # The warm-up, never recorded: the first call loads (or compiles) the method's
-            # loops; the second one says whether the method is slow on this data.
-            opts = method_options(name, points[0], options)
-            spent = [_call(name, first.y, opts, seed, (points[0].key, 0), call_timeout_s)[1]
-                     for _ in range(2)]
-            if spent[-1] > slow_call_s:
-                slow.add(name)
+    slow = _warm_up(points, names, seed, options, slow_call_s, call_timeout_s)
     rows = []
     for point in points:
         data = [make_dataset(rng(seed, point.key, t), point) for t in range(datasets)]
-        # Per method, one list of CPU times (and wall times) per dataset.
-        times: dict[str, list[list[float]]] = {n: [] for n in names}
-        walls: dict[str, list[float]] = {n: [] for n in names}
-        failed = dict.fromkeys(names, 0)
-        ended: dict[str, list[bool]] = {n: [] for n in names}
+        calls: dict[str, list[_Calls]] = {n: [] for n in names}
         for t, d in enumerate(data):
             for name in names:                   # interleaved: load drift spreads over all
                 if name in slow and t > 0:
                     continue
                 opts = method_options(name, point, options)
-                # At least `repeats` calls, more for a fast method until `min_time_s` is
-                # spent on this dataset: a median of 3 sub-millisecond calls moves with every
-                # burst of load, one of 30 does not, and it costs the budget nothing.
-                spent_here, here, fine = 0.0, [], True
-                while (len(here) < (1 if name in slow else repeats)
-                       and not (here and here[0] > long_call_s)) or (
-                        name not in slow and spent_here < min_time_s
-                        and len(here) < max_repeats):
-                    cpu, wall, ok = _call(name, d.y, opts, seed, (point.key, t),
-                                          call_timeout_s)
-                    here.append(cpu)
-                    walls[name].append(wall)
-                    failed[name] += not ok
-                    fine = fine and ok
-                    spent_here += wall
-                times[name].append(here)
-                ended[name].append(fine)
-        for name in names:
-            # The median of a dataset's repeated calls removes the machine's noise; the mean
-            # over datasets is tau of eq. (79), each dataset weighted once (a fast dataset
-            # gets more repeats, which must not make it count more).
-            # As eq. (79) times the runs that succeeded, tau averages the datasets on which
-            # the method ended by its own rule (a run at its iteration cap costs the cap, not
-            # the method's speed); tau_all_s averages all of them.
-            per_dataset = [float(np.median(x)) for x in times[name]]
-            good = [v for v, fine in zip(per_dataset, ended[name], strict=True) if fine]
-            tau = float(np.mean(good)) if good else np.nan
-            tau_all = float(np.mean(per_dataset))
-            x = np.concatenate(times[name])
-            rows.append({**{c: getattr(point, c) for c in POINT_COLUMNS}, "algorithm": name,
-                         "calls": x.size, "failed_calls": failed[name], "tau_s": tau,
-                         "tau_all_s": tau_all, "ok_datasets": len(good),
-                         "median_s": float(np.median(per_dataset)),
-                         "q25_s": float(np.quantile(x, 0.25)),
-                         "q75_s": float(np.quantile(x, 0.75)), "min_s": float(x.min()),
-                         "wall_median_s": float(np.median(walls[name])),
-                         "speed_hz": 1.0 / tau if good and tau > 0 else np.nan,
-                         "datasets": len(per_dataset), "cpu_model": machine,
-                         "fingerprint": "", "measured": stamp})
+                calls[name].append(_time_on_dataset(
+                    name, d.y, opts, seed, (point.key, t), call_timeout_s,
+                    budget.once() if name in slow else budget))
+        rows += [{**{c: getattr(point, c) for c in POINT_COLUMNS}, "algorithm": name,
+                  **_tau(calls[name]), "cpu_model": machine, "fingerprint": "",
+                  "measured": stamp} for name in names]
     return pd.DataFrame(rows, columns=TIMING_COLUMNS)
+
+
+@dataclass(frozen=True)
+class _Budget:
+    """How often a method is called on one dataset (see :func:`time_methods`)."""
+
+    repeats: int
+    min_time_s: float
+    max_repeats: int
+    long_call_s: float
+
+    def once(self) -> _Budget:
+        """The budget of a slow method: one call, nothing more for speed's sake."""
+        return _Budget(1, 0.0, 1, self.long_call_s)
+
+
+@dataclass
+class _Calls:
+    """The timed calls of one method on one dataset."""
+
+    cpu: list[float]
+    wall: list[float]
+    failed: int
+    fine: bool
+
+
+def _warm_up(points: Sequence[Point], names: Sequence[str], seed: int, options: dict,
+             slow_call_s: float, call_timeout_s: float | None) -> set[str]:
+    """Two untimed calls per method on the first dataset (the first loads or compiles its
+    loops); the methods whose second call is slower than ``slow_call_s``."""
+    slow: set[str] = set()
+    if not points:
+        return slow
+    first = make_dataset(rng(seed, points[0].key, 0), points[0])
+    for name in names:
+        opts = method_options(name, points[0], options)
+        spent = [_call(name, first.y, opts, seed, (points[0].key, 0), call_timeout_s)[1]
+                 for _ in range(2)]
+        if spent[-1] > slow_call_s:
+            slow.add(name)
+    return slow
+
+
+def _time_on_dataset(name: str, y: np.ndarray, opts: dict, seed: int, stream: tuple,
+                     call_timeout_s: float | None, budget: _Budget) -> _Calls:
+    """At least ``budget.repeats`` calls, more for a fast method until ``min_time_s`` is spent:
+    a median of 3 sub-millisecond calls moves with every burst of load, one of 30 does not."""
+    out = _Calls([], [], 0, True)
+    spent = 0.0
+    while (len(out.cpu) < budget.repeats and not (out.cpu and out.cpu[0] > budget.long_call_s)
+           ) or (spent < budget.min_time_s and len(out.cpu) < budget.max_repeats):
+        cpu, wall, ok = _call(name, y, opts, seed, stream, call_timeout_s)
+        out.cpu.append(cpu)
+        out.wall.append(wall)
+        out.failed += not ok
+        out.fine = out.fine and ok
+        spent += wall
+    return out
+
+
+def _tau(calls: Sequence[_Calls]) -> dict:
+    """tau of eq. (79) and the spread of one method's calls at one point.
+
+    The median of a dataset's calls removes the machine's noise; tau is the mean over the
+    datasets on which the method ended by its own rule, each weighted once (as eq. (79) times
+    the successful runs); ``tau_all_s`` averages all of them.
+    """
+    per_dataset = [float(np.median(c.cpu)) for c in calls]
+    good = [v for v, c in zip(per_dataset, calls, strict=True) if c.fine]
+    tau = float(np.mean(good)) if good else np.nan
+    x = np.concatenate([c.cpu for c in calls])
+    return {"calls": x.size, "failed_calls": sum(c.failed for c in calls), "tau_s": tau,
+            "tau_all_s": float(np.mean(per_dataset)), "ok_datasets": len(good),
+            "median_s": float(np.median(per_dataset)), "q25_s": float(np.quantile(x, 0.25)),
+            "q75_s": float(np.quantile(x, 0.75)), "min_s": float(x.min()),
+            "wall_median_s": float(np.median(np.concatenate([c.wall for c in calls]))),
+            "speed_hz": 1.0 / tau if good and tau > 0 else np.nan,
+            "datasets": len(per_dataset)}
 
 
 def timing_is_current(study: ReviewStudy, out_dir: Path | str) -> bool:

@@ -46,7 +46,7 @@ VARIANCES = ("5b", "constant")
 P0_CHOICES = ("data", "prior")
 
 #: Prior standard deviations of theta = [b, D11 D22 D33 D12 D13 D23] (16) under the review's
-#: nominal distortions (80), in field units (``P0="prior"``; the default before issue 14). It
+#: nominal distortions (80), in field units (``P0="prior"``). It
 #: uses knowledge of the truth distribution: ``e_i ~ U[-0.05, 0.05]`` has standard deviation
 #: 0.029; ``D_ii ~ 1/alpha - 1`` with ``alpha ~ U[0.8, 1.2]`` has 0.12 (0.119 from alpha, plus
 #: E_ii); the off-diagonal ``D_ij ~ -(E_ij + E_ji)/2`` has 0.02, rounded up to 0.03.

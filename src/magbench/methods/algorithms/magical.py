@@ -108,12 +108,9 @@ def fit(samples: np.ndarray, *, max_iter: int = 2000, tol: float = 1e-24,
         an element of ``T`` or ``h`` over the last iteration is at most ``xtol`` times
         ``max(1, max|T_ij|)``. Block-coordinate descent converges linearly, so a small change of
         the cost does not by itself prove the parameters have settled; ``xtol=1e-12`` with
-        ``rtol=0`` runs until both are at rounding level. Measured (issue 14, 100 datasets at
-        beta = 1, the 97 where Wu-Shi also succeeds): median J / (Cramer-Rao E[J]) is 1.286
-        with the default rule (56 iterations) and 1.286 with ``rtol=0, xtol=1e-12`` (95
-        iterations), against Wu-Shi's 1.007. The relative rule does not end before the fixed
-        point: MAG.I.C.AL's gap to the floor is its estimator (the alternation (62)-(64)),
-        not its stopping rule. The figures use the default, the faithful rule.
+        ``rtol=0`` runs until both are at rounding level (docs/decisions.md: the tighter rule
+        does not close MAG.I.C.AL's gap to the floor at large beta). The figures use the
+        default, the faithful rule.
 
     Returns
     -------

@@ -4,7 +4,7 @@ Implemented as review Algorithm 1 describes it (:mod:`.twostep`), TWOSTEP is as 
 other full methods (squared-form 1/rho ~2.5e5 at the nominal point, on the Cramer-Rao floor).
 The review's 35.3 in the squared form it uses (1/mean(J_h^2 + J_T^2), see results/report.md)
 is an RMS error of ~0.17, hardly better than no calibration at all (~21): the overall scale of
-T was not recovered. Two readings of the review's text give that magnitude (issue 14):
+T was not recovered. Two readings of the review's text give that magnitude:
 
 (a) ``twostep_no_svd`` (registered here): Steps 9-10 of Algorithm 1 skipped. The estimation
     vector theta' holds the *auxiliary* ``E = 2D + D^2`` and ``c = (I + D) h`` ("TWOSTEP

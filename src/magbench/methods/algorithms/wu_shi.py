@@ -183,39 +183,6 @@ def _global_block(T: np.ndarray, m: np.ndarray) -> np.ndarray:
 
 
 @njit
-def _hessian_blocks(y: np.ndarray, T: np.ndarray, h: np.ndarray, m: np.ndarray
-                    ) -> tuple[np.ndarray, np.ndarray]:
-    K = y.shape[0]
-    r = _residuals(y, T, h, m)
-    C = np.empty((K, 9, 3))
-    Ck = np.empty((6, 3))
-    for k in range(K):
-        _coupling(T, m, r, k, Ck)
-        C[k, :6] = Ck
-        for a in range(3):                                         # H_hm_k = 2 T
-            for c in range(3):
-                C[k, 6 + a, c] = 2.0 * T[a, c]
-    return _global_block(T, m), C
-
-
-def hessian_blocks(y: np.ndarray, s: State) -> tuple[np.ndarray, np.ndarray]:
-    """The global and coupling blocks of the Hessian (A5), (A7), lower-triangular T removed.
-
-    The remaining blocks are per sample: ``D_k = [[2 T^T T + 2 lam_k I, 2 m_k], [2 m_k^T, 0]]``
-    (``H_{m_k m_k}``, ``H_{m_k lambda_k}``), and the coupling of ``lambda_k`` to the global
-    unknowns is zero (A5).
-
-    Returns
-    -------
-    A : ndarray, shape (9, 9)
-        Global block ``[[H_TT, H_Th], [H_Th^T, H_hh]]``.
-    C : ndarray, shape (K, 9, 3)
-        Coupling of the global unknowns to ``m_k``: ``[H_Tm_k; H_hm_k]``.
-    """
-    return _hessian_blocks(*_arrays(y, s)[:4])
-
-
-@njit
 def _p_inv(V: tuple, d0: float, d1: float, d2: float, p0: float, p1: float, p2: float
            ) -> tuple[float, float, float]:
     """``P_k^-1 p_k = V diag(d_k) V^T p_k`` for one sample (see :func:`_newton`); ``V`` is the

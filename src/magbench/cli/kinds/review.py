@@ -1,0 +1,124 @@
+"""The review's sweeps (baseline, gamma, beta, K, sigma, coverage, option sweeps): a kind."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pandas as pd
+from omegaconf import DictConfig
+
+from magbench.cli.config import (
+    Key,
+    UsageError,
+    check_number,
+    check_options,
+    check_trials,
+    nominal_point,
+    plain,
+    point_checks,
+    selected_algorithms,
+)
+from magbench.cli.kinds import Kind, register_kind
+from magbench.methods.registry import get_method
+
+
+def build(cfg: DictConfig, common: dict, values: dict):
+    """The review sweep: ``trials`` datasets at each point (one varied parameter, explicit
+    points, or one method option varied on the same datasets)."""
+    from magbench.studies.review import POINT_COLUMNS, ReviewStudy, point_with
+
+    algorithms = selected_algorithms(cfg)
+    min_k = max(get_method(a).min_samples for a in algorithms)
+    base = nominal_point(cfg, min_k)
+    sweep = cfg.sweep
+    vary = sweep.get("vary")
+    varied = list(plain(sweep.get("values")) or [])
+    if vary and not varied:
+        raise UsageError(f"sweep {sweep.name!r} varies {vary} but lists no values")
+    axis = None
+    if isinstance(vary, str) and vary.startswith("options."):
+        axis = _option_axis(vary, varied, algorithms)
+        vary = None
+    if vary is not None and vary not in POINT_COLUMNS:
+        raise UsageError(f"sweep.vary must be one of {', '.join(POINT_COLUMNS)}, "
+                         f"options.<method>.<option> or null, got {vary!r}")
+    changes = [{vary: v} for v in varied] if vary else [dict(c) for c in values["points"]]
+    checks = point_checks(min_k)
+    for change in changes:
+        for key, v in change.items():
+            if key not in checks:
+                raise UsageError(f"sweep point sets {key!r}; a point has "
+                                 f"{', '.join(POINT_COLUMNS)}")
+            check_number(v, f"sweep value {key}", *checks[key])
+    return ReviewStudy(str(sweep.name), [point_with(base, c) for c in changes],
+                       check_trials(cfg, f"sweep {sweep.name}"), common["seed"], algorithms,
+                       check_options(cfg, algorithms), common["delta"],
+                       common["call_timeout_s"], common["plugins"], axis)
+
+
+def _option_axis(vary: str, values: list, algorithms: list[str]):
+    """The :class:`OptionAxis` of ``sweep.vary=options.<method>.<option>``, checked."""
+    from magbench.studies.review import OptionAxis
+
+    try:
+        axis = OptionAxis.parse(vary, values)
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
+    if axis.method not in algorithms:
+        raise UsageError(f"sweep.vary {vary} names {axis.method!r}, which is not among the "
+                         f"selected algorithms ({', '.join(algorithms)})")
+    accepted = get_method(axis.method).option_names()
+    if axis.option not in accepted:
+        raise UsageError(f"sweep.vary {vary}: {axis.method} has no option {axis.option!r}; it "
+                         f"accepts: {', '.join(accepted) or 'no options'}")
+    if any(v is None or isinstance(v, bool | dict) for v in values):
+        raise UsageError(f"sweep.values of {vary} must be numbers, strings or lists, got "
+                         f"{values!r}")
+    return axis
+
+
+def finish(study, out_dir: Path, common: dict) -> None:
+    """The timing pass for tau (after the trials, workers gone), summary.csv and the tables."""
+    from magbench.report.build import write_sweep_tables
+    from magbench.studies.timing import timing_is_current, write_timing
+
+    if not timing_is_current(study, out_dir):
+        write_timing(study, out_dir, progress=common["progress"])
+    summary = study.summarize(out_dir)
+    write_sweep_tables(study.name, summary, out_dir, delta=study.delta)
+
+
+def figures(name: str, out_dir: Path) -> list[Path]:
+    """The sweep's figure: Figures 2-5, the coverage figure, or a method-option figure."""
+    from magbench.figures.options import option_column, write_option_figure
+    from magbench.figures.sweeps import FIGURES, write_figure
+    from magbench.studies.review import with_coverage_column
+    from magbench.studies.timing import read_timing
+
+    if not (out_dir / "summary.csv").exists():
+        return []
+    summary = pd.read_csv(out_dir / "summary.csv")
+    if option_column(summary):
+        return [write_option_figure(summary, out_dir, name)]
+    if name not in FIGURES:
+        return []
+    timing = read_timing(out_dir)
+    if FIGURES[name].x == "coverage":
+        summary = with_coverage_column(summary)
+        timing = None if timing is None else with_coverage_column(timing)
+    return list(write_figure(summary, name, out_dir, timing))[:1]
+
+
+def report(results_dir: Path) -> str:
+    """The method variants beside the methods they vary (the baseline's rows)."""
+    from magbench.report.variants import variants_report_section
+
+    return variants_report_section(results_dir)
+
+
+KIND = register_kind(Kind(
+    name="review", what="the review's synthetic sweeps (eq. 80): one parameter varied, explicit "
+    "points, or a method option", keys=(
+        Key("points", [{}], "explicit points as changes to the nominal point, e.g. "
+            "[{cap_deg: 90}, {band_deg: 10}] (used when vary is null)", plain),),
+    build=build, finish=finish, figures=figures, report=report, timed=True))
