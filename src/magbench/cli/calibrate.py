@@ -230,8 +230,9 @@ def detail_lines(result: CalibrationResult, payload: dict, n_file: int) -> list[
     if result.second_round:
         lines.append(f"second round fitted: {result.second_round}")
     elif result.not_fitted:
-        lines.append(f"not fitted: {', '.join(result.not_fitted)} (candidates=all fits every "
-                     "method)")
+        names = result.not_fitted
+        shown = ", ".join(names[:4]) + (f" and {len(names) - 4} more" if len(names) > 4 else "")
+        lines.append(f"not fitted: {shown} (candidates=all fits every method)")
     lines += _interval_lines(payload)
     lines.append(f"field strength {payload['field_strength']:.4g} (file units); a "
                  f"{g['rotation_deg']:.1f} deg rotation"
