@@ -120,3 +120,19 @@ def test_apply_is_in_the_help():
     for key in ("calibration", "file", "columns", "out"):
         assert f"\n  {key} " in text
     assert "apply: output CSV" in text
+
+
+def test_apply_keeps_the_chosen_instance(tmp_path, capsys):
+    y0, y1 = recording(seed=1), recording(seed=2) + 40
+    frame = pd.concat([pd.DataFrame({"I": 0, "mx": y0[:, 0], "my": y0[:, 1], "mz": y0[:, 2]}),
+                       pd.DataFrame({"I": 1, "mx": y1[:, 0], "my": y1[:, 1], "mz": y1[:, 2]})])
+    path = tmp_path / "mag.csv"
+    frame.to_csv(path, index=False)
+    cal = write_calibration(tmp_path / "cal.json")
+    assert apply(f"calibration={cal}", f"file={path}", f"out={tmp_path / 'a.csv'}") == 2
+    assert "holds 2 sensors in column 'I'" in capsys.readouterr().err
+    assert apply(f"calibration={cal}", f"file={path}", f"out={tmp_path / 'a.csv'}",
+                 "instance=1") == 0
+    out = pd.read_csv(tmp_path / "a.csv")
+    np.testing.assert_allclose(out[["mx", "my", "mz"]].to_numpy(),
+                               Calibration(T_TRUE, H_TRUE).safe().apply(y1), atol=1e-9)

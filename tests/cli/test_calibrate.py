@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 from pathlib import Path
 
 import numpy as np
@@ -229,6 +230,10 @@ def test_nan_rows_give_a_warning_line_and_are_dropped(tmp_path, capsys):
     (["file={rec}", "candidates=[fang,bogus]"], "candidates: unknown method(s) bogus"),
     (["file={rec}", "candidates=some"], "candidates must be auto, all or a list"),
     (["file={rec}", "candidates=[fang]", "method=fang"], "give either method=NAME"),
+    (["file={rec}", "units=furlongs"], "units must be one of uT, nT, gauss, mgauss, counts"),
+    (["file={rec}", "field_strength=48uT"], "field_strength=48uT has a unit but the file's unit"),
+    (["file={rec}", "instance=1"], "instance=1 was given but rec.csv has no instance column"),
+    (["file={rec}", "overwrite=maybe"], "overwrite must be true or false"),
 ])
 def test_errors_are_one_line_with_status_2(args, message, tmp_path, capsys):
     rec = save(tmp_path / "rec.csv", recording())
@@ -261,27 +266,106 @@ def test_writes_c_header_and_ardupilot_params_beside_the_json(tmp_path, capsys):
 
     y = recording()
     path = save(tmp_path / "rec.csv", y)
-    assert calibrate(f"file={path}", "method=ellipsoid", f"out={tmp_path / 'o'}") == 0
+    assert calibrate(f"file={path}", "method=ellipsoid", f"out={tmp_path / 'o'}",
+                     "units=mgauss") == 0
     data = json.loads((tmp_path / "o" / "calibration.json").read_text())
     A, b = np.array(data["A"]), np.array(data["b"])
     header = (tmp_path / "o" / "calibration.h").read_text()
     assert "Verdict: Ellipsoid fit: field magnitude error" in header
+    assert "y and b in mGauss" in header and data["unit"]["gauss_per_unit"] == 1e-3
     A32, b32 = parse_header(header, "mag_cal")
     np.testing.assert_allclose((y.astype(np.float32) - b32) @ A32.T, (y - b) @ A.T, rtol=2e-6,
                                atol=2e-6)
     params = parse_params((tmp_path / "o" / "ardupilot.param").read_text())
     corrected = ardupilot_correct(params, y) / data["field_strength"]
     np.testing.assert_allclose(corrected, (y - b) @ A.T, rtol=2e-6, atol=2e-6)
-    assert "ardupilot.param" in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert "ardupilot.param" in out and "px4.params" in out
+    assert "field strength 530.2 mGauss" in out
 
 
-def test_ardupilot_params_are_skipped_with_one_line_when_out_of_range(tmp_path, capsys):
-    path = save(tmp_path / "gauss.csv", recording() / 1000)       # gauss, not milligauss
+def test_px4_params_of_a_gauss_recording_give_back_the_corrected_samples(tmp_path, capsys):
+    from tests.core.test_exports import parse_qgc, px4_correct
+
+    y = recording() / 1000                                   # gauss
+    path = save(tmp_path / "gauss.csv", y)
+    assert calibrate(f"file={path}", "method=ellipsoid", f"out={tmp_path / 'o'}", "units=gauss",
+                     "field_strength=50uT") == 0
+    data = json.loads((tmp_path / "o" / "calibration.json").read_text())
+    A, b = np.array(data["A"]), np.array(data["b"])
+    p = parse_qgc((tmp_path / "o" / "px4.params").read_text())
+    np.testing.assert_allclose(px4_correct(p, y) / data["field_strength"], (y - b) @ A.T,
+                               rtol=2e-6, atol=2e-6)
+    assert (tmp_path / "o" / "ardupilot.param").exists()
+    out = capsys.readouterr().out
+    assert "field strength 0.5302 gauss (expected 0.5 gauss: +6.0 %)" in out
+    assert data["field_strength_expected"] == pytest.approx(0.5)
+    assert "not writing inav.txt, betaflight.txt (they take the flight controller's raw counts" \
+        in out
+
+
+def test_counts_without_a_unit_write_no_ardupilot_or_px4_file(tmp_path, capsys):
+    path = save(tmp_path / "counts.csv", recording())
     assert calibrate(f"file={path}", "method=ellipsoid", f"out={tmp_path / 'o'}") == 0
     out = capsys.readouterr().out
-    assert out.count("not writing ardupilot.param: field strength 0.53") == 1
-    assert (tmp_path / "o" / "calibration.h").exists()
+    assert out.count("not writing ardupilot.param, px4.params (unit unknown: pass units=") == 1
+    assert "field strength 530.2 (file units, unit unknown)" in out
     assert not (tmp_path / "o" / "ardupilot.param").exists()
+    assert (tmp_path / "o" / "calibration.h").exists()
+    assert calibrate(f"file={path}", "method=ellipsoid", f"out={tmp_path / 'c'}",
+                     "units=counts") == 0
+    assert "not writing ardupilot.param, px4.params (unit counts (size unknown)" in \
+        capsys.readouterr().out
+    inav = (tmp_path / "c" / "inav.txt").read_text()
+    b = np.array(json.loads((tmp_path / "c" / "calibration.json").read_text())["b"])
+    assert all(f"set magzero_{a} = {round(v)}" in inav for a, v in zip("xyz", b, strict=True))
+    # 16 counts per uT: 530 counts are 33 uT = 331 mGauss, which ArduPilot takes.
+    assert calibrate(f"file={path}", "method=ellipsoid", f"out={tmp_path / 's'}",
+                     "units=0.0625uT") == 0
+    p = (tmp_path / "s" / "ardupilot.param").read_text()
+    assert re.search(r"^COMPASS_OFS_X -562\.4", p, re.M)          # -899.9 counts / 1.6
+
+
+def test_an_existing_calibration_folder_is_kept_without_overwrite(tmp_path, capsys):
+    path = save(tmp_path / "rec.csv", recording())
+    out = tmp_path / "o"
+    assert calibrate(f"file={path}", "method=ellipsoid", f"out={out}", "units=mgauss",
+                     "bootstrap=0") == 0
+    before = (out / "calibration.json").read_text()
+    capsys.readouterr()
+    assert calibrate(f"file={path}", "method=sphere", f"out={out}") == 2
+    err = capsys.readouterr().err.strip()
+    assert err == (f"magbench: error: out={out} already holds a calibration (calibration.json); "
+                   "pass overwrite=true to replace it, or choose another out=")
+    assert (out / "calibration.json").read_text() == before
+    # Replaced with overwrite=true; the ArduPilot file of the first run (now unitless) goes.
+    assert calibrate(f"file={path}", "method=twostep", f"out={out}", "overwrite=true",
+                     "bootstrap=0") == 0
+    assert json.loads((out / "calibration.json").read_text())["method"] == "twostep"
+    assert not (out / "ardupilot.param").exists()
+
+
+def test_two_compasses_exit_2_naming_them_and_instance_picks_one(tmp_path, capsys):
+    from tests.core.test_exports import ardupilot_correct, parse_params
+
+    y0, y1 = recording(seed=1), recording(seed=2) * 0.8 + 50
+    frame = pd.concat([pd.DataFrame({"I": 0, "mx": y0[:, 0], "my": y0[:, 1], "mz": y0[:, 2]}),
+                       pd.DataFrame({"I": 1, "mx": y1[:, 0], "my": y1[:, 1], "mz": y1[:, 2]})])
+    path = tmp_path / "mag.csv"
+    frame.to_csv(path, index=False)
+    assert calibrate(f"file={path}", "method=ellipsoid", f"out={tmp_path / 'o'}") == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "holds 2 sensors in column 'I': 0 (240 rows), 1 (240 rows); " \
+        "choose one with instance=, e.g. instance=0" in err
+    assert calibrate(f"file={path}", "method=ellipsoid", f"out={tmp_path / 'o'}", "instance=1",
+                     "units=mgauss", "bootstrap=0") == 0
+    data = json.loads((tmp_path / "o" / "calibration.json").read_text())
+    assert data["instance"] == {"column": "I", "value": "1"} and data["samples_used"] == 240
+    p = parse_params((tmp_path / "o" / "ardupilot.param").read_text())
+    assert "COMPASS_OFS2_X" in p and "COMPASS_OFS_X" not in p
+    A, b = np.array(data["A"]), np.array(data["b"])
+    np.testing.assert_allclose(ardupilot_correct(p, y1, "2") / data["field_strength"],
+                               (y1 - b) @ A.T, rtol=2e-6, atol=2e-6)
 
 
 def test_default_folder_is_named_after_the_folder_of_a_data_csv(tmp_path, monkeypatch):
@@ -346,6 +430,41 @@ def test_a_60_degree_cap_of_a_real_recording_warns_and_names_the_rotation(tmp_pa
     assert calibrate(f"file={SHARED / 'hmc5883l_sphere' / 'data.csv'}", *args,
                      f"out={tmp_path / 'f'}") == 0
     assert "coverage is insufficient" not in capsys.readouterr().err
+
+
+@pytest.mark.skipif(not (SHARED / "bno055_hand" / "data.csv").exists(),
+                    reason=f"real recordings not found ({DATA_ENV} unset, {SHARED} absent)")
+def test_bno055_counts_become_milligauss_only_with_their_size(tmp_path, capsys):
+    # Its SOURCE.md: raw register counts, 16 per microtesla.
+    from tests.core.test_exports import ardupilot_correct, parse_params
+
+    path = SHARED / "bno055_hand" / "data.csv"
+    args = [f"file={path}", "method=ellipsoid", "bootstrap=0"]
+    assert calibrate(*args, f"out={tmp_path / 'raw'}") == 0
+    assert "not writing ardupilot.param, px4.params (unit unknown" in capsys.readouterr().out
+    assert not (tmp_path / "raw" / "ardupilot.param").exists()
+    assert calibrate(*args, f"out={tmp_path / 'mg'}", "units=0.0625uT") == 0
+    data = json.loads((tmp_path / "mg" / "calibration.json").read_text())
+    assert data["unit"]["description"] == "counts of 0.0625 uT"
+    p = parse_params((tmp_path / "mg" / "ardupilot.param").read_text())
+    np.testing.assert_allclose([p[f"COMPASS_OFS_{a}"] for a in "XYZ"],
+                               -0.625 * np.array(data["b"]), rtol=1e-6)
+    y = pd.read_csv(path)[["mx", "my", "mz"]].to_numpy()
+    corrected = ardupilot_correct(p, y * 0.625)                # counts -> mGauss
+    np.testing.assert_allclose(corrected / (0.625 * data["field_strength"]),
+                               (y - data["b"]) @ np.array(data["A"]).T, rtol=2e-6, atol=2e-6)
+
+
+def test_a_single_device_id_becomes_px4s_calibration_id(tmp_path):
+    y = recording() / 1000                                   # gauss
+    frame = pd.DataFrame({"device_id": 396809, "mx": y[:, 0], "my": y[:, 1], "mz": y[:, 2]})
+    frame.to_csv(tmp_path / "px4.csv", index=False)
+    assert calibrate(f"file={tmp_path / 'px4.csv'}", "method=ellipsoid", "units=gauss",
+                     f"out={tmp_path / 'o'}", "bootstrap=0") == 0
+    text = (tmp_path / "o" / "px4.params").read_text()
+    assert "1\t1\tCAL_MAG0_ID\t396809\t6" in text and "not set here" not in text
+    data = json.loads((tmp_path / "o" / "calibration.json").read_text())
+    assert data["instance"] == {"column": "device_id", "value": "396809"}
 
 
 FIRMWARE = {"calibration.h", "ardupilot.param", "ranking.csv", "calibration.png"}
@@ -456,7 +575,6 @@ def test_an_offset_only_fit_never_prints_a_zero_interval_for_A(tmp_path, capsys)
     ("gate.warn_error_pct=20", "gate.warn_error_pct must not exceed gate.fail_error_pct"),
     ("gate.fail_directions=x", "gate.fail_directions must be an integer"),
     ("+gate.bogus=1", "gate.bogus"),
-    ("+field_strength=0", "field_strength must be > 0"),
 ])
 def test_bad_gate_keys_exit_2_in_one_line(arg, message, tmp_path, capsys):
     path = save(tmp_path / "rec.csv", recording())

@@ -172,7 +172,7 @@ def test_the_readme_key_table_agrees_with_conf():
         if key in base and not isinstance(base[key], dict):
             value = base[key]
             expected = str(value).lower() if isinstance(value, bool) else \
-                "[]" if value == [] else str(value)
+                "[]" if value == [] else "null" if value is None else str(value)
             assert default == expected, key
             checked += 1
     assert checked >= 8

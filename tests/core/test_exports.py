@@ -12,14 +12,24 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from magbench.core.exports import (
+    FIRMWARE_FILES,
     GAUGE,
     ardupilot_param_file,
     ardupilot_params,
+    betaflight_cli,
     c_header,
+    field_strength,
+    firmware_files,
     from_json_dict,
+    inav_cli,
+    px4_param_file,
+    px4_params,
     to_json_dict,
 )
 from magbench.core.model import Calibration
+from magbench.core.units import parse_units
+
+MGAUSS = parse_units("mgauss")
 
 FLOAT32 = {"rtol": 2e-6, "atol": 2e-6}
 
@@ -110,26 +120,27 @@ def parse_params(text: str) -> dict[str, np.float32]:
     return {k: np.float32(v) for k, v in pairs}
 
 
-def ardupilot_correct(p: dict[str, np.float32], raw: np.ndarray) -> np.ndarray:
+def ardupilot_correct(p: dict[str, np.float32], raw: np.ndarray, s: str = "") -> np.ndarray:
     """ArduPilot's correct_field: mag += offsets; mag *= scale; mag = M * mag (float32)."""
-    M = np.array([[p["COMPASS_DIA_X"], p["COMPASS_ODI_X"], p["COMPASS_ODI_Y"]],
-                  [p["COMPASS_ODI_X"], p["COMPASS_DIA_Y"], p["COMPASS_ODI_Z"]],
-                  [p["COMPASS_ODI_Y"], p["COMPASS_ODI_Z"], p["COMPASS_DIA_Z"]]], np.float32)
-    ofs = np.array([p[f"COMPASS_OFS_{a}"] for a in "XYZ"], np.float32)
-    scaled = (raw.astype(np.float32) + ofs) * p["COMPASS_SCALE"]
+    M = np.array([[p[f"COMPASS_DIA{s}_X"], p[f"COMPASS_ODI{s}_X"], p[f"COMPASS_ODI{s}_Y"]],
+                  [p[f"COMPASS_ODI{s}_X"], p[f"COMPASS_DIA{s}_Y"], p[f"COMPASS_ODI{s}_Z"]],
+                  [p[f"COMPASS_ODI{s}_Y"], p[f"COMPASS_ODI{s}_Z"], p[f"COMPASS_DIA{s}_Z"]]],
+                 np.float32)
+    ofs = np.array([p[f"COMPASS_OFS{s}_{a}"] for a in "XYZ"], np.float32)
+    scaled = (raw.astype(np.float32) + ofs) * p[f"COMPASS_SCALE{s}"]
     return scaled @ M.T
 
 
 @pytest.mark.parametrize("seed", range(3))
 def test_ardupilot_params_reproduce_apply_in_float32(seed):
     cal = sensor(seed=seed)
-    params = ardupilot_params(cal)
+    params = ardupilot_params(cal, MGAUSS)
     text = ardupilot_param_file(params, "test\nsecond line")
     assert text.startswith("# test\n# second line\nCOMPASS_OFS_X ")
     p = parse_params(text)
     assert p["COMPASS_SCALE"] == 1.0
     np.testing.assert_allclose([p[f"COMPASS_OFS_{a}"] for a in "XYZ"], -cal.h, rtol=1e-7)
-    field = float(np.cbrt(abs(np.linalg.det(cal.T))))
+    field = field_strength(cal)
     y = raw_samples(cal, seed=seed)
     corrected = ardupilot_correct(p, y)
     np.testing.assert_allclose(corrected / field, cal.safe().apply(y), **FLOAT32)
@@ -137,15 +148,41 @@ def test_ardupilot_params_reproduce_apply_in_float32(seed):
     np.testing.assert_allclose(np.linalg.norm(corrected, axis=1), field, rtol=1e-5)
 
 
-def test_ardupilot_units_conversion_from_gauss():
+@pytest.mark.parametrize(("units", "per_mgauss"), [("gauss", 1e-3), ("uT", 0.1), ("nT", 100.0),
+                                                   ("0.0625uT", 1.6), ("counts", None)])
+def test_ardupilot_converts_the_recording_unit_to_milligauss(units, per_mgauss):
     cal_mg = sensor()
-    cal_g = Calibration(cal_mg.T / 1000, cal_mg.h / 1000)
+    p_mg = ardupilot_params(cal_mg, MGAUSS)
+    if per_mgauss is None:
+        with pytest.raises(ValueError, match=r"^ArduPilot works in milligauss and the "
+                           r"recording's unit is counts \(size unknown\): pass units="):
+            ardupilot_params(cal_mg, parse_units(units))
+        return
+    cal = Calibration(cal_mg.T * per_mgauss, cal_mg.h * per_mgauss)
+    p = ardupilot_params(cal, parse_units(units))
+    assert p.keys() == p_mg.keys()
+    np.testing.assert_allclose(list(p.values()), list(p_mg.values()), rtol=1e-12, atol=1e-12)
+
+
+def test_a_gauss_recording_called_milligauss_is_refused_naming_milligauss():
+    cal_g = Calibration(sensor().T / 1000, sensor().h / 1000)
     with pytest.raises(ValueError, match=r"field strength 0\.\d+ mGauss .* \(150, 950\)"):
-        ardupilot_params(cal_g)
-    p_g = ardupilot_params(cal_g, mgauss_per_unit=1000.0)
-    p_mg = ardupilot_params(cal_mg)
-    assert p_g.keys() == p_mg.keys()
-    np.testing.assert_allclose(list(p_g.values()), list(p_mg.values()), rtol=1e-12)
+        ardupilot_params(cal_g, MGAUSS)
+
+
+@pytest.mark.parametrize(("instance", "suffix"), [(0, ""), (1, "2"), (2, "3")])
+def test_ardupilot_second_and_third_compass_have_their_own_names(instance, suffix):
+    cal = sensor()
+    p = parse_params(ardupilot_param_file(ardupilot_params(cal, MGAUSS, instance=instance)))
+    assert sorted(p) == sorted([f"COMPASS_OFS{suffix}_{a}" for a in "XYZ"]
+                               + [f"COMPASS_DIA{suffix}_{a}" for a in "XYZ"]
+                               + [f"COMPASS_ODI{suffix}_{a}" for a in "XYZ"]
+                               + [f"COMPASS_SCALE{suffix}"])
+    y = raw_samples(cal)
+    np.testing.assert_allclose(ardupilot_correct(p, y, suffix) / field_strength(cal),
+                               cal.safe().apply(y), **FLOAT32)
+    with pytest.raises(ValueError, match="compasses 0 to 2, got instance 3"):
+        ardupilot_params(cal, MGAUSS, instance=3)
 
 
 @pytest.mark.parametrize(("cal", "message"), [
@@ -156,4 +193,97 @@ def test_ardupilot_units_conversion_from_gauss():
 ])
 def test_ardupilot_refuses_values_outside_its_ranges(cal, message):
     with pytest.raises(ValueError, match=message):
-        ardupilot_params(cal)
+        ardupilot_params(cal, MGAUSS)
+
+
+def parse_qgc(text: str) -> dict[str, np.float32 | int]:
+    """QGroundControl's .params rows: vehicle, component, name, value, MAV_PARAM_TYPE."""
+    out: dict[str, np.float32 | int] = {}
+    for line in text.splitlines():
+        if line.startswith("#") or not line.strip():
+            continue
+        vehicle, component, name, value, kind = line.split("\t")
+        assert (vehicle, component) == ("1", "1") and kind in ("6", "9")
+        out[name] = int(value) if kind == "6" else np.float32(value)
+    return out
+
+
+def px4_correct(p: dict, raw_gauss: np.ndarray, n: int = 0) -> np.ndarray:
+    """PX4's Magnetometer::Correct without rotation: S (raw - offset), float32."""
+    d = [p[f"CAL_MAG{n}_{a}SCALE"] for a in "XYZ"]
+    o = [p[f"CAL_MAG{n}_{a}ODIAG"] for a in "XYZ"]
+    S = np.array([[d[0], o[0], o[1]], [o[0], d[1], o[2]], [o[1], o[2], d[2]]], np.float32)
+    off = np.array([p[f"CAL_MAG{n}_{a}OFF"] for a in "XYZ"], np.float32)
+    return (raw_gauss.astype(np.float32) - off) @ S.T
+
+
+@pytest.mark.parametrize(("units", "gauss_per_unit"), [("uT", 0.01), ("gauss", 1.0),
+                                                       ("0.92mgauss", 0.00092)])
+def test_px4_params_reproduce_apply_in_float32(units, gauss_per_unit):
+    k = 0.5 / field_strength(sensor()) / gauss_per_unit           # 0.5 gauss in any unit
+    cal = Calibration(sensor().T * k, sensor().h * k)
+    text = px4_param_file(px4_params(cal, parse_units(units), instance=1, device_id=396809),
+                          "from test")
+    assert "# Vehicle-Id Component-Id Name Value Type" in text
+    assert "1\t1\tCAL_MAG1_ID\t396809\t6" in text and "not set here" not in text
+    p = parse_qgc(text)
+    y = raw_samples(cal)
+    corrected = px4_correct(p, y * gauss_per_unit, n=1)
+    F = field_strength(cal) * gauss_per_unit
+    np.testing.assert_allclose(F, 0.5, rtol=1e-12)
+    np.testing.assert_allclose(corrected / F, cal.safe().apply(y), **FLOAT32)
+    np.testing.assert_allclose([p[f"CAL_MAG1_{a}OFF"] for a in "XYZ"], cal.h * gauss_per_unit,
+                               rtol=1e-7)
+
+
+def test_px4_writes_the_rotation_and_says_when_the_id_is_missing():
+    text = px4_param_file(px4_params(sensor(), MGAUSS, rotation=2), "x")
+    assert "1\t1\tCAL_MAG0_ROT\t2\t6" in text
+    assert "# CAL_MAG0_ID is not set here: the slot must already belong to this compass" in text
+    with pytest.raises(ValueError, match="compasses 0 to 3"):
+        px4_params(sensor(), MGAUSS, instance=4)
+    with pytest.raises(ValueError, match=r"^PX4 works in gauss and the recording's unit is "
+                       r"unknown:"):
+        px4_params(sensor(), parse_units(None))
+
+
+def inav_correct(text: str, raw: np.ndarray) -> np.ndarray:
+    """INAV's compassUpdate: (raw - magzero) * 1024 / maggain in int32 arithmetic."""
+    s = dict(re.findall(r"^set (\w+) = (-?\d+)$", text, re.M))
+    zero = np.array([int(s[f"magzero_{a}"]) for a in "xyz"])
+    gain = np.array([int(s[f"maggain_{a}"]) for a in "xyz"])
+    return (raw.astype(np.int32) - zero) * 1024 // gain
+
+
+def test_inav_and_betaflight_offsets_give_back_calibration_json_up_to_a_count():
+    cal = sensor()                          # milligauss figures, taken as raw counts
+    counts = parse_units("counts")
+    raw = np.round(raw_samples(cal)).astype(np.int32)
+    A, b = cal.correction()
+    inav = inav_cli(cal, counts, "head")
+    assert "holds offsets only" in inav and inav.rstrip().endswith("save")
+    centred = inav_correct(inav, raw)
+    assert np.abs(centred - (raw - b)).max() <= 0.5
+    # What the firmware cannot hold, A, applied on top gives back calibration.json's samples.
+    np.testing.assert_allclose(centred @ A.T, (raw - b) @ A.T, atol=0.5 * np.abs(A).sum(1).max())
+    bf = betaflight_cli(cal, counts)
+    x, y, z = map(int, re.search(r"^set mag_calibration = (-?\d+),(-?\d+),(-?\d+)$", bf,
+                                 re.M).groups())
+    np.testing.assert_array_equal([x, y, z], np.round(b))
+    assert "holds offsets only" in bf
+    with pytest.raises(ValueError, match="raw counts and the recording is in uT"):
+        inav_cli(cal, parse_units("uT"))
+    with pytest.raises(ValueError, match="int16"):
+        betaflight_cli(sensor(offset=(40000.0, 0, 0)), counts)
+
+
+def test_firmware_files_say_each_reason_once():
+    written, refused = firmware_files(sensor(), parse_units(None), comment="v")
+    assert written == {}
+    assert refused["ardupilot.param"] == refused["px4.params"] and \
+        refused["inav.txt"] == refused["betaflight.txt"]
+    written, refused = firmware_files(sensor(), parse_units("0.1mgauss"), comment="v")
+    assert set(written) == set(FIRMWARE_FILES) - {"ardupilot.param"}
+    assert "field strength 4" in refused["ardupilot.param"]      # about 45 mGauss
+    written, refused = firmware_files(sensor(), MGAUSS, comment="v")
+    assert set(written) == {"ardupilot.param", "px4.params"}

@@ -95,3 +95,113 @@ def test_a_long_recording_keeps_every_sample(tmp_path, monkeypatch):
     path = tmp_path / "rec.csv"
     frame(400)[["mx", "my", "mz"]].to_csv(path, index=False)
     assert read_samples(path).K == 400
+
+
+def test_an_error_after_blank_lines_names_the_line_of_the_file(tmp_path):
+    lines = frame(10)[["mx", "my", "mz"]].to_csv(index=False).splitlines()
+    lines[6] = "1.0,oops,2.0"                      # data row 6, line 7 before the blanks
+    path = tmp_path / "rec.csv"
+    path.write_text("\n".join(lines[:3] + ["", "   "] + lines[3:]) + "\n")
+    with pytest.raises(ValueError, match=r"non-numeric value 'oops' in column 'my' at data row "
+                                         r"6 \(line 9 of the file\)"):
+        read_samples(path, check=False)
+
+
+def two_compasses(tmp_path, column="I"):
+    a, b = frame(40), frame(40) * 1.5
+    a.insert(0, column, 0)
+    b.insert(0, column, 1)
+    path = tmp_path / "mag.csv"
+    pd.concat([a, b]).sort_values("t", kind="stable").to_csv(path, index=False)
+    return path, a, b
+
+
+@pytest.mark.parametrize("column", ["I", "instance", "device_id"])
+def test_several_sensors_are_refused_naming_them_and_one_is_chosen(tmp_path, column):
+    path, a, b = two_compasses(tmp_path, column)
+    with pytest.raises(ValueError, match=rf"holds 2 sensors in column '{column}': 0 \(40 rows\), "
+                                         r"1 \(40 rows\); choose one with instance=, e\.g\. "
+                                         r"instance=0"):
+        read_samples(path, check=False)
+    for value, part in ((1, b), ("1.0", b), ("0", a)):
+        rec = read_samples(path, check=False, instance=value)
+        np.testing.assert_array_equal(rec.y, part[["mx", "my", "mz"]].to_numpy())
+        np.testing.assert_array_equal(rec.t, part["t"].to_numpy())
+        assert rec.instance[0] == column
+    with pytest.raises(ValueError, match=rf"instance=7 is not in column '{column}'.*0 \(40 rows\)"):
+        read_samples(path, check=False, instance=7)
+
+
+def test_instance_without_an_instance_column_is_refused(tmp_path):
+    path = tmp_path / "rec.csv"
+    frame()[["mx", "my", "mz"]].to_csv(path, index=False)
+    with pytest.raises(ValueError, match=r"instance=1 was given but rec\.csv has no instance "
+                                         r"column"):
+        read_samples(path, check=False, instance=1)
+    assert read_samples(path, check=False).instance is None
+
+
+def test_iso_times_are_read_as_seconds_from_the_first(tmp_path):
+    data = frame(20)
+    start = pd.Timestamp("2025-03-01T12:00:00Z")
+    data["t"] = [(start + pd.Timedelta(seconds=0.05 * i)).isoformat() for i in range(20)]
+    path = tmp_path / "rec.csv"
+    data.to_csv(path, index=False)
+    rec = read_samples(path, check=False)
+    np.testing.assert_allclose(rec.t, 0.05 * np.arange(20), atol=1e-9)
+    assert rec.has_gyro
+
+
+def test_a_time_column_of_text_is_dropped_with_a_warning(tmp_path):
+    data = frame(20)
+    data["t"] = "soon"
+    path = tmp_path / "rec.csv"
+    data.to_csv(path, index=False)
+    with pytest.warns(UserWarning, match=r"column 't' holds neither seconds nor ISO 8601 times "
+                                         r"\(e\.g\. 'soon' on line 2\); reading without times, "
+                                         r"so the gyro columns are not used"):
+        rec = read_samples(path, check=False)
+    assert rec.t is None and rec.gyro is None and rec.K == 20
+
+
+@pytest.mark.parametrize("sep", [";", "\t", " "])
+def test_decimal_commas_are_read_when_columns_are_not_comma_separated(tmp_path, sep):
+    data = frame(12)
+    path = tmp_path / "rec.csv"
+    data.to_csv(path, index=False, sep=sep, decimal=",")
+    rec = read_samples(path, check=False)
+    np.testing.assert_allclose(rec.y, data[["mx", "my", "mz"]].to_numpy(), rtol=1e-15)
+    np.testing.assert_allclose(rec.t, data["t"].to_numpy())
+
+
+def test_a_decimal_comma_in_a_comma_separated_file_is_named(tmp_path):
+    path = tmp_path / "rec.csv"
+    path.write_text('mx,my,mz\n1.5,2,3\n"1,5",2,3\n')
+    with pytest.raises(ValueError, match=r"'1,5' in column 'mx' at data row 2 \(line 3 of the "
+                                         r"file\); it looks like a decimal comma"):
+        read_samples(path, min_samples=1, check=False)
+
+
+@pytest.mark.parametrize(("text", "message"), [
+    ("x y z\n0 1 2 3 4 5\n1 2 3 4 5 6\n",
+     r"^f\.txt: the header names 3 columns but line 2 has 6 fields; name every column"),
+    ("0 1 2 3 4 5\n1 2 3 4 5 6\n\n2 3 4 5 6 7 8\n",
+     r"^f\.txt: line 4 has 7 fields where the rows before have 6"),
+    ("0 1 2\n1 2 3\n", r"^columns positions \[3, 4, 5\] are out of range; the file has 3 columns"),
+])
+def test_a_text_dump_with_columns_by_position_gets_one_line(tmp_path, text, message):
+    path = tmp_path / "f.txt"
+    path.write_text(text)
+    with pytest.raises(ValueError, match=message) as caught:
+        read_samples(path, [3, 4, 5], min_samples=1, check=False)
+    assert "\n" not in str(caught.value)
+
+
+def test_an_unclosed_quote_names_its_line(tmp_path):
+    lines = frame(10)[["mx", "my", "mz"]].to_csv(index=False).splitlines()
+    lines[4] = '"' + lines[4]
+    path = tmp_path / "rec.csv"
+    path.write_text("\n".join(lines) + "\n")
+    with pytest.raises(ValueError, match=r"^rec\.csv: a quoted field opens on line 5 and is "
+                                         r"never closed"):
+        read_samples(path, check=False)

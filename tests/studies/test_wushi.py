@@ -158,7 +158,7 @@ def test_refine_unit_on_normalised_data_equals_calibrate():
     R0, h0 = upper_inverse(T0) / scale, h0 * scale
     for name in (ML, NM):
         T, h, history, converged = refine_unit(name, data.y, R0, h0, 50)
-        cal = calibrate(data.y, name)
+        cal = calibrate(data.y, name, raw=True)
         assert converged
         assert np.allclose(T, cal.T, rtol=1e-10, atol=1e-12)
         assert np.allclose(h, cal.h, rtol=1e-10, atol=1e-12)

@@ -21,7 +21,7 @@ import numpy as np
 import pandas as pd
 from omegaconf import DictConfig
 
-from magbench.cli.config import UsageError, check_columns, writable_folder
+from magbench.cli.config import UsageError, check_columns, check_instance, writable_folder
 from magbench.core.exports import from_json_dict
 from magbench.core.files import write_csv_atomic
 from magbench.core.model import Calibration
@@ -81,7 +81,8 @@ def run_apply(cfg: DictConfig) -> int:
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         try:
-            rec = read_samples(path, check_columns(cfg, recorded), min_samples=1, check=False)
+            rec = read_samples(path, check_columns(cfg, recorded), min_samples=1, check=False,
+                               instance=check_instance(cfg))
         except ValueError as exc:
             raise UsageError(str(exc)) from None
     for w in caught:

@@ -43,21 +43,32 @@ from magbench.cli.config import (
     UsageError,
     check_columns,
     check_common,
+    check_field_strength,
+    check_instance,
     check_integer,
     check_number,
     check_options,
+    check_out_calibration,
+    check_units,
     writable_folder,
 )
 from magbench.cli.picture import PictureWorker, draw_picture
-from magbench.core.exports import ardupilot_param_file, ardupilot_params, c_header, to_json_dict
+from magbench.core.exports import (
+    FIRMWARE_FILES,
+    c_header,
+    field_strength,
+    firmware_files,
+    to_json_dict,
+)
 from magbench.core.files import write_csv_atomic, write_text_atomic
 from magbench.core.gauge import safe_gauge
 from magbench.core.model import Calibration
+from magbench.core.units import UNKNOWN, Units
 from magbench.core.verdict import Gate
 from magbench.methods.registry import get_method, methods
 from magbench.sources.recordings import Recording, read_samples
+from magbench.studies.auto import candidate_rounds
 from magbench.studies.calibration import (
-    FIRST_ROUND,
     CalibrationResult,
     bootstrap_check,
     calibrate_recording,
@@ -66,7 +77,7 @@ from magbench.studies.calibration import (
 from magbench.studies.real import DEFAULT_MAX_SAMPLES, PREPROCESSING, applicability
 
 __all__ = ["MIN_COVERAGE", "answer_line", "calibration_json", "check_gate", "default_out",
-           "detail_lines", "expected_field", "run_calibrate"]
+           "detail_lines", "run_calibrate"]
 
 #: Coverage below which a recording is refused: lower than the sweeps' 0.3, because thin
 #: coverage now falls back to the sphere model instead of a full fit (a hemisphere of real
@@ -77,20 +88,13 @@ MIN_COVERAGE = 0.2
 def _candidates(cfg: DictConfig, rec_has_gyro: bool) -> tuple[list[str], list[str]]:
     """The first and second round of candidates (``second_round`` of
     :func:`~magbench.studies.calibration.calibrate_recording`) from ``method`` and
-    ``candidates``."""
+    ``candidates`` (:func:`magbench.studies.auto.candidate_rounds`, as the Python API)."""
     name = cfg.get("method")
     if name is not None:
         return [str(name)], []
     chosen = cfg.get("candidates", "auto")
-    if chosen not in ("auto", "all"):
-        return list(chosen), []
-    # The printed variants reproduce the review's misprints: benchmark rows, never a user's fit.
-    every = [m for m in methods() if get_method(m).family != "variant"
-             and (rec_has_gyro or not get_method(m).needs_gyro)]
-    if chosen == "all":
-        return every, []
-    return ([m for m in every if m in FIRST_ROUND],
-            [m for m in every if m not in FIRST_ROUND])
+    return candidate_rounds(rec_has_gyro, chosen if chosen in ("auto", "all") else
+                            [str(c) for c in chosen])
 
 
 def _check_candidates(cfg: DictConfig) -> None:
@@ -118,15 +122,17 @@ def default_out(path: Path) -> Path:
 
 
 def calibration_json(result: CalibrationResult, *, file: str, columns: list, n_file: int,
-                     preprocess: str) -> dict:
+                     preprocess: str, units: Units = UNKNOWN,
+                     expected_field: float | None = None) -> dict:
     """The chosen calibration as a JSON-ready dict: the correction in the safe gauge.
 
     The schema of :func:`magbench.core.exports.to_json_dict` (``A``, ``b`` of ``m = A (y - b)``,
     ``T = A^-1``, ``h = b``), plus ``status`` and ``fitness`` (PASS, WARN or FAIL and why), the
     method, the choice, verdict, intervals, thinning, outliers and coverage; ``removed`` records
     the rotation angle taken out of the method's own ``T^-1``, whether it was a mirror image, and
-    the method's ``T`` itself. A FAIL holds no correction at the top level (``apply`` refuses
-    it): the rejected one is under ``rejected``.
+    the method's ``T`` itself; ``unit`` the recording's unit and ``field_strength_expected`` the
+    ``field_strength`` key in file units (None if unset). A FAIL holds no correction at the top
+    level (``apply`` refuses it): the rejected ``A``, ``b``, ``T``, ``h`` are under ``rejected``.
 
     Raises
     ------
@@ -136,14 +142,13 @@ def calibration_json(result: CalibrationResult, *, file: str, columns: list, n_f
     row = result.chosen
     T, h = estimate(row)
     gauge = safe_gauge(T, h)
-    correction = to_json_dict(Calibration(T, h), units="as recorded in the file",
-                              columns=columns)
+    correction = to_json_dict(Calibration(T, h), units=units, columns=columns)
     status = result.fitness["status"]
+    if status == "FAIL":
+        rejected = {k: correction.pop(k) for k in ("A", "b", "T", "h")}
+        correction["rejected"] = rejected
     return {
-        "status": status, "fitness": result.fitness,
-        **(correction if status != "FAIL" else
-           {"rejected": {k: correction[k] for k in ("A", "b", "T", "h", "gauge")},
-            "columns": correction.get("columns")}),
+        "status": status, "fitness": result.fitness, **correction,
         "file": file, "method": row["algorithm"], "label": get_method(row["algorithm"]).label,
         "model": get_method(row["algorithm"]).model, "choice": result.how, "tie": result.tie,
         "candidates": {"fitted": sorted(set(result.trials["algorithm"])),
@@ -151,7 +156,8 @@ def calibration_json(result: CalibrationResult, *, file: str, columns: list, n_f
                        "second_round": result.second_round or None},
         "removed": {"rotation_deg": gauge.rotation_deg, "mirrored": gauge.mirrored,
                     "method_T": T.tolist()},
-        "field_strength": float(np.cbrt(abs(np.linalg.det(T)))),
+        "field_strength": field_strength(Calibration(T, h)),
+        "field_strength_expected": expected_field,
         "verdict": result.verdict,
         "intervals": result.intervals.to_dict() if result.intervals else None,
         "bootstrap": result.bootstrap,
@@ -234,11 +240,36 @@ def detail_lines(result: CalibrationResult, payload: dict, n_file: int) -> list[
         shown = ", ".join(names[:4]) + (f" and {len(names) - 4} more" if len(names) > 4 else "")
         lines.append(f"not fitted: {shown} (candidates=all fits every method)")
     lines += _interval_lines(payload)
-    lines.append(f"field strength {payload['field_strength']:.4g} (file units); a "
+    lines.append(f"field strength {_field_text(payload)}; a "
                  f"{g['rotation_deg']:.1f} deg rotation"
                  f"{' and a mirror image' if g['mirrored'] else ''} removed (A symmetric "
                  "positive definite)")
     return lines
+
+
+def _instance_keys(rec: Recording) -> dict:
+    """``instance`` (the column and value kept) and what the firmware files take from it: an
+    ArduPilot ``I`` or ``instance`` of 0-3 numbers the parameter set, a ``device_id`` is PX4's
+    CAL_MAGn_ID."""
+    if rec.instance is None:
+        return {"instance": None}
+    column, value = rec.instance
+    number = int(float(value)) if value.lstrip("-").replace(".", "", 1).isdigit() else None
+    index = number if column != "device_id" and number is not None and 0 <= number <= 3 else 0
+    device = number if column == "device_id" else None
+    return {"instance": {"column": column, "value": value}, "instance_index": index,
+            "device_id": device}
+
+
+def _field_text(payload: dict) -> str:
+    """The field strength in the recording's unit, and against the expected one if given."""
+    units = Units.from_dict(payload.get("unit"))
+    text = units.show(payload["field_strength"])
+    expected = payload.get("field_strength_expected")
+    if expected:
+        change = 100 * (payload["field_strength"] / expected - 1)
+        text += f" (expected {units.show(expected)}: {change:+.1f} %)"
+    return text
 
 
 def _finite(x: float) -> float | None:
@@ -286,15 +317,6 @@ def check_gate(cfg: DictConfig) -> Gate:
     return gate
 
 
-def expected_field(cfg: DictConfig) -> float | None:
-    """``field_strength``: the field expected in the recording's units, or None (unknown)."""
-    value = cfg.get("field_strength")
-    if value is None:
-        return None
-    return check_number(value, "field_strength", lambda x: x > 0, "> 0 (the expected field "
-                        "in the recording's units)")
-
-
 def run_calibrate(cfg: DictConfig, picture: PictureWorker | None = None) -> int:
     """The ``calibrate`` command; a bad file or value raises :class:`UsageError`.
 
@@ -316,8 +338,12 @@ def run_calibrate(cfg: DictConfig, picture: PictureWorker | None = None) -> int:
     max_samples = check_integer(cfg.get("max_samples", DEFAULT_MAX_SAMPLES), "max_samples", 8)
     n_boot = check_integer(cfg.get("bootstrap", 50), "bootstrap", 0, 10_000)
     gate = check_gate(cfg)
-    expected = expected_field(cfg)
     columns = check_columns(cfg)
+    units = check_units(cfg)
+    expected = check_field_strength(cfg, units)
+    instance = check_instance(cfg)
+    out = Path(str(cfg.out)) if cfg.get("out") else default_out(path)
+    check_out_calibration(out, cfg.get("overwrite"))
     name = cfg.get("method")
     if name is not None and str(name) not in methods():
         raise UsageError(f"unknown method {name!r}; expected one of: {', '.join(methods())}")
@@ -329,7 +355,8 @@ def run_calibrate(cfg: DictConfig, picture: PictureWorker | None = None) -> int:
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         try:
-            rec = read_samples(path, columns, min_samples=need, min_coverage=MIN_COVERAGE)
+            rec = read_samples(path, columns, min_samples=need, min_coverage=MIN_COVERAGE,
+                               instance=instance)
         except ValueError as exc:
             raise UsageError(str(exc)) from None
     for w in caught:
@@ -351,11 +378,15 @@ def run_calibrate(cfg: DictConfig, picture: PictureWorker | None = None) -> int:
                             "longer" if not name else "see the table")
                          + "); check that the sensor was turned through many orientations "
                          "in a steady field")
-    out = writable_folder(cfg.out if cfg.get("out") else default_out(path), "out")
+    out = writable_folder(out, "out")
     payload = calibration_json(result, file=str(path), columns=list(rec.columns),
-                               n_file=rec.K, preprocess=preprocess)
+                               n_file=rec.K, preprocess=preprocess, units=units,
+                               expected_field=expected)
+    payload |= _instance_keys(rec)
     if payload["status"] == "FAIL":
         write_text_atomic(json.dumps(payload, indent=2) + "\n", out / "calibration.json")
+        for stale in {*FIRMWARE_FILES, "calibration.h", "ranking.csv", "calibration.png"}:
+            (out / stale).unlink(missing_ok=True)       # an earlier run's, now wrong
         _report(result, payload, out, rec.K, ["calibration.json (the reasons; no correction)"],
                 start)
         return 3
@@ -368,15 +399,14 @@ def run_calibrate(cfg: DictConfig, picture: PictureWorker | None = None) -> int:
     T, h = estimate(result.chosen)
     write_text_atomic(json.dumps(payload, indent=2) + "\n", out / "calibration.json")
     written, notes = _write_exports(Calibration(T, h), payload, out)
-    written = ["calibration.json (m = A (y - b))", *written]
     write_csv_atomic(result.ranked, out / "ranking.csv")
     problem = picture.wait() if sent else ""
     if problem:
         print(f"magbench: note: {problem}; drawing the picture here", file=sys.stderr)
     if problem or not sent:
         draw_picture(job)
-    _report(result, payload, out, rec.K, [*written, "ranking.csv", "calibration.png"], start,
-            notes)
+    _report(result, payload, out, rec.K, ["calibration.json (m = A (y - b))", *written,
+                                          "ranking.csv", "calibration.png"], start, notes)
     return 0
 
 
@@ -395,22 +425,27 @@ def _report(result: CalibrationResult, payload: dict, out: Path, n_file: int,
 
 
 def _write_exports(cal: Calibration, payload: dict, out: Path) -> tuple[list[str], list[str]]:
-    """calibration.h always; ardupilot.param when ArduPilot accepts the values (else one line
-    saying why not). Returns the names written and that line, if any."""
+    """calibration.h always; each firmware file of :func:`magbench.core.exports.firmware_files`
+    that can be written (one line says why not the others, each reason once; a stale one from
+    an earlier run in ``out`` is removed). Returns the names written and that line, if any."""
     f = payload["verdict"]["field_error_pct"]
     verdict = (f"{payload['label']}: field magnitude error {f['p95']:.2f} % (95th percentile), "
                f"{f['max']:.2f} % (max), "
                f"{'held out' if payload['verdict']['held_out'] else 'in sample'}; "
                f"from {Path(payload['file']).name}")
-    write_text_atomic(c_header(cal, "mag_cal", verdict=verdict), out / "calibration.h")
-    try:
-        params = ardupilot_params(cal)
-    except ValueError as exc:
-        return ["calibration.h"], [f"not writing ardupilot.param: {exc}"]
-    note = ("magbench calibration for ArduPilot: corrected = M (COMPASS_SCALE (raw + OFS)), "
-            f"raw in milligauss\n{verdict}")
-    write_text_atomic(ardupilot_param_file(params, note), out / "ardupilot.param")
-    return ["calibration.h", "ardupilot.param"], []
+    units = Units.from_dict(payload.get("unit"))
+    write_text_atomic(c_header(cal, "mag_cal", verdict=verdict, units=units),
+                      out / "calibration.h")
+    written, refused = firmware_files(cal, units, instance=payload.get("instance_index") or 0,
+                                      device_id=payload.get("device_id"), comment=verdict)
+    for file, text in written.items():
+        write_text_atomic(text, out / file)
+    for stale in set(FIRMWARE_FILES) - set(written):
+        (out / stale).unlink(missing_ok=True)
+    notes = ["not writing " + "; ".join(
+        f"{', '.join(n for n, r in refused.items() if r == reason)} ({reason})"
+        for reason in dict.fromkeys(refused.values()))] if refused else []
+    return ["calibration.h", *written], notes
 
 
 #: Samples drawn in the picture: enough to show the shape, few enough to draw fast.

@@ -21,6 +21,7 @@ from typing import TYPE_CHECKING
 
 from omegaconf import DictConfig, OmegaConf
 
+from magbench.core.units import Units, parse_field, parse_units
 from magbench.engine.plugins import load_plugins
 from magbench.methods.registry import get_method, methods
 
@@ -33,11 +34,15 @@ __all__ = [
     "base_config",
     "check_columns",
     "check_common",
+    "check_field_strength",
+    "check_instance",
     "check_integer",
     "check_number",
     "check_options",
+    "check_out_calibration",
     "check_override_keys",
     "check_trials",
+    "check_units",
     "compose_config",
     "config_dir",
     "did_you_mean",
@@ -463,3 +468,42 @@ def writable_folder(path: Path | str, key: str) -> Path:
                          "folder you can write to") from None
     return path
 
+
+
+def check_units(cfg: DictConfig) -> Units:
+    """``units`` of calibrate: a unit, ``counts`` or a count's size (:mod:`magbench.core.units`);
+    unset means unknown."""
+    try:
+        return parse_units(plain(cfg.get("units")))
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
+
+
+def check_field_strength(cfg: DictConfig, units: Units) -> float | None:
+    """``field_strength`` of calibrate: the expected field, in file units or with a unit
+    (``48uT``), converted to file units; None when unset."""
+    try:
+        return parse_field(plain(cfg.get("field_strength")), units)
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
+
+
+def check_instance(cfg: DictConfig) -> str | None:
+    """``instance``: the value of the sensor-instance column to keep (compared as text, so
+    ``instance=1`` matches a cell ``1``); None when unset."""
+    value = plain(cfg.get("instance"))
+    if value is None:
+        return None
+    if isinstance(value, bool) or not isinstance(value, str | int | float):
+        raise UsageError(f"instance must be one value of the file's instance column, e.g. "
+                         f"instance=1, got {value!r}")
+    return str(value)
+
+
+def check_out_calibration(out: Path, overwrite: object) -> None:
+    """Refuse an ``out`` folder that already holds a calibration unless ``overwrite=true``."""
+    if _flag(overwrite if overwrite is not None else False, "overwrite"):
+        return
+    if (Path(out).expanduser() / "calibration.json").exists():
+        raise UsageError(f"out={out} already holds a calibration (calibration.json); pass "
+                         "overwrite=true to replace it, or choose another out=")

@@ -84,11 +84,12 @@ COMMANDS: dict[str, tuple[Callable[..., int], str, str, tuple[str, ...]]] = {
     "calibrate": (_calibrate, "calibrate your own recording and write the correction",
                   "python -m magbench calibrate file=data.csv",
                   ("file", "method", "candidates", "columns", "out", "preprocess",
-                   "max_samples", "bootstrap", "seed",
-                   "options", "call_timeout_s", "plugins")),
+                   "max_samples", "bootstrap", "seed", "units", "field_strength", "instance",
+                   "overwrite", "options", "call_timeout_s", "plugins")),
     "apply": (_apply, "correct a recording with a saved calibration.json (m = A (y - b))",
               "python -m magbench apply calibration=cal/calibration.json file=flight.csv "
-              "out=flight-corrected.csv", ("calibration", "file", "columns", "out", "overwrite")),
+              "out=flight-corrected.csv", ("calibration", "file", "columns", "instance", "out",
+                                            "overwrite")),
     "reproduce": (_reproduce, "every sweep at its committed size, then the report (make "
                   "reproduce); per-step times to results/bench/reproduce_times.csv",
                   "python -m magbench reproduce",

@@ -16,6 +16,7 @@ key            meaning
 ``version``    schema version (an integer; a reader refuses a newer one)
 ``gauge``      ``"m = A (y - b), A symmetric positive definite"``
 ``units``      what ``y`` and ``b`` are measured in (``m`` is in units of the field magnitude)
+``unit``       optional: ``name``, ``gauss_per_unit`` (null if unknown) and ``description``
 ``A``          3x3 list of rows
 ``b``          3 values
 ``T``, ``h``   the model ``y = T m + h`` in the same gauge (``T = A^-1``, ``h = b``)
@@ -27,6 +28,13 @@ Other keys (the method, its verdict, ...) may be added by the writer and are ign
 *C header* (:func:`c_header`): ``static const float NAME_A[3][3]``, ``NAME_b[3]`` and a
 ``static inline`` function ``NAME_apply`` computing ``m = A (y - b)`` in float.
 
+The unit of ``y`` (:mod:`magbench.core.units`) is recorded in the JSON (``unit``) and the
+header; the firmware files below need it and are refused, in one line, when it is unknown. The
+field strength ``F = |det T|^(1/3)`` (the recording's field, in its units) is the same in every
+gauge. A firmware that applies a symmetric matrix gets ``F A``, so its corrected field keeps the
+local field's strength in its own unit, as its own calibrator's does; because ``A`` is
+symmetric in the safe gauge, nothing is dropped.
+
 *ArduPilot* (:func:`ardupilot_params`). ArduPilot's compass driver corrects a raw sample (in
 milligauss, in the sensor's axes after the board rotation) as
 
@@ -35,31 +43,64 @@ milligauss, in the sensor's axes after the board rotation) as
 
 (``AP_Compass_Backend::correct_field`` in libraries/AP_Compass/AP_Compass_Backend.cpp; the matrix
 is the one spelled out in the COMPASS_DIA_* and COMPASS_ODI_* parameter descriptions of
-libraries/AP_Compass/AP_Compass_Params.cpp). ``s`` is COMPASS_SCALE, applied only when it lies
+libraries/AP_Compass/AP_Compass.cpp). ``s`` is COMPASS_SCALE, applied only when it lies
 in [1/1.5, 1.5] (``Compass::have_scale_factor`` with COMPASS_MAX_SCALE_FACTOR = 1.5 of
 AP_Compass_config.h; the parameter's documented @Range is 0 to 1.3). COMPASS_OFS_X/Y/Z are in
-milligauss (@Units mGauss). Because ArduPilot's ``M`` is symmetric, the safe gauge maps onto it
-exactly: ``OFS = -b`` and ``s M = F A`` with ``F = |det T|^(1/3)`` the field strength, so the
-corrected field keeps the recording's magnitude in milligauss as ArduPilot's own calibrator does;
-we write ``s = 1`` and ``M = F A`` (``det M = 1``). The export is refused (``ValueError`` naming
+milligauss (@Units mGauss) and *added*. So ``OFS = -b`` and ``s M = F A`` in milligauss; we
+write ``s = 1`` and ``M = F A`` (``det M = 1``). The second and third compass have their own
+sets, COMPASS_OFS2_X ... COMPASS_SCALE2 and COMPASS_OFS3_X ... (``instance`` 1 and 2, as the
+``I`` field of the MAG log message numbers them). The export is refused (``ValueError`` naming
 the value) outside the limits ArduPilot's calibrator accepts (``CompassCalibrator::fit_acceptable``
 in CompassCalibrator.cpp): field strength in (150, 950) mGauss (FIELD_RADIUS_MIN/MAX), offsets
 below 1800 mGauss (AP_COMPASS_OFFSETS_MAX_DEFAULT, the default of COMPASS_OFFS_MAX), diagonals in
-(0.2, 5) and off-diagonals below 1 in magnitude.
+(0.2, 5) and off-diagonals below 1 in magnitude. File: ``NAME VALUE`` lines (``param load``
+of MAVProxy, Mission Planner's "Load from file").
+
+*PX4* (:func:`px4_params`). ``calibration::Magnetometer::Correct`` (src/lib/sensor_calibration/
+Magnetometer.hpp) applies
+
+    corrected = R (S (raw - OFF)),   S = [[XSCALE, XODIAG, YODIAG], [XODIAG, YSCALE, ZODIAG],
+                                          [YODIAG, ZODIAG, ZSCALE]]
+
+with raw in gauss (``sensor_mag``), OFF = CAL_MAGn_{X,Y,Z}OFF *subtracted*, S symmetric (built
+in ``Magnetometer::ParametersUpdate``/``set_offdiagonal`` of Magnetometer.cpp from
+CAL_MAGn_{X,Y,Z}SCALE and CAL_MAGn_{X,Y,Z}ODIAG) and R the rotation CAL_MAGn_ROT (external
+compasses; an internal one takes the board rotation and ROT = -1). So ``OFF = b`` in gauss and
+``S = F A``: PX4's own calibrator also scales to the local field strength. A calibration slot
+is used only for the compass whose device id is CAL_MAGn_ID (``FindCalibrationIndex``): pass
+``device_id`` (the ULog ``sensor_mag.device_id``) to write it, else the file says that slot
+``n`` must already hold this compass's id. PX4's calibrator warns of offsets above 1.3 gauss
+(``MAG_MAX_OFFSET_LEN`` of mag_calibration.cpp, saturation); the file says so too. File:
+QGroundControl's ``.params`` (its developer guide, "Parameter File Format"): ``#`` comments,
+then ``vehicle-id<TAB>component-id<TAB>name<TAB>value<TAB>type`` with the MAV_PARAM_TYPE (9 =
+REAL32, 6 = INT32).
+
+*INAV and Betaflight* (:func:`inav_cli`, :func:`betaflight_cli`) hold offsets in raw counts
+and no cross-axis terms, so these files carry ``b`` only (rounded to whole counts) and say so;
+``A`` is not applied. INAV's ``compassUpdate`` (src/main/sensors/compass.c) computes
+``(raw - magzero) * 1024 / maggain`` per axis in the driver's axes before ``align_mag``; the
+file sets ``magzero_x/y/z`` and resets ``maggain_x/y/z`` to 1024 (no scale) so that an older
+calibration's gains do not stay. Betaflight's ``compassUpdate`` subtracts ``mag_calibration``
+after its sensor alignment, so those offsets are right for a recording in the aligned axes (as
+Betaflight's own raw readout shows them). Both need ``units=counts``: the flight controller's
+own raw readings, in int16.
 """
 
 from __future__ import annotations
 
-import math
 import re
+from collections.abc import Callable
 
 import numpy as np
 
 from magbench.core.gauge import safe_gauge, symmetric_T
 from magbench.core.model import Calibration
+from magbench.core.units import UNKNOWN, Units
 
-__all__ = ["ARDUPILOT_LIMITS", "FORMAT", "GAUGE", "SCHEMA_VERSION", "ardupilot_param_file",
-           "ardupilot_params", "c_header", "from_json_dict", "to_json_dict"]
+__all__ = ["ARDUPILOT_LIMITS", "FIRMWARE_FILES", "FORMAT", "GAUGE", "PX4_MAX_OFFSET_GAUSS",
+           "SCHEMA_VERSION", "ardupilot_param_file", "ardupilot_params", "betaflight_cli",
+           "c_header", "field_strength", "firmware_files", "from_json_dict", "inav_cli",
+           "px4_param_file", "px4_params", "to_json_dict"]
 
 FORMAT = "magbench-calibration"
 SCHEMA_VERSION = 1
@@ -70,7 +111,12 @@ ARDUPILOT_LIMITS = {"field_mgauss": (150.0, 950.0), "offset_mgauss": 1800.0,
 _ODI = ((0, 1), (0, 2), (1, 2))          # ODI_X, ODI_Y, ODI_Z positions in M
 
 
-def to_json_dict(cal: Calibration, *, units: str = "as recorded",
+def field_strength(cal: Calibration) -> float:
+    """``F = |det T|^(1/3)``: the field strength of the recording in its units (any gauge)."""
+    return float(np.cbrt(abs(np.linalg.det(cal.T))))
+
+
+def to_json_dict(cal: Calibration, *, units: Units | str = UNKNOWN,
                  columns: list | None = None) -> dict:
     """The written file's core (see the module notes for the schema).
 
@@ -78,8 +124,8 @@ def to_json_dict(cal: Calibration, *, units: str = "as recorded",
     ----------
     cal : Calibration
         Any gauge; it is written in the safe one.
-    units : str
-        What the raw samples (and ``b``) are measured in.
+    units : Units or str
+        What the raw samples (and ``b``) are measured in (a :class:`Units` adds ``unit``).
     columns : list of str, optional
         The input columns the calibration applies to.
 
@@ -89,10 +135,13 @@ def to_json_dict(cal: Calibration, *, units: str = "as recorded",
         If ``T`` is singular or not finite (such a calibration is never written).
     """
     gauge = safe_gauge(cal.T, cal.h)
+    shown = units.describe() if isinstance(units, Units) else units
     out = {"format": FORMAT, "version": SCHEMA_VERSION, "gauge": GAUGE,
-           "units": f"y and b: {units}; m: units of the field magnitude (|m| = 1)",
+           "units": f"y and b: {shown}; m: units of the field magnitude (|m| = 1)",
            "A": gauge.A.tolist(), "b": gauge.b.tolist(),
            "T": symmetric_T(cal.T).tolist(), "h": gauge.b.tolist()}
+    if isinstance(units, Units):
+        out["unit"] = units.to_dict()
     if columns is not None:
         out["columns"] = [str(c) for c in columns]
     return out
@@ -149,7 +198,8 @@ def _c_floats(values: np.ndarray) -> str:
     return ", ".join(_c_float(v) for v in values)
 
 
-def c_header(cal: Calibration, name: str = "mag_cal", *, verdict: str = "") -> str:
+def c_header(cal: Calibration, name: str = "mag_cal", *, verdict: str = "",
+             units: Units = UNKNOWN) -> str:
     """A C header with ``static const float NAME_A[3][3]``, ``NAME_b[3]`` and ``NAME_apply``.
 
     Parameters
@@ -160,6 +210,8 @@ def c_header(cal: Calibration, name: str = "mag_cal", *, verdict: str = "") -> s
         A C identifier prefixing the arrays, the function and the include guard.
     verdict : str
         A line quoted in the header's comment (e.g. the field-error verdict).
+    units : Units
+        The unit of ``y`` and ``b``, named in the comment.
 
     Raises
     ------
@@ -171,7 +223,7 @@ def c_header(cal: Calibration, name: str = "mag_cal", *, verdict: str = "") -> s
     gauge = safe_gauge(cal.T, cal.h)
     rows = ",\n    ".join("{" + _c_floats(r) + "}" for r in gauge.A)
     comment = [f"magbench calibration: {GAUGE}.",
-               "y: raw sample in the recording's units; m: field in units of its magnitude.",
+               f"y and b in {units.describe()}; m: field in units of its magnitude.",
                f"Rotation removed from the method's own correction: {gauge.rotation_deg:.1f} deg"
                + (" (it was a mirror image)" if gauge.mirrored else "") + "."]
     if verdict:
@@ -190,16 +242,35 @@ def c_header(cal: Calibration, name: str = "mag_cal", *, verdict: str = "") -> s
             f"{name}_A[i][2] * d[2];\n    }}\n}}\n\n#endif /* {guard} */\n")
 
 
-def ardupilot_params(cal: Calibration, *, mgauss_per_unit: float = 1.0) -> dict[str, float]:
-    """ArduPilot COMPASS_OFS_*, COMPASS_DIA_*, COMPASS_ODI_* and COMPASS_SCALE (module notes).
+def _needs_unit(units: Units, firmware: str, unit: str) -> float:
+    """Gauss per file unit, or one line saying what ``firmware`` needs."""
+    if not units.known:
+        raise ValueError(f"{firmware} works in {unit} and the recording's unit is "
+                         f"{units.describe()}: pass units=uT, nT, gauss or mgauss, or the size "
+                         "of one count (e.g. units=0.0625uT)")
+    return float(units.gauss)
+
+
+def _instance_suffix(instance: int, count: int, firmware: str) -> int:
+    if isinstance(instance, bool) or not isinstance(instance, int | np.integer) or \
+            not 0 <= instance < count:
+        raise ValueError(f"{firmware} has calibration sets for compasses 0 to {count - 1}, "
+                         f"got instance {instance!r}")
+    return int(instance)
+
+
+def ardupilot_params(cal: Calibration, units: Units, *, instance: int = 0) -> dict[str, float]:
+    """ArduPilot COMPASS_OFS*, COMPASS_DIA*, COMPASS_ODI* and COMPASS_SCALE* (module notes).
 
     Parameters
     ----------
     cal : Calibration
         Any gauge; the safe one is exported.
-    mgauss_per_unit : float
-        Milligauss per unit of the recording (1 if recorded in mGauss, 1000 for gauss, 10 for
-        microtesla); ArduPilot works in milligauss.
+    units : Units
+        The recording's unit; ArduPilot works in milligauss, so it must be known.
+    instance : int
+        The compass, 0 to 2 as the MAG log's ``I`` numbers them (names ``COMPASS_OFS_X``,
+        ``COMPASS_OFS2_X``, ``COMPASS_OFS3_X``).
 
     Returns
     -------
@@ -210,20 +281,21 @@ def ardupilot_params(cal: Calibration, *, mgauss_per_unit: float = 1.0) -> dict[
     Raises
     ------
     ValueError
-        When a value lies outside what ArduPilot accepts (naming the value and the range), or
-        ``T`` is singular or not finite.
+        An unknown unit, an instance ArduPilot has no parameters for, a value outside what
+        ArduPilot accepts (naming the value and the range), or a singular ``T``; one line each.
     """
-    if not (math.isfinite(mgauss_per_unit) and mgauss_per_unit > 0):
-        raise ValueError(f"mgauss_per_unit must be a positive number, got {mgauss_per_unit!r}")
+    k = 1000.0 * _needs_unit(units, "ArduPilot", "milligauss")   # mGauss per file unit
+    n = _instance_suffix(instance, 3, "ArduPilot")
     gauge = safe_gauge(cal.T, cal.h)
-    field = mgauss_per_unit * float(np.cbrt(abs(np.linalg.det(cal.T))))
-    M = field * gauge.A / mgauss_per_unit          # F A in mGauss: A_mg = A / k, F_mg = k F
-    offsets = -mgauss_per_unit * gauge.b
-    _check_ardupilot(field, offsets, M)
-    out = {f"COMPASS_OFS_{a}": float(v) for a, v in zip("XYZ", offsets, strict=True)}
-    out |= {f"COMPASS_DIA_{a}": float(M[i, i]) for i, a in enumerate("XYZ")}
-    out |= {f"COMPASS_ODI_{a}": float(M[i, j]) for a, (i, j) in zip("XYZ", _ODI, strict=True)}
-    out["COMPASS_SCALE"] = 1.0
+    F = field_strength(cal)
+    M = F * gauge.A                       # dimensionless: F A in any unit
+    offsets = -k * gauge.b
+    _check_ardupilot(k * F, offsets, M)
+    s = "" if n == 0 else str(n + 1)
+    out = {f"COMPASS_OFS{s}_{a}": float(v) for a, v in zip("XYZ", offsets, strict=True)}
+    out |= {f"COMPASS_DIA{s}_{a}": float(M[i, i]) for i, a in enumerate("XYZ")}
+    out |= {f"COMPASS_ODI{s}_{a}": float(M[i, j]) for a, (i, j) in zip("XYZ", _ODI, strict=True)}
+    out[f"COMPASS_SCALE{s}"] = 1.0
     return out
 
 
@@ -231,9 +303,8 @@ def _check_ardupilot(field: float, offsets: np.ndarray, M: np.ndarray) -> None:
     lo, hi = ARDUPILOT_LIMITS["field_mgauss"]
     if not lo < field < hi:
         raise ValueError(f"field strength {field:.4g} mGauss is outside ArduPilot's accepted "
-                         f"({lo:g}, {hi:g}) mGauss; ArduPilot needs the recording in milligauss "
-                         "(convert it, or pass mgauss_per_unit to magbench.core.exports."
-                         "ardupilot_params: 1000 for gauss, 10 for microtesla)")
+                         f"({lo:g}, {hi:g}) mGauss (the Earth's field is 250-650 mGauss: check "
+                         "the units= key)")
     worst = float(np.abs(offsets).max())
     if worst >= ARDUPILOT_LIMITS["offset_mgauss"]:
         raise ValueError(f"offset {worst:.4g} mGauss exceeds ArduPilot's COMPASS_OFFS_MAX "
@@ -251,5 +322,193 @@ def _check_ardupilot(field: float, offsets: np.ndarray, M: np.ndarray) -> None:
 
 def ardupilot_param_file(params: dict[str, float], comment: str = "") -> str:
     """``NAME VALUE`` lines (ArduPilot's .parm format, '#' comments) for ``param load``."""
-    head = [f"# {line}" for line in comment.splitlines() if line.strip()]
-    return "\n".join([*head, *(f"{k} {v:.9g}" for k, v in params.items())]) + "\n"
+    return "\n".join([*_comment(comment), *(f"{k} {v:.9g}" for k, v in params.items())]) + "\n"
+
+
+def _comment(text: str, mark: str = "#") -> list[str]:
+    return [f"{mark} {line}" for line in text.splitlines() if line.strip()]
+
+
+#: PX4's calibrator warns above this offset (gauss): the sensor saturates in some directions.
+PX4_MAX_OFFSET_GAUSS = 1.3
+#: MAV_PARAM_TYPE of QGroundControl's .params files.
+_REAL32, _INT32 = 9, 6
+
+
+def px4_params(cal: Calibration, units: Units, *, instance: int = 0,
+               device_id: int | None = None, rotation: int | None = None) -> dict[str, float]:
+    """PX4 CAL_MAGn_* parameters (module notes): offsets in gauss, the symmetric scale matrix.
+
+    Parameters
+    ----------
+    cal : Calibration
+        Any gauge; the safe one is exported.
+    units : Units
+        The recording's unit; PX4 works in gauss, so it must be known.
+    instance : int
+        The calibration slot ``n`` of CAL_MAGn_*, 0 to 3.
+    device_id : int, optional
+        The compass's device id (ULog ``sensor_mag.device_id``), written as CAL_MAGn_ID.
+    rotation : int, optional
+        PX4's rotation enum value for CAL_MAGn_ROT (external compasses).
+
+    Returns
+    -------
+    dict
+        Name -> value; CAL_MAGn_ID and CAL_MAGn_ROT are ints (INT32), the rest floats:
+        ``S (raw - OFF)`` equals ``F A (y - b)`` in gauss.
+
+    Raises
+    ------
+    ValueError
+        An unknown unit, an instance outside 0-3, a rotation outside PX4's enum range, or a
+        singular ``T``; one line each.
+    """
+    k = _needs_unit(units, "PX4", "gauss")
+    n = _instance_suffix(instance, 4, "PX4")
+    gauge = safe_gauge(cal.T, cal.h)
+    S = field_strength(cal) * gauge.A
+    out: dict[str, float] = {}
+    if device_id is not None:
+        out[f"CAL_MAG{n}_ID"] = int(device_id)
+    out |= {f"CAL_MAG{n}_{a}OFF": float(k * v) for a, v in zip("XYZ", gauge.b, strict=True)}
+    out |= {f"CAL_MAG{n}_{a}SCALE": float(S[i, i]) for i, a in enumerate("XYZ")}
+    out |= {f"CAL_MAG{n}_{a}ODIAG": float(S[i, j]) for a, (i, j) in zip("XYZ", _ODI, strict=True)}
+    if rotation is not None:
+        if isinstance(rotation, bool) or not isinstance(rotation, int | np.integer) or \
+                not -1 <= rotation < 64:
+            raise ValueError(f"PX4 rotation must be an entry of its Rotation enum (CAL_MAGn_ROT, "
+                             f"an integer from -1), got {rotation!r}")
+        out[f"CAL_MAG{n}_ROT"] = int(rotation)
+    return out
+
+
+def px4_param_file(params: dict[str, float], comment: str = "") -> str:
+    """QGroundControl's .params text (module notes) of ``params`` for vehicle 1, component 1.
+
+    Floats are written with 9 significant digits, which a float32 parameter reads back exactly.
+    """
+    rows = [f"1\t1\t{k}\t{v:d}\t{_INT32}" if isinstance(v, int) else
+            f"1\t1\t{k}\t{v:.9g}\t{_REAL32}" for k, v in params.items()]
+    offsets = [abs(v) for k, v in params.items() if k.endswith("OFF")]
+    note = (f"\nPX4 warns of offsets above {PX4_MAX_OFFSET_GAUSS:g} gauss (the sensor saturates "
+            "in some directions)" if offsets and max(offsets) > PX4_MAX_OFFSET_GAUSS else "")
+    slot = next((k[:8] for k in params), "CAL_MAGn")
+    ident = ("" if any(k.endswith("_ID") for k in params) else
+             f"\n{slot}_ID is not set here: the slot must already belong to this compass")
+    head = _comment(f"Onboard parameters for Vehicle 1\n{comment}{note}{ident}")
+    return "\n".join([*head, "#", "# Vehicle-Id Component-Id Name Value Type", *rows]) + "\n"
+
+
+_INT16 = (-32768, 32767)
+
+
+def _raw_offsets(cal: Calibration, units: Units, firmware: str) -> list[int]:
+    if not units.counts:
+        raise ValueError(f"{firmware} holds offsets in the flight controller's raw counts and "
+                         f"the recording is in {units.describe()}: record the flight "
+                         "controller's own raw readings and pass units=counts")
+    b = safe_gauge(cal.T, cal.h).b
+    values = [round(float(v)) for v in b]
+    if not all(_INT16[0] <= v <= _INT16[1] for v in values):
+        raise ValueError(f"{firmware} offsets {values} do not fit its int16 settings")
+    return values
+
+
+_OFFSETS_ONLY = ("holds offsets only: the soft-iron and scale correction A of "
+                 "calibration.json is not applied")
+
+
+def _offsets_file(cal: Calibration, units: Units, firmware: str, comment: str, how: str,
+                  settings: Callable[[list[int]], list[str]]) -> str:
+    """A CLI file of ``set`` lines holding ``b`` in raw counts, saying what is not applied."""
+    zero = _raw_offsets(cal, units, firmware)
+    head = _comment(f"{comment}\n{firmware}'s compass model {_OFFSETS_ONLY}; {how}\npaste "
+                    f"into the {firmware} CLI")
+    return "\n".join([*head, *settings(zero), "save"]) + "\n"
+
+
+def inav_cli(cal: Calibration, units: Units, comment: str = "") -> str:
+    """INAV CLI ``set`` lines: ``magzero_x/y/z`` = ``b`` in raw counts, ``maggain_*`` = 1024.
+
+    Raises
+    ------
+    ValueError
+        The recording is not in raw counts, or an offset does not fit an int16; one line.
+    """
+    return _offsets_file(
+        cal, units, "INAV", comment, "it subtracts magzero from the driver's raw axes before "
+        "align_mag, and maggain 1024 means no scale",
+        lambda zero: [*(f"set magzero_{a} = {v}" for a, v in zip("xyz", zero, strict=True)),
+                      *(f"set maggain_{a} = 1024" for a in "xyz")])
+
+
+def betaflight_cli(cal: Calibration, units: Units, comment: str = "") -> str:
+    """Betaflight CLI ``set mag_calibration = x,y,z`` with ``b`` in raw counts.
+
+    Raises
+    ------
+    ValueError
+        The recording is not in raw counts, or an offset does not fit an int16; one line.
+    """
+    return _offsets_file(
+        cal, units, "Betaflight", comment, "it subtracts mag_calibration after the sensor "
+        "alignment, so the recording must be in the aligned axes",
+        lambda zero: [f"set mag_calibration = {zero[0]},{zero[1]},{zero[2]}"])
+
+
+#: The firmware files :func:`firmware_files` writes, in order.
+FIRMWARE_FILES = ("ardupilot.param", "px4.params", "inav.txt", "betaflight.txt")
+
+
+def firmware_files(cal: Calibration, units: Units, *, instance: int = 0,
+                   device_id: int | None = None, comment: str = ""
+                   ) -> tuple[dict[str, str], dict[str, str]]:
+    """Every firmware file the calibration can be written as, and why the others cannot.
+
+    Parameters
+    ----------
+    cal : Calibration
+        Any gauge; the safe one is exported.
+    units : Units
+        The recording's unit (ArduPilot and PX4 need it known, INAV and Betaflight need counts).
+    instance : int
+        The compass (ArduPilot's set 0-2, PX4's slot 0-3).
+    device_id : int, optional
+        PX4's CAL_MAGn_ID.
+    comment : str
+        Lines put at the head of each file (e.g. the verdict).
+
+    Returns
+    -------
+    written : dict
+        File name -> text, for :data:`FIRMWARE_FILES` that could be written.
+    refused : dict
+        File name -> one-line reason for the others (equal reasons have equal text, so a
+        caller can say them once).
+    """
+    written: dict[str, str] = {}
+    refused: dict[str, str] = {}
+    physical = (f"unit {units.describe()}: pass units=uT, nT, gauss, mgauss or one count's "
+                "size, e.g. units=0.0625uT")
+    raw = "they take the flight controller's raw counts: units=counts"
+    makers = {
+        "ardupilot.param": (units.known, physical, lambda: ardupilot_param_file(
+            ardupilot_params(cal, units, instance=instance),
+            "magbench calibration for ArduPilot: corrected = M (COMPASS_SCALE (raw + OFS)), "
+            f"raw in milligauss\n{comment}")),
+        "px4.params": (units.known, physical, lambda: px4_param_file(
+            px4_params(cal, units, instance=instance, device_id=device_id),
+            f"magbench calibration for PX4: corrected = S (raw - OFF), raw in gauss\n{comment}")),
+        "inav.txt": (units.counts, raw, lambda: inav_cli(cal, units, comment)),
+        "betaflight.txt": (units.counts, raw, lambda: betaflight_cli(cal, units, comment)),
+    }
+    for name, (possible, why, make) in makers.items():
+        if not possible:
+            refused[name] = why
+            continue
+        try:
+            written[name] = make()
+        except ValueError as exc:
+            refused[name] = str(exc)
+    return written, refused

@@ -6,6 +6,13 @@ the input once, brings the data to unit scale by an exact power of two, calls th
 numerical failures to :class:`~magbench.core.model.CalibrationFailed` and checks the answer:
 a fit that claims convergence while fitting the data worse than no fit at all (J_r of eq. 81
 above the trivial estimate's) is returned with ``converged=False`` and the reason.
+
+What it hands back is in the safe gauge of :mod:`magbench.core.gauge` (``T`` symmetric
+positive definite, never rotated or mirrored: ``T = (T_m T_m^T)^(1/2)`` of the method's own
+``T_m``, the same ``h``), so a user who applies ``T^-1 (y - h)`` gets the field the written
+files give. ``raw=True`` returns the method's own ``T_m`` instead: the benchmark engine and
+the studies ask for it, because the review's metric (eq. 74) aligns ``T_m`` itself and the
+sweeps record it, and ``calibrate``'s report names the rotation and mirror image removed.
 """
 
 from __future__ import annotations
@@ -14,6 +21,7 @@ import math
 
 import numpy as np
 
+from magbench.core.gauge import symmetric_T
 from magbench.core.metrics import real_cost, sample_mean, trivial_estimate
 from magbench.core.model import Calibration, CalibrationFailed, as_samples
 from magbench.methods.registry import get_method
@@ -88,7 +96,7 @@ def _check_geometry(y: np.ndarray, min_samples: int, centred: np.ndarray) -> Non
 
 
 def calibrate(samples: object, method: str, *, angular_rate: object = None,
-              time: object = None, **options: object) -> Calibration:
+              time: object = None, raw: bool = False, **options: object) -> Calibration:
     """Estimate ``T`` and ``h`` of ``y = T m + h + eps`` from magnetometer samples.
 
     Parameters
@@ -101,13 +109,17 @@ def calibrate(samples: object, method: str, *, angular_rate: object = None,
     angular_rate, time : array_like, optional
         Gyroscope samples ``(K, 3)`` in rad/s and their timestamps ``(K,)`` in seconds, for the
         gyro-aided methods; other methods ignore them.
+    raw : bool
+        Return the method's own ``T`` (any rotation or mirror image it carries) instead of the
+        safe gauge (module notes). The benchmark's rows use it.
     **options
         The method's tuning values (iteration caps, tolerances, ``rng`` for randomised methods).
 
     Returns
     -------
     Calibration
-        Finite ``T`` (invertible) and ``h``, with the method's iteration count and message.
+        Finite ``T`` (invertible) and ``h``, with the method's iteration count and message;
+        ``T`` symmetric positive definite unless ``raw``.
 
     Raises
     ------
@@ -157,8 +169,9 @@ def calibrate(samples: object, method: str, *, angular_rate: object = None,
             message = (f"{method}: residual J_r (81) {fit_cost:.3g} is above the trivial "
                        f"estimate's {trivial:.3g} (h = mean, T = r I): not a calibration "
                        f"({message or 'no message'})")
-    return Calibration(cal.T * scale, cal.h * scale, cal.n_iter, converged, message,
-                       cal.gyro_bias)
+    T = cal.T * scale
+    return Calibration(T if raw else symmetric_T(T), cal.h * scale, cal.n_iter, converged,
+                       message, cal.gyro_bias)
 
 
 def _residual_against_trivial(y: np.ndarray, cal: Calibration, model: str, mean: np.ndarray,

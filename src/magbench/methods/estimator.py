@@ -121,7 +121,7 @@ class MagCalibrator:
         if spec.randomized:
             options.setdefault("rng", 0)
         X = _as_array(X)
-        cal = calibrate(X, self.method, **options)
+        cal = calibrate(X, self.method, raw=True, **options)   # made safe once, below
         safe = cal.safe()
         self.calibration_ = safe
         self.A_, self.b_ = safe.correction()

@@ -5,7 +5,12 @@ One folder per recording under a data directory (``$MAGBENCH_DATA`` or the confi
 in rad/s and accelerometer columns), or a user's own CSV with the three axes chosen by name or
 position (:func:`read_samples`). Units are kept as recorded. Rows with a missing value in a
 used column are dropped with a warning that says how many; everything else that is wrong gives
-one ``ValueError`` saying what is wrong and what is expected. Recordings longer than
+one ``ValueError`` saying what is wrong, on which line of the file (blank lines counted), and
+what is expected. A column naming the sensor (:data:`INSTANCE_COLUMNS`, e.g. the ``I`` of
+ArduPilot's MAG messages) with several values is refused unless one is chosen; a time column
+``t`` may hold seconds or ISO 8601 timestamps, and one that holds neither is dropped with a
+warning (it is optional); decimal commas are read when the columns are separated by ``;``, tab
+or spaces, and named when a cell holds one in a comma-separated file. Recordings longer than
 ``max_samples`` are thinned deterministically to every ``s``-th sample,
 ``s = ceil(n / max_samples)`` (a uniform stride keeps the time base uniform for the gyro
 methods).
@@ -19,6 +24,7 @@ import gzip
 import lzma
 import math
 import os
+import re
 import warnings
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, replace
@@ -30,13 +36,17 @@ import pandas as pd
 from magbench.core.geometry import MIN_COVERAGE, MIN_THICKNESS, check_geometry
 from magbench.core.model import check_magnitude
 
-__all__ = ["DATA_ENV", "GYRO_COLUMNS", "MAG_COLUMNS", "Recording", "data_dir",
-           "list_recordings", "load_recording", "read_samples"]
+__all__ = ["DATA_ENV", "GYRO_COLUMNS", "INSTANCE_COLUMNS", "MAG_COLUMNS", "Recording",
+           "data_dir", "list_recordings", "load_recording", "read_samples"]
 
 DATA_ENV = "MAGBENCH_DATA"
 MAG_COLUMNS = ("mx", "my", "mz")
 GYRO_COLUMNS = ("gx", "gy", "gz")
 _MISSING = {"", "nan", "na", "n/a", "null", "none"}
+#: Columns that name which sensor a row comes from (ArduPilot's MAG ``I``, PX4's ``device_id``).
+INSTANCE_COLUMNS = ("I", "instance", "Instance", "inst", "device_id", "sensor_id", "mag_id",
+                    "compass")
+_DECIMAL_COMMA = re.compile(r"^\s*[-+]?\d+,\d+(?:[eE][-+]?\d+)?\s*$")
 
 
 @dataclass(frozen=True)
@@ -59,6 +69,8 @@ class Recording:
         Every ``stride``-th row is kept (1 = all).
     columns : tuple of str
         Names of the magnetometer columns read (``column i`` without a header).
+    instance : tuple of (str, str) or None
+        The instance column and the value kept, when the file has one.
     """
 
     name: str
@@ -68,6 +80,7 @@ class Recording:
     n_rows: int = 0
     stride: int = 1
     columns: tuple = MAG_COLUMNS
+    instance: tuple[str, str] | None = None
 
     @property
     def K(self) -> int:
@@ -165,8 +178,25 @@ def _compression(path: Path) -> str | None:
     return kind
 
 
-def _sniff(path: Path, compression: str | None = None) -> tuple[str, bool]:
-    """Delimiter, and whether the first line is a header."""
+def _fields(line: str, sep: str) -> list[str]:
+    """The fields of one line, quotes respected (a quoted "1,5" is one field)."""
+    return line.split() if sep == " " else next(csv.reader([line], delimiter=sep), [])
+
+
+def _is_number(text: str, decimal_comma: bool = False) -> bool:
+    text = text.strip().strip('"')
+    if decimal_comma:
+        text = text.replace(",", ".")
+    try:
+        float(text)
+    except ValueError:
+        return text.lower() in _MISSING
+    return True
+
+
+def _head_lines(path: Path, compression: str | None) -> list[tuple[int, str]]:
+    """The non-blank lines of the first 8 KiB with their line numbers (a cut last line
+    dropped)."""
     opener = _READABLE.get(compression or "", open)
     try:
         with opener(path, "rt", newline="") as handle:
@@ -176,24 +206,79 @@ def _sniff(path: Path, compression: str | None = None) -> tuple[str, bool]:
                          "expected a CSV of magnetometer samples") from None
     except (OSError, EOFError) as exc:
         raise ValueError(f"cannot read {path} ({compression or 'plain'}): {exc}") from None
-    lines = [ln for ln in head.splitlines() if ln.strip()]
+    lines = head.splitlines()
+    if len(head) == 8192 and len(lines) > 1:
+        lines = lines[:-1]
+    return [(i + 1, ln) for i, ln in enumerate(lines) if ln.strip()]
+
+
+def _sniff(path: Path, compression: str | None = None) -> dict:
+    """Delimiter, header, number of columns and decimal mark of ``path``, from its start.
+
+    Returns a dict with ``sep``, ``has_header``, ``n_cols`` (the most fields of a data row)
+    and ``decimal``.
+
+    Raises
+    ------
+    ValueError
+        An empty or binary file, or a header that names fewer columns than a row holds.
+    """
+    lines = _head_lines(path, compression)
     if not lines:
         raise ValueError(f"{path} is empty; expected a CSV with one magnetometer sample per row")
+    texts = [ln for _, ln in lines]
     try:
-        sep = csv.Sniffer().sniff("\n".join(lines[:20]), delimiters=",;\t ").delimiter
+        sep = csv.Sniffer().sniff("\n".join(texts[:20]), delimiters=",;\t ").delimiter
     except csv.Error:
         sep = ","
-    first = lines[0].split() if sep == " " else lines[0].split(sep)
-    fields = [f.strip().strip('"') for f in first]
+    if all(len(_fields(ln, sep)) == 1 for ln in texts[:20]):
+        # Rows of unequal length defeat the sniffer: take the delimiter that splits most rows.
+        sep = max(",;\t ", key=lambda d: sum(len(_fields(ln, d)) > 1 for ln in texts[:20]))
+    comma = sep != "," and any(_DECIMAL_COMMA.match(f) for ln in texts[1:21]
+                               for f in _fields(ln, sep))
+    first = [f.strip().strip('"') for f in _fields(texts[0], sep)]
+    has_header = not all(_is_number(f, comma) for f in first)
+    data = lines[1:] if has_header and len(lines) > 1 else lines
+    n_cols = max(len(_fields(ln, sep)) for _, ln in data)
+    width = len(_fields(data[0][1], sep))
+    longer = next(((i, n) for i, ln in data if (n := len(_fields(ln, sep))) > width), None)
+    if longer is not None and not has_header:
+        raise ValueError(f"{path.name}: line {longer[0]} has {longer[1]} fields where the rows "
+                         f"before have {width}; every row must hold the same columns")
+    if has_header and len(first) < n_cols:
+        line = next(i for i, ln in data if len(_fields(ln, sep)) == n_cols)
+        raise ValueError(f"{path.name}: the header names {len(first)} columns but line {line} "
+                         f"has {n_cols} fields; name every column, or remove the header and "
+                         "choose the columns by position (columns=[0,1,2])")
+    return {"sep": sep, "has_header": has_header, "n_cols": n_cols,
+            "decimal": "," if comma else "."}
 
-    def numeric(text: str) -> bool:
-        try:
-            float(text)
-        except ValueError:
-            return text.lower() in _MISSING
-        return True
 
-    return sep, not all(numeric(f) for f in fields)
+def _line_of(path: Path, compression: str | None, has_header: bool, row: int) -> int:
+    """The line number of data row ``row`` (0-based), counting blank lines as the file does
+    (pandas skips them, so its row index alone is short by one per blank line)."""
+    opener = _READABLE.get(compression or "", open)
+    seen = -1 if has_header else 0
+    with opener(path, "rt", newline="") as handle:
+        for number, line in enumerate(handle, start=1):
+            if not line.strip():
+                continue
+            if seen == row:
+                return number
+            seen += 1
+    return number
+
+
+def _ragged(path: Path, compression: str | None, sep: str, n_cols: int) -> str:
+    """The first line with more fields than ``n_cols``, as one message."""
+    opener = _READABLE.get(compression or "", open)
+    with opener(path, "rt", newline="") as handle:
+        for number, line in enumerate(handle, start=1):
+            n = len(_fields(line.rstrip("\r\n"), sep))
+            if line.strip() and n > n_cols:
+                return (f"{path.name}: line {number} has {n} fields where the rows before have "
+                        f"{n_cols}; every row must hold the same columns")
+    return f"{path.name}: rows of unequal length; every row must hold the same columns"
 
 
 def _select(columns: Sequence[object] | None, header: list[str] | None, n_cols: int,
@@ -228,10 +313,35 @@ def _select(columns: Sequence[object] | None, header: list[str] | None, n_cols: 
                      f"{columns}")
 
 
-def _numeric(table: pd.DataFrame, position: int, name: str, line0: int,
+class _Where:
+    """How to name a data row's line in a message (only looked up on an error)."""
+
+    def __init__(self, path: Path, compression: str | None, sniffed: dict) -> None:
+        self.path, self.compression, self.sniffed = path, compression, sniffed
+
+    def line(self, row: int) -> int:
+        return _line_of(self.path, self.compression, self.sniffed["has_header"], row)
+
+    def ragged(self) -> str:
+        return _ragged(self.path, self.compression, self.sniffed["sep"],
+                       self.sniffed["n_cols"])
+
+    def unclosed_quote(self) -> str:
+        """Where a quoted field opens and never closes (the first line with an odd number of
+        double quotes)."""
+        opener = _READABLE.get(self.compression or "", open)
+        with opener(self.path, "rt", newline="") as handle:
+            line = next((n for n, text in enumerate(handle, start=1) if text.count('"') % 2),
+                        None)
+        at = f" on line {line}" if line else ""
+        return (f"{self.path.name}: a quoted field opens{at} and is never closed; remove the "
+                'stray " or close the quote')
+
+
+def _numeric(table: pd.DataFrame, position: int, name: str, where: _Where,
              row0: int = 0) -> np.ndarray:
     """One column as floats; missing cells become NaN, other text is an error naming the cell
-    (``table`` starts at data row ``row0`` of the file, whose first data row is line ``line0``).
+    (``table`` starts at data row ``row0`` of the file).
     """
     text = table.iloc[:, position].astype(str).str.strip()
     missing = text.str.lower().isin(_MISSING)
@@ -239,11 +349,13 @@ def _numeric(table: pd.DataFrame, position: int, name: str, line0: int,
     bad = np.flatnonzero(values.isna().to_numpy() & ~missing.to_numpy())
     if bad.size:
         row = row0 + int(bad[0])
-        raise ValueError(f"non-numeric value {text.iloc[row - row0]!r} in column {name!r} at "
-                         f"data row "
-                         f"{row + 1} (line {row + line0} of the file)"
-                         + (f" and {bad.size - 1} more cell(s)" if bad.size > 1 else "")
-                         + "; expected numbers (missing values may be empty or NaN)")
+        cell = text.iloc[row - row0]
+        hint = ("; it looks like a decimal comma: save the file with '.' as the decimal mark, "
+                "or separate the columns with ';'" if _DECIMAL_COMMA.match(cell) else
+                "; expected numbers (missing values may be empty or NaN)")
+        raise ValueError(f"non-numeric value {cell!r} in column {name!r} at data row {row + 1} "
+                         f"(line {where.line(row)} of the file)"
+                         + (f" and {bad.size - 1} more cell(s)" if bad.size > 1 else "") + hint)
     return values.to_numpy(dtype=float)
 
 
@@ -271,10 +383,11 @@ def _quiet(reader: Iterator[pd.DataFrame]) -> Iterator[pd.DataFrame]:
         yield chunk
 
 
-def _read_columns(path: Path, layout: dict, wanted: dict[int, str],
-                  line0: int) -> np.ndarray:
+def _read_columns(path: Path, layout: dict, wanted: dict[int, str], where: _Where,
+                  optional: Sequence[int] = ()) -> tuple[np.ndarray, set[int]]:
     """The columns at the positions in ``wanted`` (position -> name) as floats, in the order
-    of their positions (shape (rows, len(wanted))).
+    of their positions (shape (rows, len(wanted))), and the ``optional`` positions that held
+    text (NaN in the table; the caller decides what they mean).
 
     Read in chunks of :data:`CHUNK_ROWS` rows by pandas' C parser, keeping only those columns,
     so memory follows the floats kept (24 bytes a row for three axes), never the file's text:
@@ -284,34 +397,64 @@ def _read_columns(path: Path, layout: dict, wanted: dict[int, str],
     """
     positions = sorted(wanted)
     chunks: list[np.ndarray] = []
+    failed: set[int] = set()
     # A plain file's line count bounds its rows: fill one array instead of concatenating
     # chunks, which would hold every sample twice at the end.
     table = None if layout.get("compression") else np.empty((_count_lines(path),
                                                                len(positions)))
-    offset = 0
     try:
-        reader = pd.read_csv(path, usecols=positions, chunksize=CHUNK_ROWS, engine="c",
-                             na_values=_NA_TOKENS, keep_default_na=False, **layout)
-        for chunk in _quiet(reader):
-            block = (np.empty((len(chunk), len(positions))) if table is None else
-                     table[offset:offset + len(chunk)])
-            for j, p in enumerate(positions):
-                column = chunk.iloc[:, j]
-                if pd.api.types.is_numeric_dtype(column) and \
-                        not pd.api.types.is_bool_dtype(column):
-                    block[:, j] = column.to_numpy(dtype=float)
-                else:
-                    block[:, j] = _numeric(chunk, j, wanted[p], line0, offset)
-            if table is None:
-                chunks.append(block)
-            offset += len(chunk)
-    except (pd.errors.ParserError, UnicodeDecodeError, EOFError, OSError) as exc:
+        with pd.read_csv(path, usecols=positions, chunksize=CHUNK_ROWS, engine="c",
+                         na_values=_NA_TOKENS, keep_default_na=False, **layout) as reader:
+            offset = _fill(_quiet(reader), table, chunks, wanted, where, optional, failed)
+
+    except pd.errors.ParserError as exc:
+        if "Expected" in str(exc) and "fields" in str(exc):
+            raise ValueError(where.ragged()) from None
+        if "EOF inside string" in str(exc):
+            raise ValueError(where.unclosed_quote()) from None
+        raise ValueError(f"cannot read {path} as CSV: {' '.join(str(exc).split())}") from None
+    except (UnicodeDecodeError, EOFError, OSError) as exc:
         raise ValueError(f"cannot read {path} as CSV: {' '.join(str(exc).split())}") from None
     if table is not None:
-        return table[:offset]
+        return table[:offset], failed
     if len(chunks) == 1:
-        return chunks[0]
-    return np.concatenate(chunks) if chunks else np.empty((0, len(positions)))
+        return chunks[0], failed
+    return (np.concatenate(chunks) if chunks else np.empty((0, len(positions)))), failed
+
+
+def _fill(reader: Iterator[pd.DataFrame], table: np.ndarray | None, chunks: list[np.ndarray],
+          wanted: dict[int, str], where: _Where, optional: Sequence[int],
+          failed: set[int]) -> int:
+    """Parse each chunk into ``table`` (or append it to ``chunks``); returns the rows read."""
+    positions = sorted(wanted)
+    offset = 0
+    for chunk in reader:
+        block = (np.empty((len(chunk), len(positions))) if table is None else
+                 table[offset:offset + len(chunk)])
+        for j, p in enumerate(positions):
+            column = chunk.iloc[:, j]
+            if pd.api.types.is_numeric_dtype(column) and \
+                    not pd.api.types.is_bool_dtype(column):
+                block[:, j] = column.to_numpy(dtype=float)
+            elif p in optional:
+                try:
+                    block[:, j] = _numeric(chunk, j, wanted[p], where, offset)
+                except ValueError:
+                    block[:, j] = np.nan
+                    failed.add(p)
+            else:
+                block[:, j] = _numeric(chunk, j, wanted[p], where, offset)
+        if table is None:
+            chunks.append(block)
+        offset += len(chunk)
+    return offset
+
+
+def _text_column(path: Path, layout: dict, position: int) -> pd.Series:
+    """One column as stripped text (the instance column; a time column that is not numbers)."""
+    column = _read_csv(path, usecols=[position], dtype=str, keep_default_na=False,
+                       **layout).iloc[:, 0]
+    return column.str.strip().str.strip('"')
 
 
 def _count_lines(path: Path) -> int:
@@ -332,8 +475,9 @@ GEOMETRY_SAMPLES = 100_000
 def read_samples(path: Path | str, columns: Sequence[object] | None = None, *,
                  min_samples: int = 4, check: bool = True,
                  min_coverage: float = MIN_COVERAGE,
-                 min_thickness: float = MIN_THICKNESS) -> Recording:
-    """Read magnetometer samples from a CSV file (delimiter and header detected).
+                 min_thickness: float = MIN_THICKNESS,
+                 instance: object = None) -> Recording:
+    """Read magnetometer samples from a CSV file (delimiter, header and decimal mark detected).
 
     Parameters
     ----------
@@ -348,24 +492,29 @@ def read_samples(path: Path | str, columns: Sequence[object] | None = None, *,
     check : bool
         Also reject nearly coplanar samples and samples covering too little of the sphere
         (:func:`check_geometry`).
+    instance : str or number, optional
+        The rows to keep when the header has an instance column (:data:`INSTANCE_COLUMNS`),
+        compared as text or as numbers (``1`` matches ``1.0``).
 
     Returns
     -------
     Recording
-        Units as recorded; ``t`` if the header has a ``t`` column with values, ``gyro`` if it
-        has ``gx, gy, gz`` (rad/s) as well.
+        Units as recorded; ``t`` if the header has a ``t`` column of seconds or ISO 8601 times
+        (in seconds from the first), ``gyro`` if it has ``gx, gy, gz`` (rad/s) as well.
 
     Raises
     ------
     ValueError
-        Missing file or columns, non-numeric cells (with row and column), too few samples,
+        Missing file or columns, non-numeric cells (with row, line and column), rows of unequal
+        length, several sensors in an instance column and none chosen, too few samples,
         magnitudes no fit can square (:func:`magbench.core.model.check_magnitude`), zip or
         zstd input (to unpack first), or bad geometry; one message each.
 
     Warns
     -----
     UserWarning
-        When rows with missing values are dropped (how many).
+        When rows with missing values are dropped (how many), or a ``t`` column that holds
+        neither seconds nor ISO 8601 times is left out.
     """
     path = Path(path)
     if path.is_dir():
@@ -373,13 +522,17 @@ def read_samples(path: Path | str, columns: Sequence[object] | None = None, *,
     if not path.is_file():
         raise ValueError(f"file {path} not found; expected a CSV of magnetometer samples")
     compression = _compression(path)
-    sep, has_header = _sniff(path, compression)
+    sniffed = _sniff(path, compression)
+    sep, has_header = sniffed["sep"], sniffed["has_header"]
     layout = {"sep": r"\s+" if sep == " " else sep, "header": 0 if has_header else None,
-              "compression": compression, "skip_blank_lines": True}
-    first = _read_csv(path, nrows=0 if has_header else 1, dtype=str, keep_default_na=False,
-                      **layout)
-    header = [str(c).strip() for c in first.columns] if has_header else None
-    n_cols = first.shape[1]
+              "compression": compression, "skip_blank_lines": True,
+              "decimal": sniffed["decimal"]}
+    where = _Where(path, compression, sniffed)
+    header = None
+    if has_header:
+        first = _read_csv(path, nrows=0, dtype=str, keep_default_na=False, **layout)
+        header = [str(c).strip() for c in first.columns]
+    n_cols = sniffed["n_cols"]
     mag = _select(columns, header, n_cols, "columns", MAG_COLUMNS)
     if mag is None:
         if n_cols == 3:
@@ -396,7 +549,11 @@ def read_samples(path: Path | str, columns: Sequence[object] | None = None, *,
               **({} if t_pos is None else {t_pos: "t"}),
               **({} if gyro_pos is None or t_pos is None else
                  dict(zip(gyro_pos, GYRO_COLUMNS, strict=True)))}
-    table = _read_columns(path, layout, wanted, line0=2 if has_header else 1)
+    table, failed = _read_columns(path, layout, wanted, where,
+                                  optional=() if t_pos is None else (t_pos,))
+    keep, chosen = _instance_rows(path, layout, header, instance, table.shape[0])
+    if keep is not None:
+        table = table[keep]
     values = {p: table[:, j] for j, p in enumerate(sorted(wanted))}
     order = [sorted(wanted).index(i) for i in mag]
     # The usual three-column file is its own sample array: no copy of 10 million rows.
@@ -405,7 +562,9 @@ def read_samples(path: Path | str, columns: Sequence[object] | None = None, *,
     t = gyro = None
     if t_pos is not None:
         t = values[t_pos]
-        if np.isnan(t).all():
+        if t_pos in failed:
+            t = _times(path, layout, t_pos, where, keep, gyro_pos is not None)
+        if t is not None and np.isnan(t).all():
             t = None
     if gyro_pos is not None and t is not None:
         gyro = np.column_stack([values[i] for i in gyro_pos])
@@ -425,9 +584,79 @@ def read_samples(path: Path | str, columns: Sequence[object] | None = None, *,
                          "are needed (the method's number of unknowns)")
     rec = Recording(path.parent.name if path.name == "data.csv" else path.stem, y,
                     None if t is None else t[used], None if gyro is None else gyro[used],
-                    n_rows=int(y.shape[0]), columns=tuple(names))
+                    n_rows=int(y.shape[0]), columns=tuple(names), instance=chosen)
     if check:
         stride = math.ceil(rec.K / GEOMETRY_SAMPLES)
         check_geometry(rec.y[::stride], min_coverage=min_coverage,
                        min_thickness=min_thickness, what=path.name)
     return rec
+
+
+def _same(a: str, b: str) -> bool:
+    """Equal as text, or as numbers (``1`` and ``1.0``)."""
+    if a == b:
+        return True
+    try:
+        return float(a) == float(b)
+    except ValueError:
+        return False
+
+
+def _instance_rows(path: Path, layout: dict, header: list[str] | None, instance: object,
+                   n_rows: int) -> tuple[np.ndarray | None, tuple[str, str] | None]:
+    """The rows of the chosen sensor (None: all) and (column, value) when there is a column.
+
+    Raises
+    ------
+    ValueError
+        Several sensors and none chosen (naming them and the ``instance`` key), a chosen one
+        that is not in the column, or ``instance`` without an instance column.
+    """
+    column = next((c for c in INSTANCE_COLUMNS if header and c in header), None)
+    wanted = None if instance is None else str(instance).strip()
+    if column is None:
+        if wanted is not None:
+            raise ValueError(f"instance={wanted} was given but {path.name} has no instance "
+                             f"column (one of {', '.join(INSTANCE_COLUMNS)})")
+        return None, None
+    cells = _text_column(path, layout, header.index(column))
+    counts = cells.value_counts(sort=False)
+    seen = ", ".join(f"{v} ({n} rows)" for v, n in counts.items())
+    if wanted is None:
+        if len(counts) > 1:
+            raise ValueError(f"{path.name} holds {len(counts)} sensors in column {column!r}: "
+                             f"{seen}; choose one with instance=, e.g. "
+                             f"instance={counts.index[0]}")
+        return None, (column, str(counts.index[0]) if len(counts) else "")
+    match = [v for v in counts.index if _same(str(v), wanted)]
+    if not match:
+        raise ValueError(f"instance={wanted} is not in column {column!r} of {path.name}; it "
+                         f"holds {seen}")
+    keep = cells.isin(match).to_numpy()
+    return keep[:n_rows], (column, str(match[0]))
+
+
+def _times(path: Path, layout: dict, position: int, where: _Where, keep: np.ndarray | None,
+           has_gyro: bool) -> np.ndarray | None:
+    """A ``t`` column that is not numbers: ISO 8601 times as seconds from the first, or None
+    with a warning."""
+    text = _text_column(path, layout, position)
+    if keep is not None:
+        text = text[keep]
+    missing = text.str.lower().isin(_MISSING)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        stamps = pd.to_datetime(text.where(~missing), format="ISO8601", errors="coerce",
+                                utc=True)
+    bad = np.flatnonzero(stamps.isna().to_numpy() & ~missing.to_numpy())
+    if not bad.size and stamps.notna().any():
+        seconds = (stamps - stamps.dropna().iloc[0]).dt.total_seconds()
+        return seconds.to_numpy(dtype=float)
+    row = int(bad[0]) if bad.size else 0
+    line = where.line(row) if keep is None else None
+    at = f" on line {line}" if line else ""
+    warnings.warn(f"{path.name}: column 't' holds neither seconds nor ISO 8601 times (e.g. "
+                  f"{text.iloc[row]!r}{at}); reading without times"
+                  + (", so the gyro columns are not used" if has_gyro else ""),
+                  UserWarning, stacklevel=3)
+    return None

@@ -162,7 +162,7 @@ def _fit(name: str, traj: Trajectory) -> Callable[[dict], Calibration]:
             extra.update(attitude=traj.R, reference_field=traj.m0)
 
     def fit(options: dict) -> Calibration:
-        return calibrate(traj.y, name, **{**extra, **options})
+        return calibrate(traj.y, name, raw=True, **{**extra, **options})
 
     return fit
 

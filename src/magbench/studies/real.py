@@ -115,7 +115,8 @@ def fit_recording(rec: Recording, method: str, preprocess: str = "centre",
     extra = {}
     if get_method(method).needs_gyro:
         extra = {"angular_rate": rec.gyro, "time": rec.t}
-    cal = calibrate((rec.y - offset) / scale, method, **extra, **dict(options or {}))
+    cal = calibrate((rec.y - offset) / scale, method, raw=True, **extra,
+                    **dict(options or {}))
     return Calibration(scale * cal.T, scale * cal.h + offset, cal.n_iter, cal.converged,
                        cal.message, cal.gyro_bias)
 

@@ -173,7 +173,7 @@ def trial_rows(point: Point, trial: int, seed: int, algorithms: Sequence[str],
         opts = method_options(name, point, options)
         if value is not None:
             opts[axis.option] = value
-        out = run_method(name, lambda o, n=name: calibrate(data.y, n, **o), options=opts,
+        out = run_method(name, lambda o, n=name: calibrate(data.y, n, raw=True, **o), options=opts,
                          seed=seed, stream=(point.key, trial), call_timeout_s=call_timeout_s)
         J, J_h, J_T = (accuracy_cost(out.T, out.h, data.T, data.h) if out.calibration
                        else (np.nan, np.nan, np.nan))

@@ -75,7 +75,7 @@ def _call(name: str, y: np.ndarray, opts: dict, seed: int, stream: tuple,
           call_timeout_s: float | None) -> tuple[float, float, bool]:
     """(CPU seconds, wall seconds, ok) of one call through the trial loop."""
     cpu = time.process_time()
-    out = run_method(name, lambda o: calibrate(y, name, **o), options=opts, seed=seed,
+    out = run_method(name, lambda o: calibrate(y, name, raw=True, **o), options=opts, seed=seed,
                      stream=stream, call_timeout_s=call_timeout_s)
     return time.process_time() - cpu, out.time_s, out.ok
 

@@ -246,7 +246,7 @@ def _method_row(spec: WuShiStudy, name: str, data: WuShiData, run: int,
     (a capped one included, ``converged`` False)."""
     if offset_removed:
         data = WuShiData(data.y - data.h, data.m, data.C, data.S, np.zeros(3))
-    out = run_method(name, lambda o: calibrate(data.y, name, **o),
+    out = run_method(name, lambda o: calibrate(data.y, name, raw=True, **o),
                      options=spec.options.get(name) or {}, seed=spec.seed,
                      stream=(4 if offset_removed else 2, run),
                      call_timeout_s=spec.call_timeout_s)
@@ -329,7 +329,7 @@ def timing(spec: WuShiStudy) -> pd.DataFrame:
             for name in (ML, NM):
                 start = time.perf_counter()
                 try:
-                    cal = calibrate(y, name)
+                    cal = calibrate(y, name, raw=True)
                 except CalibrationFailed:
                     continue
                 best[key, name] = min(best[key, name], time.perf_counter() - start)
