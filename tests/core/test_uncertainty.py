@@ -101,3 +101,13 @@ def test_block_resample_draws_whole_circular_blocks():
     assert idx.size == 103
     steps = np.diff(idx)[: 100].reshape(10, 10)[:, :9]           # inside each block
     assert np.all((steps == 1) | (steps == -102))
+
+
+@pytest.mark.parametrize("dof", [2, 3, 7, 11, 30, 200])
+def test_student_t95_against_scipy(dof):
+    from scipy.stats import t
+
+    from magbench.core.uncertainty import student_t95
+
+    tol = 0.01 if dof == 2 else 0.002
+    assert student_t95(dof) == pytest.approx(t.ppf(0.975, dof), rel=tol)

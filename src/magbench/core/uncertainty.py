@@ -31,7 +31,8 @@ from magbench.core.crb import MODEL_PARAMETERS, parameter_covariance
 from magbench.core.gauge import safe_gauge
 
 __all__ = ["BLOCK_FACTOR", "MIN_BLOCKS", "WINDOW", "Intervals", "a_jacobian", "block_length",
-           "block_resample", "correlation_length", "fisher_intervals", "noise_sigma"]
+           "block_resample", "correlation_length", "fisher_intervals", "noise_sigma",
+           "student_t95"]
 
 Z95 = 1.959963984540054
 
@@ -174,3 +175,20 @@ def block_resample(K: int, block: int, gen: np.random.Generator) -> np.ndarray:
     the end, cut to ``K``."""
     starts = gen.integers(0, K, int(np.ceil(K / block)))
     return ((starts[:, None] + np.arange(block)) % K).ravel()[:K]
+
+
+def student_t95(dof: float) -> float:
+    """Two-sided 95 % quantile of Student's t with ``dof`` degrees of freedom.
+
+    The Cornish-Fisher expansion in ``1 / dof`` about the normal quantile (Abramowitz and
+    Stegun 26.7.5, four terms): within 0.2 % of the exact value from 3 degrees of freedom
+    (11 % low at 1, 0.8 % at 2; the block bootstrap has at least 7), without importing
+    scipy.stats (0.7 s).
+    """
+    z = Z95
+    v = max(float(dof), 1.0)
+    g1 = (z**3 + z) / 4
+    g2 = (5 * z**5 + 16 * z**3 + 3 * z) / 96
+    g3 = (3 * z**7 + 19 * z**5 + 17 * z**3 - 15 * z) / 384
+    g4 = (79 * z**9 + 776 * z**7 + 1482 * z**5 - 1920 * z**3 - 945 * z) / 92160
+    return z + g1 / v + g2 / v**2 + g3 / v**3 + g4 / v**4

@@ -54,6 +54,7 @@ from magbench.core.uncertainty import (
     block_resample,
     correlation_length,
     fisher_intervals,
+    student_t95,
 )
 from magbench.core.verdict import (
     MAX_GAP_DEG,
@@ -380,9 +381,7 @@ def bootstrap_check(result: CalibrationResult, B: int, *, preprocess: str = "cen
 def _bootstrap_summary(iv: Intervals, fits: list, block: int, corr: float, K: int) -> dict:
     # Student's quantile with one degree of freedom per block less one: with a dozen blocks
     # the spread of the refits is itself uncertain, and 1.96 would cover too little.
-    from scipy.stats import t as student
-
-    z = float(student.ppf(0.975, max(1, int(np.ceil(K / block)) - 1)))
+    z = student_t95(int(np.ceil(K / block)) - 1)
     h_half = z * np.std([f[0] for f in fits], axis=0, ddof=1)
     A_half = z * np.std([f[1] for f in fits], axis=0, ddof=1)
     fixed = iv.model == "bias"                      # A is not estimated: no interval at all
