@@ -1,15 +1,18 @@
 """``python -m magbench calibrate file=PATH [method=NAME] [columns=[mx,my,mz]] [out=DIR]``.
 
 Calibrates a user's own recording. The work is :func:`magbench.studies.calibration.\
-calibrate_recording` (outlier screen, coverage and the models it allows, every candidate fitted
-on all samples and on each half in time, the honest choice with ties, trimming around the
-chosen fit, refusal of collapsed fits, verdict and intervals; its module notes say how each is
-decided); this command reads the file, prints the ranked table and the verdict, and writes.
+calibrate_recording` (thinning by direction and the outlier screen, coverage and the models it
+allows, every candidate fitted on all samples and on interleaved time-block folds, the choice
+that holds out of sample, trimming around the chosen fit, refusal of collapsed fits, verdict,
+intervals and the PASS / WARN / FAIL gate; its module notes say how each is decided); this
+command reads the file, prints the answer first (status, held-out error, method, folder), then
+the reasons and the details, and writes. FAIL exits 3 and writes only ``calibration.json``
+with the reasons (thresholds: the ``gate.*`` keys, :func:`check_gate`).
 The candidates are the registered methods except the review's printed variants (family
 ``variant``: benchmark-only, wrong as printed) and, without gyro data, the gyro-aided ones.
 By default (``candidates=auto``) they are fitted in two rounds: the closed forms and Wu-Shi NM
 first, the iterative rest only when they could change the choice (the rule is in
-:mod:`magbench.studies.calibration`, step 3); ``candidates=all`` fits every one in one round,
+:mod:`magbench.studies.calibration`, step 2); ``candidates=all`` fits every one in one round,
 ``candidates=[a,b]`` only those, and ``method=NAME`` runs any one.
 
 The chosen (or the named) calibration is written in the safe gauge of
