@@ -401,7 +401,7 @@ def bench_calibrate(K: int = 10_000, repeats: int = 9, seed: int = 0) -> pd.Data
             path, index=False)
         tools = {"magbench calibrate": [sys.executable, "-m", "magbench", "calibrate",
                                         f"file={path}", f"out={Path(tmp) / 'out'}",
-                                        "progress=false"]}
+                                        "progress=false", "overwrite=true"]}
         for peer, (package, imports, fit) in PEER_FILE_FITS.items():
             if find_spec(package) is not None:
                 script = PEER_SCRIPT.format(imports=imports, fit=fit)
