@@ -63,11 +63,11 @@ GOOD = dict(p95_pct=1.0, held_out=True, gap_deg=20.0, directions=200, band_deg=7
 
 @pytest.mark.parametrize(("change", "status", "words"), [
     ({}, "PASS", ""),
-    ({"p95_pct": 4.0}, "WARN", "field error 4.0 % (p95, held out) > 3 %"),
-    ({"p95_pct": 41.8}, "FAIL", "> 10 %"),
+    ({"p95_pct": 7.0}, "WARN", "field error 7.0 % (p95, held out) > 6 %"),
+    ({"p95_pct": 41.8}, "FAIL", "> 12 %"),
     ({"gap_deg": 120.0}, "WARN", "within 120 deg"),
     ({"gap_deg": 150.0}, "FAIL", "> 135 deg"),
-    ({"directions": 24}, "WARN", "24 distinct directions (< 30)"),
+    ({"directions": 14}, "WARN", "14 distinct directions (< 20)"),
     ({"directions": 8}, "FAIL", "8 distinct directions (< 10)"),
     ({"band_deg": 15.0}, "WARN", "within +-15 deg of one plane"),
     ({"held_out": False}, "WARN", "no held-out score"),
@@ -89,5 +89,5 @@ def test_fitness_statuses_and_reasons(change, status, words):
 def test_a_failing_reason_comes_before_the_warnings():
     from magbench.core.verdict import Gate, fitness
 
-    out = fitness(Gate(), **{**GOOD, "p95_pct": 4.0, "directions": 5})
+    out = fitness(Gate(), **{**GOOD, "p95_pct": 7.0, "directions": 5})
     assert out["status"] == "FAIL" and out["reasons"][0].startswith("5 distinct")
