@@ -15,6 +15,7 @@ REPO = Path(__file__).resolve().parents[1]
 #: Overrides that shrink a sweep of each kind to seconds; the files it writes do not change.
 TINY = {
     "gyro": ["sweep.coverage=[wide]", "sweep.gyro_noise=[0.01]", "sweep.duration_s=6"],
+    "heading": ["sweep.parts=[mc]", "sweep.duration_s=6"],
     "wushi": ["sweep.N=40", "sweep.time_N=[40]", "sweep.time_repeats=1", "sweep.time_calls=1",
               "sweep.control_runs=0", "sweep.alphas_pct=[0]"],
 }

@@ -64,3 +64,10 @@ def test_a_built_wheel_runs_a_sweep_from_another_folder(tmp_path):
                          cwd=away, env=env, capture_output=True, text=True, timeout=300)
     assert run.returncode == 0, run.stderr
     assert (tmp_path / "r" / "baseline" / "trials.csv").is_file()
+
+
+def test_the_report_templates_are_package_data():
+    data = tomllib.loads((REPO / "pyproject.toml").read_text())["tool"]["setuptools"][
+        "package-data"]
+    assert "report/templates/*.md" in data["magbench"]
+    assert list((REPO / "src" / "magbench" / "report" / "templates").glob("*.md"))

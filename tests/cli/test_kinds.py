@@ -128,7 +128,7 @@ def _sweep_section(name: str) -> dict:
     return data["sweep"] if isinstance(data.get("sweep"), dict) else data
 
 
-@pytest.mark.parametrize("name", ["gyro", "real", "wushi"])
+@pytest.mark.parametrize("name", ["gyro", "real", "wushi", "heading"])
 def test_a_kinds_conf_file_lists_every_key_at_its_default(name):
     kind = get_kind(name)
     section = _sweep_section(name)

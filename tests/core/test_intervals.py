@@ -5,7 +5,16 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from magbench.core.intervals import bootstrap_inverse_mean, intervals_overlap, wilson
+from magbench.core.intervals import (
+    RESAMPLES,
+    bootstrap_inverse_mean,
+    bootstrap_mean,
+    bootstrap_paired_ratio,
+    intervals_overlap,
+    resampled_means,
+    wilson,
+)
+from magbench.core.seeding import rng
 
 
 def test_wilson_matches_published_values():
@@ -47,3 +56,69 @@ def test_bootstrap_degenerate_inputs():
     assert bootstrap_inverse_mean([0.5, 0.5, 0.5], "x") == pytest.approx((2.0, 2.0))
     assert all(np.isnan(bootstrap_inverse_mean([], "x")))
     assert bootstrap_inverse_mean([np.nan, 0.25], "x") == pytest.approx((4.0, 4.0))
+
+
+def test_paired_ratio_sees_a_small_difference_on_shared_datasets():
+    from magbench.core.intervals import bootstrap_paired_ratio
+
+    difficulty = np.random.default_rng(3).gamma(1.0, 1.0, 200)   # varies 100x between datasets
+    lo, hi = bootstrap_paired_ratio(0.95 * difficulty, difficulty, "test")
+    assert lo == pytest.approx(0.95) and hi == pytest.approx(0.95)   # exact: no pair noise
+    noisy = difficulty * (1 + 0.05 * np.random.default_rng(4).standard_normal(200))
+    lo, hi = bootstrap_paired_ratio(0.9 * noisy, difficulty, "test")
+    assert lo < 0.9 < hi and hi < 1.0                 # a 10 % gain is seen despite the spread
+    assert all(np.isnan(bootstrap_paired_ratio([1.0], [2.0])))      # one pair: no interval
+
+
+def _one_call_means(x: np.ndarray, generator: np.random.Generator, resamples: int) -> np.ndarray:
+    # The bootstrap as it was first written: every index of every resample drawn at once.
+    return x[generator.integers(0, x.shape[0], size=(resamples, x.shape[0]))].mean(axis=1)
+
+
+@pytest.mark.parametrize("n, chunk_values", [(250, 1000), (250, 1 << 21), (1001, 3000),
+                                             (7, 5)])
+def test_chunked_resampling_draws_the_same_means_as_one_call(n, chunk_values):
+    x = np.random.default_rng(n).exponential(0.0025, size=n)
+    chunked = resampled_means(x, np.random.default_rng(11), 2000, chunk_values)
+    assert np.array_equal(chunked, _one_call_means(x, np.random.default_rng(11), 2000))
+
+
+def test_chunked_paired_resampling_draws_the_same_means_as_one_call():
+    x = np.random.default_rng(5).exponential(1.0, size=(240, 5))
+    chunked = resampled_means(x, np.random.default_rng(0), 2000, chunk_values=700)
+    assert chunked.shape == (2000, 5)
+    assert np.array_equal(chunked, _one_call_means(x, np.random.default_rng(0), 2000))
+
+
+def test_bootstrap_interval_is_unchanged_by_chunking():
+    # The interval of 250 runs as the one-call bootstrap gave it, to the bit.
+    values = np.random.default_rng(3).exponential(0.0025, size=250)
+    means = _one_call_means(values, rng(0, "bootstrap", "baseline", "magical"), RESAMPLES)
+    expected = tuple(np.percentile(1.0 / means, [2.5, 97.5]))
+    assert bootstrap_inverse_mean(values, "baseline", "magical") == expected
+
+
+def test_resampling_memory_does_not_grow_with_the_resamples():
+    import tracemalloc
+
+    x = np.random.default_rng(1).exponential(1.0, size=100_000)
+    tracemalloc.start()
+    resampled_means(x, np.random.default_rng(0), 40, chunk_values=1 << 16)
+    peak = tracemalloc.get_traced_memory()[1]
+    tracemalloc.stop()
+    # One call would hold 40 x 100 000 indices and values (64 MB); a chunk holds one row.
+    assert peak < 4e6
+
+
+def test_bootstrap_mean_and_ratio_bracket_their_estimates():
+    x = np.random.default_rng(2).exponential(2.0, size=400)
+    low, high = bootstrap_mean(x, "m")
+    assert low < x.mean() < high
+    assert (high - low) / 2 == pytest.approx(1.96 * x.std() / np.sqrt(400), rel=0.15)
+    # A ratio of paired means: a constant ratio has no spread however noisy the pairs.
+    assert bootstrap_paired_ratio(3 * x, x, "r") == pytest.approx((3.0, 3.0))
+    y = x + np.random.default_rng(4).normal(0, 0.5, size=400)
+    low, high = bootstrap_paired_ratio(x, y, "r")
+    assert low < x.mean() / y.mean() < high
+    assert all(np.isnan(bootstrap_mean([np.nan], "m")))
+    assert all(np.isnan(bootstrap_paired_ratio([1.0], [np.inf], "r")))

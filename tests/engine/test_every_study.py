@@ -42,6 +42,9 @@ def kind_args(kind: str, tmp_path: Path) -> tuple[list[str], str, str]:
     if kind == "gyro":
         return (["sweep=gyro", "trials=3", "sweep.coverage=[wide]", "sweep.gyro_noise=[0.01]",
                  "sweep.duration_s=6"], "gyro", "trials.csv")
+    if kind == "heading":
+        return (["sweep=heading", "trials=3", "sweep.parts=[mc]", "sweep.duration_s=6"],
+                "heading", "heading_trials.csv")
     if kind == "wushi":
         return (["sweep=wushi", "trials=3", "sweep.N=40", "sweep.time_N=[40]",
                  "sweep.time_repeats=1", "sweep.time_calls=1", "sweep.control_runs=0",
@@ -53,7 +56,7 @@ def kind_args(kind: str, tmp_path: Path) -> tuple[list[str], str, str]:
              "sweep.max_samples=100"], "real", "real_trials.csv")
 
 
-KINDS = ["review", "gyro", "wushi", "real"]
+KINDS = ["review", "gyro", "wushi", "real", "heading"]
 
 
 def table(folder: Path, name: str) -> pd.DataFrame:

@@ -205,3 +205,25 @@ def test_an_unclosed_quote_names_its_line(tmp_path):
     with pytest.raises(ValueError, match=r"^rec\.csv: a quoted field opens on line 5 and is "
                                          r"never closed"):
         read_samples(path, check=False)
+
+
+def test_read_inertial_keeps_missing_attitude_and_drops_rows_without_samples(tmp_path):
+    from magbench.sources.recordings import read_inertial
+
+    path = tmp_path / "rec" / "data.csv"
+    path.parent.mkdir()
+    path.write_text("t,mx,my,mz,gx,gy,gz,ax,ay,az,qw,qx,qy,qz\n"
+                    "0,1,2,3,0.1,0.2,0.3,0,0,9.8,nan,nan,nan,nan\n"
+                    "0.1,,2,3,0.1,0.2,0.3,0,0,9.8,1,0,0,0\n"
+                    "0.2,4,5,6,0.4,0.5,0.6,0,0,9.8,1,0,0,0\n")
+    rec = read_inertial(path)
+    assert rec.name == "rec" and rec.K == 2
+    assert np.array_equal(rec.y, [[1, 2, 3], [4, 5, 6]])
+    assert np.isnan(rec.attitude[0]).all() and np.array_equal(rec.attitude[1], [1, 0, 0, 0])
+    assert rec.acceleration.shape == (2, 3) and rec.rows(slice(1, None)).K == 1
+    bare = tmp_path / "bare.csv"
+    bare.write_text("t,mx,my,mz\n0,1,2,3\n")
+    assert read_inertial(bare).gyro is None
+    (tmp_path / "bad.csv").write_text("mx,my,mz\n1,2,3\n")
+    with pytest.raises(ValueError, match="needs columns t"):
+        read_inertial(tmp_path / "bad.csv")

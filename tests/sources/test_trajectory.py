@@ -86,3 +86,34 @@ def test_bad_arguments():
         simulate(np.random.default_rng(0), motion="spin")
     with pytest.raises(ValueError, match="at least 2 samples"):
         simulate(np.random.default_rng(0), rate_hz=1.0, duration_s=1.0)
+
+
+def test_mounting_rotation_and_accelerometer_follow_the_model():
+    from magbench.core.direction import dip_angles
+    from magbench.core.rotations import rotation_exp
+
+    M = rotation_exp(np.array([0.05, -0.1, 0.02]))
+    T = np.diag([1.1, 0.9, 1.0])
+    h = np.array([0.1, -0.2, 0.05])
+    tr = simulate(np.random.default_rng(4), T=T, h=h, mount=M)
+    assert np.abs(tr.y - (tr.m @ (T @ M).T + h)).max() < 1e-12
+    assert np.allclose(np.linalg.norm(tr.acceleration, axis=1), 9.81)
+    # the world's z points down: the 60 degree field dips below the horizon
+    assert np.allclose(dip_angles(tr.acceleration, tr.m), np.radians(60.0))
+
+
+def test_a_lag_of_one_sample_reads_the_previous_sample_s_field():
+    plain = simulate(np.random.default_rng(6), rate_hz=20.0)
+    late = simulate(np.random.default_rng(6), rate_hz=20.0, lag_s=1 / 20.0)
+    assert np.abs(late.y[1:] - plain.y[:-1]).max() < 1e-7     # one Magnus step vs eight
+    assert np.array_equal(late.R, plain.R) and late.lag_s == 0.05
+    euler = simulate(np.random.default_rng(6), motion="euler", rate_hz=20.0)
+    euler_late = simulate(np.random.default_rng(6), motion="euler", rate_hz=20.0, lag_s=0.05)
+    assert np.abs(euler_late.y[1:] - euler.y[:-1]).max() < 1e-12
+
+
+def test_the_new_streams_leave_the_old_draws_alone():
+    a = simulate(np.random.default_rng(7), mag_noise=0.01, gyro_noise=0.01)
+    b = simulate(np.random.default_rng(7), mag_noise=0.01, gyro_noise=0.01, accel_noise=0.1)
+    assert np.array_equal(a.y, b.y) and np.array_equal(a.angular_rate, b.angular_rate)
+    assert not np.array_equal(a.acceleration, b.acceleration)

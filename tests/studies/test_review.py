@@ -123,3 +123,41 @@ def test_an_option_axis_runs_the_method_per_value_on_the_same_dataset(tmp_path):
     assert first["T_00"].iloc[2] != first["T_00"].iloc[3]
     assert len(summary) == 4 and summary["n"].eq(3).all()
     assert summary["crassidis.P0"].isna().sum() == 2
+
+
+def test_summary_from_the_chunked_columns_equals_the_whole_file_summary(tmp_path, monkeypatch):
+    import magbench.core.files as files
+    from magbench.studies.review import summarize_review
+
+    study = spec()
+    run_study(study, tmp_path, progress=False)
+    expected = summarize_review(read_trials(tmp_path / "trials.csv"))
+    # Chunks of 5 rows: every point and method spans several chunks.
+    monkeypatch.setattr(files, "CHUNK_ROWS", 5)
+    pd.testing.assert_frame_equal(study.summarize(tmp_path), expected, check_exact=True)
+
+
+def test_efficiency_intervals_match_the_summary_and_bracket_it(tmp_path):
+    from magbench.studies.review import efficiency_intervals
+
+    study = spec(trials=12)
+    trials, summary = run_sweep(study, tmp_path)
+    table = efficiency_intervals(trials, ["K", "gamma", "algorithm"], "t")
+    merged = table.merge(summary, on=["K", "gamma", "algorithm"], suffixes=("", "_summary"))
+    assert len(merged) == 4
+    np.testing.assert_allclose(merged["efficiency"], merged["efficiency_summary"], rtol=1e-12)
+    assert (merged["eff_lo"] < merged["efficiency"]).all()
+    assert (merged["efficiency"] < merged["eff_hi"]).all()
+
+
+def test_the_capacity_check_counts_the_columns_the_summary_reads(tmp_path, monkeypatch):
+    import magbench.engine.sweep as sweep
+
+    study = spec(trials=1000)           # 2 points x 1000 trials x 2 methods = 4000 rows
+    need = sweep.MEMORY_BYTES_PER_VALUE * 4000 * len(study.summary_columns)
+    assert len(study.summary_columns) < len(ROW_COLUMNS) / 3
+    monkeypatch.setattr(sweep, "_free_bytes", lambda folder: (10**12, need - 1))
+    with pytest.raises(sweep.TooLarge, match="of memory"):
+        sweep.check_capacity(study, study.units(), tmp_path)
+    monkeypatch.setattr(sweep, "_free_bytes", lambda folder: (10**12, need))
+    sweep.check_capacity(study, study.units(), tmp_path)

@@ -51,7 +51,8 @@ def test_report_section_reads_the_csv_files(tmp_path):
     pd.DataFrame({"algorithm": ["magical"], "compile_s": [7.5], "cached_first_s": [0.15],
                   "import_s": [0.3], "second_s": [0.0006]}).to_csv(folder / "first_calls.csv")
     text = bench_report_section(tmp_path)
-    assert "| MAG.I.C.AL | 2 | 1-3 | 500 | 29.4 |" in text
+    assert "| MAG.I.C.AL | 2 | 1-3 | - |" in text            # no K = 10000 row
+    assert "MATLAB" not in text and "paper speed" not in text   # Table 2 holds the one speed
     assert "| MAG.I.C.AL | 7.5e+03 | 150 | 0.6 |" in text
     assert "speed-up 1.82x" in text
     assert bench_report_section(tmp_path / "nothing") == ""

@@ -1,13 +1,15 @@
-"""Rotations: cross-product matrices, the exponential map and Euler angles.
+"""Rotations: cross-product matrices, the exponential map, Euler angles, running products.
 
-Shared by the gyro-aided methods (which integrate angular rate) and the trajectory simulator.
+Shared by the gyro-aided methods (which integrate angular rate), the trajectory simulator and
+the direction metrics (:mod:`magbench.core.direction`); quaternions are in
+:mod:`magbench.core.quaternions`.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["euler_zyx_to_matrix", "rotation_exp", "skew"]
+__all__ = ["cumulative_product", "euler_zyx_to_matrix", "rotation_exp", "skew"]
 
 
 def skew(v: np.ndarray) -> np.ndarray:
@@ -47,3 +49,13 @@ def euler_zyx_to_matrix(phi: np.ndarray, theta: np.ndarray, psi: np.ndarray) -> 
     R[..., 1, 2] = sp * st * cf - cp * sf
     R[..., 2, 0], R[..., 2, 1], R[..., 2, 2] = -st, ct * sf, ct * cf
     return R
+
+
+def cumulative_product(steps: np.ndarray) -> np.ndarray:
+    """``P_n = S_0 S_1 ... S_n`` for ``(N, 3, 3)`` steps, by a vectorised doubling scan."""
+    P = np.array(steps, dtype=float)
+    shift = 1
+    while shift < len(P):
+        P[shift:] = P[:-shift] @ P[shift:]
+        shift *= 2
+    return P

@@ -285,16 +285,20 @@ def check_capacity(study: Study, units: Sequence, out_dir: Path) -> None:
 
     The estimate counts the main table: its rows (:meth:`Study.estimated_rows`) times its
     columns, at :data:`CSV_BYTES_PER_VALUE` on disk twice over (the part files and the merged
-    table exist together for a moment) and :data:`MEMORY_BYTES_PER_VALUE` in memory (the
-    statistics read the finished table).
+    table exist together for a moment), and its rows times the columns the statistics read
+    (the study's ``summary_columns`` if it names them, else all) at
+    :data:`MEMORY_BYTES_PER_VALUE` in memory.
 
     Raises
     ------
     TooLarge
         Naming the estimate, what is free, and how to make the run smaller.
     """
-    values = study.estimated_rows(units) * len(next(iter(study.tables.values()))[1])
-    disk_need, memory_need = 2 * CSV_BYTES_PER_VALUE * values, MEMORY_BYTES_PER_VALUE * values
+    rows = study.estimated_rows(units)
+    columns = next(iter(study.tables.values()))[1]
+    read = getattr(study, "summary_columns", None) or columns
+    disk_need = 2 * CSV_BYTES_PER_VALUE * rows * len(columns)
+    memory_need = MEMORY_BYTES_PER_VALUE * rows * len(read)
     disk, memory = _free_bytes(out_dir)
     short = []
     if disk_need > disk:
@@ -302,7 +306,7 @@ def check_capacity(study: Study, units: Sequence, out_dir: Path) -> None:
     if memory is not None and memory_need > memory:
         short.append(f"{_gb(memory_need)} of memory ({_gb(memory)} available)")
     if short:
-        raise TooLarge(f"this run would write about {study.estimated_rows(units):,} rows and "
+        raise TooLarge(f"this run would write about {rows:,} rows and "
                        f"need {' and '.join(short)}; lower trials, the points or the "
                        "algorithms, or choose another results_dir")
 

@@ -19,7 +19,7 @@ from matplotlib.figure import Figure
 from magbench.core.files import write_csv_atomic
 from magbench.core.reference import paper_values
 from magbench.figures.style import method_style, new_figure, save_figure
-from magbench.methods.registry import get_method
+from magbench.methods.registry import find_method
 
 __all__ = ["option_column", "option_figure", "option_figure_data", "write_option_figure"]
 
@@ -34,10 +34,8 @@ def option_column(summary: pd.DataFrame) -> str | None:
 
 
 def _paper(method: str) -> dict:
-    try:
-        key = get_method(method).paper_key
-    except ValueError:
-        return {}
+    spec = find_method(method)
+    key = spec.paper_key if spec is not None else None
     return paper_values()["review"]["table2"].get(key, {}) if key else {}
 
 

@@ -8,10 +8,12 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 from matplotlib.figure import Figure
+from matplotlib.lines import Line2D
 from matplotlib.patches import Patch
 
 from magbench.core.intervals import wilson
 from magbench.figures.style import method_style, new_figure
+from magbench.studies.real import selection_inflation
 
 __all__ = ["figure6", "figure6_recordings", "split_methods"]
 
@@ -47,7 +49,23 @@ def _short(name: str, per_method: pd.DataFrame) -> str:
     return label + (f" ({int(n)} rec.)" if np.isfinite(n) and n < most else "")
 
 
-def _panel(ax, per_method: pd.DataFrame, names: list[str], column: str) -> None:
+def _flag_selection(ax, x: np.ndarray, values: np.ndarray, width: float, names: list[str],
+                    flags: pd.DataFrame) -> None:
+    """Cross-hatch the bars whose value is set by which recordings the method kept, and mark
+    the other review methods' accuracy on the same recordings (a black bar)."""
+    flagged = flags.loc[flags["set_by_selection"].astype(bool)]
+    flagged = flagged.set_index("algorithm").reindex(names)
+    hit = flagged["set_by_selection"].eq(True).to_numpy()
+    if not hit.any():
+        return
+    ax.bar(x[hit], values[hit], width, fill=False, hatch="xxx", edgecolor="crimson",
+           linewidth=0.8)
+    ax.hlines(flagged["others_on_kept"].to_numpy(float)[hit], x[hit] - width / 2,
+              x[hit] + width / 2, colors="black", linewidth=2.5)
+
+
+def _panel(ax, per_method: pd.DataFrame, names: list[str], column: str,
+           flags: pd.DataFrame | None = None) -> None:
     hows = [h for h in _PREPROCESS if h in set(per_method["preprocess"])]
     width = 0.8 / max(len(hows), 1)
     x = np.arange(len(names))
@@ -59,6 +77,9 @@ def _panel(ax, per_method: pd.DataFrame, names: list[str], column: str) -> None:
         values = g[column].to_numpy(dtype=float)
         ax.bar(x + offset, values, width, color=colours, alpha=alpha, hatch=hatch,
                edgecolor="black", linewidth=0.5)
+        if flags is not None:
+            _flag_selection(ax, x + offset, values, width, names,
+                            flags[flags["preprocess"] == how])
         if column == "RB_pct":
             # Wilson 95 % interval of each share (n = recordings the method applies to).
             bounds = np.array([wilson(int(r.n_meaningful), int(r.n_applicable))
@@ -79,8 +100,9 @@ def figure6(per_method: pd.DataFrame, per_recording: pd.DataFrame | None = None)
     row, (c) and (d), the same for every other method that gave a meaningful fit. Each method
     keeps its colour of every figure; the review's scaling is a solid bar, centring a hatched
     one. The accuracy axis spans the values drawn (not the out-of-sample extremes, which are
-    in the report's table). ``per_recording`` is accepted for the older call and not drawn
-    here (see :func:`figure6_recordings`).
+    in the report's table). With ``per_recording``, an accuracy bar set by which recordings
+    the method kept (:func:`magbench.studies.real.selection_inflation`) is cross-hatched in
+    red, with a black bar at the other review methods' accuracy on the same recordings.
     """
     review, others, left_out = split_methods(per_method)
     rows = [(names, what) for names, what in ((review, "the review's methods (its Figure 6)"),
@@ -98,9 +120,10 @@ def figure6(per_method: pd.DataFrame, per_recording: pd.DataFrame | None = None)
     accuracy = accuracy[np.isfinite(accuracy) & (accuracy > 0)]
     lo, hi = (10 ** np.floor(np.log10(accuracy.min())), 10 ** np.ceil(np.log10(accuracy.max()))
               ) if len(accuracy) else (1e-1, 1e1)
+    flags = None if per_recording is None else selection_inflation(per_recording)
     for i, (names, what) in enumerate(rows):
         ax_a = fig.add_subplot(grid[i, 0])
-        _panel(ax_a, per_method, names, "accuracy_in")
+        _panel(ax_a, per_method, names, "accuracy_in", flags)
         ax_a.set_yscale("log")
         ax_a.set_ylim(lo, hi)
         ax_a.set_ylabel("accuracy 1 / mean J_r (81)")
@@ -114,17 +137,28 @@ def figure6(per_method: pd.DataFrame, per_recording: pd.DataFrame | None = None)
             for tick in ax.get_xticklabels():
                 tick.set_rotation(30 if len(names) > 7 else 0)
                 tick.set_ha("right" if len(names) > 7 else "center")
-    hows = [h for h in _PREPROCESS if h in set(per_method["preprocess"])]
-    handles = [Patch(facecolor="0.55", alpha=_PREPROCESS[h][1], hatch=_PREPROCESS[h][0],
-                     edgecolor="black", label=_PREPROCESS[h][2]) for h in hows]
+    handles = _legend_handles(per_method, flags)
     n_rec = int(per_method["n_recordings"].max()) if "n_recordings" in per_method else None
-    fig.legend(handles=handles, loc="outside lower center", ncols=len(handles), fontsize=9,
-               frameon=False)
+    fig.legend(handles=handles, loc="outside lower center", ncols=min(len(handles), 3),
+               fontsize=9, frameon=False)
     note = ("; not shown (no meaningful fit on any recording): "
             + ", ".join(method_style(n)["label"] for n in left_out)) if left_out else ""
     fig.suptitle("Figure 6 on public real recordings (review section 10.2)"
                  + (f", {n_rec} recordings" if n_rec else "") + note, fontsize=11)
     return fig
+
+
+def _legend_handles(per_method: pd.DataFrame, flags: pd.DataFrame | None) -> list:
+    """The preprocessings' bar styles, and the selection flag's when a bar carries it."""
+    hows = [h for h in _PREPROCESS if h in set(per_method["preprocess"])]
+    handles = [Patch(facecolor="0.55", alpha=_PREPROCESS[h][1], hatch=_PREPROCESS[h][0],
+                     edgecolor="black", label=_PREPROCESS[h][2]) for h in hows]
+    if flags is not None and flags["set_by_selection"].astype(bool).any():
+        handles += [Patch(fill=False, hatch="xxx", edgecolor="crimson",
+                          label="set by which recordings were kept"),
+                    Line2D([], [], color="black", linewidth=2.5,
+                           label="other review methods on the same recordings")]
+    return handles
 
 
 def figure6_recordings(per_method: pd.DataFrame, per_recording: pd.DataFrame) -> Figure:

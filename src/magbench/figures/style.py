@@ -15,7 +15,7 @@ from pathlib import Path
 from matplotlib.figure import Figure
 
 from magbench.core.files import atomic_path
-from magbench.methods.registry import get_method
+from magbench.methods.registry import find_method
 
 __all__ = ["METHOD_STYLE", "MethodStyle", "method_style", "new_figure", "save_figure"]
 
@@ -36,7 +36,7 @@ METHOD_STYLE: dict[str, tuple[str, str]] = {
     "sar_ls": ("#CC6677", "H"), "sar_kf": ("#44AA99", "o"), "sar_aid": ("#EE8866", "s"),
     "magyc_ls": ("#77AADD", "^"), "magyc_nls": ("#BBCC33", "D"), "magyc_bfg": ("#FFAABB", "v"),
     "magyc_ifg": ("#99DDFF", "P"), "magfactor3": ("#AAAA00", "X"),
-    "diagonal": ("#44BB99", "8"),
+    "diagonal": ("#44BB99", "8"), "als": ("#6699CC", ">"),
 }
 #: Line style and width by family: the review's methods solid and heavier.
 FAMILY_LINE = {"review": ("-", 1.8), "extra": ("--", 1.2), "variant": ("-.", 1.2),
@@ -77,12 +77,9 @@ def method_style(name: str) -> MethodStyle:
     run) gets a spare colour and marker (:func:`_spare_index`), the same in every figure and
     distinct from every other registered method's.
     """
-    try:
-        spec = get_method(name)
-        label = spec.label
-        family = "gyro" if spec.needs_gyro else spec.family
-    except ValueError:
-        label, family = name, "extra"
+    spec = find_method(name)
+    label = name if spec is None else spec.label
+    family = "extra" if spec is None else "gyro" if spec.needs_gyro else spec.family
     if name in METHOD_STYLE:
         colour, marker = METHOD_STYLE[name]
     else:

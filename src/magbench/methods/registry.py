@@ -15,14 +15,14 @@ from dataclasses import dataclass
 from magbench.core.crb import MODEL_PARAMETERS
 from magbench.core.model import Calibration
 
-__all__ = ["DISPLAY_ORDER", "MODEL_PARAMETERS", "Method", "get_method", "methods", "register",
-           "unregister"]
+__all__ = ["DISPLAY_ORDER", "MODEL_PARAMETERS", "Method", "find_method", "get_method",
+           "method_label", "methods", "register", "unregister"]
 
 #: Display order of the registered methods: the review's seven in its order of presentation,
 #: then the extra methods. Names not listed sort after these, alphabetically.
 DISPLAY_ORDER = (
     "twostep", "crassidis", "dorveaux", "vasconcelos", "ali", "wu_shi", "magical",
-    "wu_shi_nm", "ellipsoid", "fang", "diagonal", "sphere", "twostep_hi",
+    "wu_shi_nm", "ellipsoid", "als", "fang", "diagonal", "sphere", "twostep_hi",
     "vasconcelos_printed", "wu_shi_printed", "twostep_no_svd", "crassidis_prior",
 )
 
@@ -136,3 +136,17 @@ def get_method(name: str) -> Method:
     except KeyError:
         raise ValueError(f"unknown method {name!r}; expected one of: "
                          f"{', '.join(methods())}") from None
+
+
+def find_method(name: str) -> Method | None:
+    """The registered :class:`Method` called ``name``, or None (a method of an older run or of
+    a plugin not loaded in this process)."""
+    _ensure_loaded()
+    return _REGISTRY.get(name)
+
+
+def method_label(name: str) -> str:
+    """The name tables and figures show for ``name``: its label, or the name itself when it is
+    not registered."""
+    spec = find_method(name)
+    return name if spec is None else spec.label

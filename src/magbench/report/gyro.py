@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from magbench.methods.registry import get_method
+from magbench.methods.registry import find_method
 from magbench.report.intervals import rb_interval, run_note
 
 __all__ = ["gyro_report_section"]
@@ -46,11 +46,8 @@ def gyro_report_section(results_dir: Path | str) -> str:
                 cells.append("-")
         wb = sub[sub["algorithm"] == name]["median_J_wb"]
         wb_text = f"{wb.median():.1e}" if wb.notna().any() else "-"
-        try:
-            spec = get_method(name)
-            label = spec.label + (" *" if spec.needs_gyro else "")
-        except ValueError:
-            label = name
+        spec = find_method(name)
+        label = name if spec is None else spec.label + (" *" if spec.needs_gyro else "")
         lines.append(f"| {label} | " + " | ".join(cells) + f" | {wb_text} |")
     lines += ["", "![median J against gyro noise](gyro/gyro_J.png) "
               "(numbers: `gyro/gyro_J.csv`)", ""]

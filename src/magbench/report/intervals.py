@@ -119,8 +119,9 @@ def annotate(summary: pd.DataFrame, trials: pd.DataFrame | None = None,
     """``summary`` with the intervals and the timing pass beside every row.
 
     Adds ``RB_lo``, ``RB_hi`` (Wilson), ``acc_lo``, ``acc_hi`` (bootstrap over ``trials``'
-    meaningful J; NaN without ``trials``) and ``speed_timed`` (1/median of the timing pass;
-    NaN without ``timing``), matched on the point's columns and ``algorithm``.
+    meaningful J; NaN without ``trials``), ``speed_timed`` (1/tau of the timing pass; NaN
+    without ``timing``), matched on the point's columns and ``algorithm``, and the report's
+    one speed per row, ``speed`` with its ``speed_source`` (:func:`one_speed`).
     """
     from magbench.studies.review import POINT_COLUMNS
 
@@ -140,4 +141,17 @@ def annotate(summary: pd.DataFrame, trials: pd.DataFrame | None = None,
                         on=keys, how="left")
     else:
         out["speed_timed"] = np.nan
+    out["speed"], out["speed_source"] = one_speed(out, timing is not None)
     return out
+
+
+def one_speed(rich: pd.DataFrame, timed: bool) -> tuple[pd.Series, str]:
+    """The report's one speed 1/tau per row, and where it comes from.
+
+    With a timing pass (``timed``) every speed is the pass's, blank where the pass has none
+    or where no run was meaningful (RB = 0: eq. (79) has no run to average); without one,
+    the per-trial speed of ``summary.csv`` (meaningful runs, wall time during the sweep).
+    """
+    if timed:
+        return rich["speed_timed"].where(rich["RB_pct"] > 0), "timing"
+    return rich["speed_hz"], "trials"

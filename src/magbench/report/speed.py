@@ -8,9 +8,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from magbench.core.reference import paper_values
-from magbench.methods.registry import get_method, methods
-from magbench.report.format import format_number
+from magbench.methods.registry import method_label
+from magbench.report.format import format_number, render
 
 __all__ = ["bench_report_section"]
 
@@ -20,65 +19,69 @@ def bench_report_section(results_dir: Path | str) -> str:
     folder = Path(results_dir) / "bench"
     if not (folder / "calls.csv").exists():
         return ""
-    calls = pd.read_csv(folder / "calls.csv")
-    paper = paper_values()["review"]["table2"]
-    at300 = calls[calls["K"] == 300]
-    lines = ["## Speed (benchmark)", "",
-             "Median time of one `calibrate` call at the nominal setting, K = 300, on this "
-             "machine (Python, one thread), beside the review's MATLAB speeds (Table 2). "
-             "Produced by `make bench`; scaling plot: `bench/scaling.png`.", "",
-             f"*Benchmark `bench`: {int(at300['n'].max()) if len(at300) else 0} timed calls per "
-             "method and K (datasets x repeats, `calls.csv`); the benchmark is not a sweep and "
-             "has no config fingerprint. The sweeps' speeds come from their own timing passes "
-             "(`<sweep>/timing.csv`).*", "",
-             "| method | median (ms) | quartiles (ms) | speed (1/s) | paper speed (1/s) | "
-             "K=10000 / K=1000 |", "|---|---:|---:|---:|---:|---:|"]
-    for r in at300.itertuples(index=False):
-        key = get_method(r.algorithm).paper_key if r.algorithm in methods() else None
-        ref = paper.get(key, {}).get("speed_hz", np.nan) if key else np.nan
-        big = calls[(calls["algorithm"] == r.algorithm) & (calls["K"] == 10000)]["median_s"]
-        small = calls[(calls["algorithm"] == r.algorithm) & (calls["K"] == 1000)]["median_s"]
-        ratio = float(big.iloc[0] / small.iloc[0]) if len(big) and len(small) else np.nan
-        lines.append(f"| {get_method(r.algorithm).label} | {format_number(r.median_s * 1e3)} | "
-                     f"{format_number(r.q25_s * 1e3)}-{format_number(r.q75_s * 1e3)} | "
-                     f"{format_number(1 / r.median_s)} | {format_number(float(ref))} | "
-                     f"{format_number(ratio, 2)} |")
+    lines = _calls_lines(pd.read_csv(folder / "calls.csv"))
     if (folder / "first_calls.csv").exists():
-        first = pd.read_csv(folder / "first_calls.csv")
-        lines += ["", "First call in a fresh process (not in the medians above): with an empty "
-                  "numba cache the method's loops are compiled; with the on-disk cache they are "
-                  "loaded, which every sweep worker pays once. Both include importing numba, "
-                  "which the first compiled loop called in a process does.", "",
-                  "| method | compile (ms) | cached first call (ms) | next call (ms) |",
-                  "|---|---:|---:|---:|"]
-        for r in first.itertuples(index=False):
-            label = get_method(r.algorithm).label if r.algorithm in methods() else r.algorithm
-            lines.append(f"| {label} | {format_number(r.compile_s * 1e3)} | "
-                         f"{format_number(r.cached_first_s * 1e3)} | "
-                         f"{format_number(r.second_s * 1e3)} |")
+        lines += _first_call_lines(pd.read_csv(folder / "first_calls.csv"))
     if (folder / "peers.csv").exists():
-        peers = pd.read_csv(folder / "peers.csv")
-        lines += ["", "Peers on the same nominal datasets (speed-up = peer time / magbench "
-                  "time; J = eq. 74 after converting conventions):", "",
-                  "| peer | K | magbench | speed-up | peer mean J | magbench mean J | note |",
-                  "|---|---:|---|---:|---:|---:|---|"]
-        for r in peers.itertuples(index=False):
-            K = getattr(r, "K", 300)
-            lines.append(f"| {r.peer} | {'-' if pd.isna(K) else int(K)} | {r.magbench} | "
-                         f"{format_number(getattr(r, 'speedup', np.nan), 3)} | "
-                         f"{format_number(getattr(r, 'peer_mean_J', np.nan))} | "
-                         f"{format_number(getattr(r, 'magbench_mean_J', np.nan))} | "
-                         f"{'' if pd.isna(r.note) else r.note} |")
+        lines += _peer_lines(pd.read_csv(folder / "peers.csv"))
     if (folder / "calibrate.csv").exists():
         lines += calibrate_lines(pd.read_csv(folder / "calibrate.csv"))
     if (folder / "parallel.csv").exists():
-        par = pd.read_csv(folder / "parallel.csv")
-        two = par[par["n_jobs"] == 2].iloc[0]
-        lines += ["", f"Parallel: one baseline sweep of {int(two.trials)} trials x "
-                  f"{int(two.methods)} methods took {format_number(par['wall_s'].iloc[0])} s "
-                  f"with 1 worker and {format_number(two.wall_s)} s with 2 "
-                  f"(speed-up {format_number(two.speedup, 3)}x on {os.cpu_count()} cores)."]
+        lines += _parallel_lines(pd.read_csv(folder / "parallel.csv"))
     return "\n".join(lines) + "\n"
+
+
+def _calls_lines(calls: pd.DataFrame) -> list[str]:
+    at300 = calls[calls["K"] == 300]
+    lines = ["## Speed (benchmark)", "", render("bench.intro"), "",
+             render("bench.note", n=int(at300["n"].max()) if len(at300) else 0), "",
+             "| method | median (ms) | quartiles (ms) | K=10000 / K=1000 |",
+             "|---|---:|---:|---:|"]
+    for r in at300.itertuples(index=False):
+        big = calls[(calls["algorithm"] == r.algorithm) & (calls["K"] == 10000)]["median_s"]
+        small = calls[(calls["algorithm"] == r.algorithm) & (calls["K"] == 1000)]["median_s"]
+        ratio = float(big.iloc[0] / small.iloc[0]) if len(big) and len(small) else np.nan
+        lines.append(f"| {method_label(r.algorithm)} | {format_number(r.median_s * 1e3)} | "
+                     f"{format_number(r.q25_s * 1e3)}-{format_number(r.q75_s * 1e3)} | "
+                     f"{format_number(ratio, 2)} |")
+    return lines
+
+
+def _first_call_lines(first: pd.DataFrame) -> list[str]:
+    lines = ["", "First call in a fresh process (not in the medians above): with an empty "
+             "numba cache the method's loops are compiled; with the on-disk cache they are "
+             "loaded, which every sweep worker pays once. Both include importing numba, "
+             "which the first compiled loop called in a process does.", "",
+             "| method | compile (ms) | cached first call (ms) | next call (ms) |",
+             "|---|---:|---:|---:|"]
+    for r in first.itertuples(index=False):
+        lines.append(f"| {method_label(r.algorithm)} | {format_number(r.compile_s * 1e3)} | "
+                     f"{format_number(r.cached_first_s * 1e3)} | "
+                     f"{format_number(r.second_s * 1e3)} |")
+    return lines
+
+
+def _peer_lines(peers: pd.DataFrame) -> list[str]:
+    lines = ["", "Peers on the same nominal datasets (speed-up = peer time / magbench "
+             "time; J = eq. 74 after converting conventions):", "",
+             "| peer | K | magbench | speed-up | peer mean J | magbench mean J | note |",
+             "|---|---:|---|---:|---:|---:|---|"]
+    for r in peers.itertuples(index=False):
+        K = getattr(r, "K", 300)
+        lines.append(f"| {r.peer} | {'-' if pd.isna(K) else int(K)} | {r.magbench} | "
+                     f"{format_number(getattr(r, 'speedup', np.nan), 3)} | "
+                     f"{format_number(getattr(r, 'peer_mean_J', np.nan))} | "
+                     f"{format_number(getattr(r, 'magbench_mean_J', np.nan))} | "
+                     f"{'' if pd.isna(r.note) else r.note} |")
+    return lines
+
+
+def _parallel_lines(par: pd.DataFrame) -> list[str]:
+    two = par[par["n_jobs"] == 2].iloc[0]
+    return ["", f"Parallel: one baseline sweep of {int(two.trials)} trials x "
+            f"{int(two.methods)} methods took {format_number(par['wall_s'].iloc[0])} s "
+            f"with 1 worker and {format_number(two.wall_s)} s with 2 "
+            f"(speed-up {format_number(two.speedup, 3)}x on {os.cpu_count()} cores)."]
 
 
 def calibrate_lines(cal: pd.DataFrame) -> list[str]:

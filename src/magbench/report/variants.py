@@ -14,8 +14,8 @@ import numpy as np
 import pandas as pd
 
 from magbench.core.reference import paper_values
+from magbench.methods.registry import method_label
 from magbench.report.format import format_number, md_table
-from magbench.report.format import label as method_label
 
 __all__ = ["HYPOTHESES", "best_fit", "squared_form_table", "variants_report_section"]
 

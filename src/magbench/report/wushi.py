@@ -8,21 +8,13 @@ import numpy as np
 import pandas as pd
 
 from magbench.core.reference import paper_values
-from magbench.methods.registry import get_method
-from magbench.report.format import format_number
+from magbench.report.format import format_number, render
 from magbench.report.intervals import run_note
 from magbench.sources.wushi_sim import truth
 from magbench.studies.wushi import CRB_ROW, ML, NM, SHORT, iterations_to_converge
 
 __all__ = ["evaluate_claims", "verdict_convergence", "verdict_divergence", "verdict_ml_better",
            "verdict_time_ratio", "wushi_report_section"]
-
-
-def _label(name: str) -> str:
-    try:
-        return get_method(name).label
-    except ValueError:
-        return name
 
 
 # ----------------------------------------------------------------------------------------
@@ -140,13 +132,12 @@ def evaluate_claims(results_dir: Path | str, within: int = 5,
     claims = paper_values()["wu_shi"]["claims"]
     out = []
     history = pd.read_csv(folder / "fig3_objective.csv")
-    out.append((claims[0], *verdict_convergence(history, within)))
-    out.append((claims[1], *verdict_time_ratio(pd.read_csv(folder / "fig5_time.csv"),
-                                               claimed_ratio)))
-    out.append((claims[2], *verdict_divergence(pd.read_csv(folder / "fig6_divergence.csv"))))
-    out.append(("(section IV text) the ML estimation performs slightly better than the NM "
-                "estimation in both mean and standard deviation (Table I)",
-                *verdict_ml_better(pd.read_csv(folder / "table1.csv"))))
+    out.append((claims["converge_in_five"], *verdict_convergence(history, within)))
+    out.append((claims["ml_costs_ten_nm"],
+                *verdict_time_ratio(pd.read_csv(folder / "fig5_time.csv"), claimed_ratio)))
+    out.append((claims["nm_diverges"],
+                *verdict_divergence(pd.read_csv(folder / "fig6_divergence.csv"))))
+    out.append((claims["ml_better"], *verdict_ml_better(pd.read_csv(folder / "table1.csv"))))
     return pd.DataFrame(out, columns=["claim", "verdict", "evidence"])
 
 
@@ -164,23 +155,25 @@ def wushi_report_section(results_dir: Path | str, link_prefix: str = "wushi/") -
     """
     folder = Path(results_dir) / "wushi"
     if not (folder / "table1.csv").exists():
-        return ("## Wu and Shi's simulation study\n\nNo results yet: run "
-                "`python -m magbench sweep=wushi`.\n")
+        return render("wushi.missing") + "\n"
     t = pd.read_csv(folder / "table1.csv", keep_default_na=False, na_values=[""])
     settings = (pd.read_csv(folder / "settings.csv").set_index("key")["value"]
                 if (folder / "settings.csv").exists() else pd.Series(dtype=object))
     N, sigma = (f"{float(settings[k]):g}" if k in settings else "?" for k in ("N", "sigma"))
-    runs = int(t["runs"].max())
     lines = ["## Wu and Shi (2015), section IV: their simulation reproduced", "",
-             f"{runs} Monte Carlo runs of y_k = S C_k m_n + h + e_k with S, h of their eq. (24),"
-             f" sigma = {sigma} gauss, N = {N} and their Euler-angle attitude pattern (roll and "
-             "pitch within +-20 deg, one yaw turn: a band of the sphere). Error metrics of "
-             "section IV after bringing every estimate to the gauge T^-1 = Q R (R upper "
-             "triangular, positive diagonal) and R = M Lambda; J is the review's eq. (74) in "
-             "gauss. Mean (std, ddof 1) over the runs that returned an estimate.", "",
-             run_note(folder, "Monte Carlo runs"), "",
-             "### Table I", "",
-             "| estimator | e_s % (ours) | e_s % (paper) | e_o deg (ours) | e_o deg (paper) "
+             render("wushi.intro", runs=int(t["runs"].max()), sigma=sigma, N=N), "",
+             run_note(folder, "Monte Carlo runs"), "", "### Table I", "",
+             *_table1_lines(t), "", render("wushi.ratios", ratios=_ratios(t)), "",
+             render("wushi.all_methods"), "", *_all_methods_lines(t), *_offset_lines(t),
+             *_figure_lines(link_prefix), "", "### Claims", "", "| claim | verdict | evidence |",
+             "|---|---|---|"]
+    for _, c in evaluate_claims(results_dir).iterrows():
+        lines.append(f"| {c['claim']} | **{c['verdict']}** | {c['evidence']} |")
+    return "\n".join(lines) + "\n"
+
+
+def _table1_lines(t: pd.DataFrame) -> list[str]:
+    lines = ["| estimator | e_s % (ours) | e_s % (paper) | e_o deg (ours) | e_o deg (paper) "
              "| e_h gauss (ours) | e_h gauss (paper) | J (ours) |",
              "|---|---|---|---|---|---|---|---|"]
     names = {ML: "ML (`wu_shi`)", NM: "NM (`wu_shi_nm`)",
@@ -195,6 +188,10 @@ def wushi_report_section(results_dir: Path | str, link_prefix: str = "wushi/") -
             f"| {_cell(r['e_h_mean'], r['e_h_std'], 5)} "
             f"| {_cell(r['paper_e_h_mean'], r['paper_e_h_std'])} "
             f"| {_cell(r['J_mean'], r['J_std'], 5)} |")
+    return lines
+
+
+def _ratios(t: pd.DataFrame) -> str:
     ratios = []
     for name in (ML, NM):
         r = t[t["algorithm"] == name]
@@ -202,18 +199,13 @@ def wushi_report_section(results_dir: Path | str, link_prefix: str = "wushi/") -
             r = r.iloc[0]
             ratios.append(f"{SHORT[name]} " + ", ".join(
                 f"{m} {r[f'{m}_mean'] / r[f'paper_{m}_mean']:.2f}" for m in ("e_s", "e_o", "e_h")))
-    lines += ["", "Ours / paper, means: " + "; ".join(ratios) + " (the paper prints e_h to one "
-              "significant figure). The Cramer-Rao row is computed, not simulated: errors drawn "
-              "from the bound for this attitude pattern (the same in every run), i.e. what an "
-              "efficient unbiased estimator achieves on average.", "",
-              "Every magnetometer-only method on the same data. Estimates = runs that returned "
-              "one; at cap = of those, runs that stopped at their iteration cap (still in the "
-              "statistics); note = the most common failure or cap message. Control: median J "
-              "over the first runs with the true offset subtracted from the samples (truth "
-              "(S, 0)).", "",
-              "| method | estimates | at cap | e_s % | e_o deg | e_h gauss | J mean (std) "
-              "| J median | J median, offset removed (control) | median time ms | note |",
-              "|---|---|---|---|---|---|---|---|---|---|---|"]
+    return "; ".join(ratios)
+
+
+def _all_methods_lines(t: pd.DataFrame) -> list[str]:
+    lines = ["| method | estimates | at cap | e_s % | e_o deg | e_h gauss | J mean (std) "
+             "| J median | J median, offset removed (control) | median time ms | note |",
+             "|---|---|---|---|---|---|---|---|---|---|---|"]
     for _, r in t[t["algorithm"] != CRB_ROW].iterrows():
         note = str(r["note"]).replace("|", "/")[:90] if pd.notna(r["note"]) else ""
         lines.append(
@@ -224,29 +216,29 @@ def wushi_report_section(results_dir: Path | str, link_prefix: str = "wushi/") -
             f"| {format_number(r['J_median'], 4)} "
             f"| {format_number(r['J_median_offset_removed'], 4)} "
             f"| {format_number(r['time_ms_median'], 3)} | {note} |")
+    return lines
+
+
+def _offset_lines(t: pd.DataFrame) -> list[str]:
+    """The methods defeated by Wu and Shi's large offset rather than by their coverage."""
     ml_J = t.loc[t["algorithm"] == ML, "J_median"]
     good_J = 10.0 * float(ml_J.iloc[0]) if len(ml_J) else np.nan
-    offset_bound = t[(t["algorithm"] != CRB_ROW) & (t["J_median"] > 0.1)
-                     & (t["J_median_offset_removed"] < good_J)]
-    if len(offset_bound):
-        _, S_true, h_true = truth()
-        axes = np.linalg.svd(S_true, compute_uv=False)
-        lines += ["", "Methods whose median J exceeds 0.1 gauss here but falls below 10x "
-                  "ML's once the true offset is subtracted: "
-                  + ", ".join(f"{r['label']} ({format_number(r['J_median'])} -> "
-                              f"{format_number(r['J_median_offset_removed'])})"
-                              for _, r in offset_bound.iterrows())
-                  + f". Wu and Shi's offset |h| = {np.linalg.norm(h_true):.2f} gauss is large "
-                  f"beside the ellipsoid (semi-axes {axes.min():.2f}-{axes.max():.2f} gauss); "
-                  "the offset, not the partial coverage, is what defeats them: even after the "
-                  "harness's power-of-two normalisation the data are far from the near-unit, "
-                  "near-centred sphere of the review's simulations."]
-    lines += ["", "### Figures", "",
-              f"![Fig. 3](<{link_prefix}fig3_objective.png>) (numbers: `fig3_objective.csv`)",
-              "", f"![Fig. 5](<{link_prefix}fig5_time.png>) (numbers: `fig5_time.csv`)", "",
-              f"![Fig. 6](<{link_prefix}fig6_divergence.png>) (numbers: "
-              "`fig6_divergence.csv`, per run: `perturbation_runs.csv`)", "",
-              "### Claims", "", "| claim | verdict | evidence |", "|---|---|---|"]
-    for _, c in evaluate_claims(results_dir).iterrows():
-        lines.append(f"| {c['claim']} | **{c['verdict']}** | {c['evidence']} |")
-    return "\n".join(lines) + "\n"
+    bound = t[(t["algorithm"] != CRB_ROW) & (t["J_median"] > 0.1)
+              & (t["J_median_offset_removed"] < good_J)]
+    if not len(bound):
+        return []
+    _, S_true, h_true = truth()
+    axes = np.linalg.svd(S_true, compute_uv=False)
+    methods = ", ".join(f"{r['label']} ({format_number(r['J_median'])} -> "
+                        f"{format_number(r['J_median_offset_removed'])})"
+                        for _, r in bound.iterrows())
+    return ["", render("wushi.offset_bound", methods=methods, h_norm=np.linalg.norm(h_true),
+                       axis_lo=axes.min(), axis_hi=axes.max())]
+
+
+def _figure_lines(link_prefix: str) -> list[str]:
+    return ["", "### Figures", "",
+            f"![Fig. 3](<{link_prefix}fig3_objective.png>) (numbers: `fig3_objective.csv`)",
+            "", f"![Fig. 5](<{link_prefix}fig5_time.png>) (numbers: `fig5_time.csv`)", "",
+            f"![Fig. 6](<{link_prefix}fig6_divergence.png>) (numbers: "
+            "`fig6_divergence.csv`, per run: `perturbation_runs.csv`)"]

@@ -36,8 +36,21 @@ import pandas as pd
 from magbench.core.geometry import MIN_COVERAGE, MIN_THICKNESS, check_geometry
 from magbench.core.model import check_magnitude
 
-__all__ = ["DATA_ENV", "GYRO_COLUMNS", "INSTANCE_COLUMNS", "MAG_COLUMNS", "Recording",
-           "data_dir", "list_recordings", "load_recording", "read_samples"]
+__all__ = [
+    "ACC_COLUMNS",
+    "ATTITUDE_COLUMNS",
+    "DATA_ENV",
+    "GYRO_COLUMNS",
+    "INSTANCE_COLUMNS",
+    "MAG_COLUMNS",
+    "InertialRecording",
+    "Recording",
+    "data_dir",
+    "list_recordings",
+    "load_recording",
+    "read_inertial",
+    "read_samples",
+]
 
 DATA_ENV = "MAGBENCH_DATA"
 MAG_COLUMNS = ("mx", "my", "mz")
@@ -660,3 +673,74 @@ def _times(path: Path, layout: dict, position: int, where: _Where, keep: np.ndar
                   + (", so the gyro columns are not used" if has_gyro else ""),
                   UserWarning, stacklevel=3)
     return None
+
+
+ACC_COLUMNS = ("ax", "ay", "az")
+ATTITUDE_COLUMNS = ("qw", "qx", "qy", "qz")
+
+
+@dataclass(frozen=True)
+class InertialRecording:
+    """A recording with its inertial streams and reference attitude, every row kept.
+
+    Attributes
+    ----------
+    name : str
+        Folder or file stem.
+    t : ndarray, shape (K,)
+        Sample times, s.
+    y : ndarray, shape (K, 3)
+        Magnetometer samples, units as recorded.
+    gyro, acceleration : ndarray of shape (K, 3) or None
+        Angular rate (rad/s) and specific force (m/s^2), if the file has them.
+    attitude : ndarray of shape (K, 4) or None
+        Reference attitude, unit quaternions scalar first, sensor -> world, NaN where the
+        reference is missing (``qw, qx, qy, qz``).
+    """
+
+    name: str
+    t: np.ndarray
+    y: np.ndarray
+    gyro: np.ndarray | None = None
+    acceleration: np.ndarray | None = None
+    attitude: np.ndarray | None = None
+
+    @property
+    def K(self) -> int:
+        return int(self.y.shape[0])
+
+    def rows(self, index: slice | np.ndarray) -> InertialRecording:
+        """The recording restricted to some rows (every stream alike)."""
+        def cut(a: np.ndarray | None) -> np.ndarray | None:
+            return None if a is None else a[index]
+
+        return replace(self, t=self.t[index], y=self.y[index], gyro=cut(self.gyro),
+                       acceleration=cut(self.acceleration), attitude=cut(self.attitude))
+
+
+def read_inertial(path: Path | str) -> InertialRecording:
+    """Read ``t, mx, my, mz`` and, where present, ``gx..gz``, ``ax..az`` and ``qw..qz``.
+
+    Rows without time or magnetometer values are dropped; missing attitude values stay NaN
+    (the reference is often missing at a recording's ends).
+
+    Raises
+    ------
+    ValueError
+        If the file lacks ``t`` or a magnetometer column.
+    """
+    path = Path(path)
+    header = [c.strip() for c in _read_csv(path, nrows=0).columns]
+    need = ["t", *MAG_COLUMNS]
+    if any(c not in header for c in need):
+        raise ValueError(f"{path} needs columns {', '.join(need)}; it has {', '.join(header)}")
+    groups = {"gyro": GYRO_COLUMNS, "acceleration": ACC_COLUMNS,
+              "attitude": ATTITUDE_COLUMNS}
+    present = {k: list(cols) for k, cols in groups.items() if all(c in header for c in cols)}
+    table = _read_csv(path, usecols=need + [c for cols in present.values() for c in cols])
+    keep = table[need].notna().all(axis=1).to_numpy()
+    table = table[keep]
+    streams = {k: table[cols].to_numpy(dtype=float) for k, cols in present.items()}
+    return InertialRecording(path.parent.name if path.name == "data.csv" else path.stem,
+                             table["t"].to_numpy(dtype=float),
+                             table[list(MAG_COLUMNS)].to_numpy(dtype=float), **streams)

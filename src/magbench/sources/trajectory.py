@@ -21,15 +21,26 @@ Two motions are provided:
 
 Coverage is set by the motion's parameters: ``axis_weights`` (random motion; e.g. small roll and
 pitch weights give a mostly-yaw, low-coverage motion) or ``tilt_deg`` and ``turns`` (Euler).
+
+For the direction (heading) studies the simulator also gives what an inertial unit adds: an
+accelerometer reading the specific force ``a_k = R_k^T (0, 0, -g) + noise`` (the world's z axis
+points down, so a field of positive inclination has a positive z component, as
+:func:`random_field` draws it), a magnetometer mounted with a rotation ``M`` against the inertial
+axes, and a magnetometer lag ``L``:
+
+    y_k = T M R(t_k - L)^T m0 + h + eps_k,
+
+with ``R(t_k - L)`` exact (a Magnus step back from ``t_k``, or the Euler pattern at ``t_k - L``).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
-from magbench.core.rotations import euler_zyx_to_matrix, rotation_exp
+from magbench.core.quaternions import matrix_to_quat
+from magbench.core.rotations import cumulative_product, euler_zyx_to_matrix, rotation_exp
 
 __all__ = ["Trajectory", "random_field", "simulate"]
 
@@ -58,6 +69,12 @@ class Trajectory:
         True magnetometer distortion, shapes (3, 3) and (3,).
     gyro_bias : ndarray, shape (3,)
         True gyroscope bias in rad/s.
+    acceleration : ndarray of shape (K, 3) or None
+        Accelerometer samples (specific force, m/s^2, inertial axes).
+    mount : ndarray, shape (3, 3)
+        Rotation from the inertial axes to the magnetometer's (identity by default).
+    lag_s : float
+        How late the magnetometer reads the field, s.
     """
 
     t: np.ndarray
@@ -70,16 +87,14 @@ class Trajectory:
     T: np.ndarray
     h: np.ndarray
     gyro_bias: np.ndarray
+    acceleration: np.ndarray | None = None
+    mount: np.ndarray = field(default_factory=lambda: np.eye(3))
+    lag_s: float = 0.0
 
-
-def _cumulative_product(steps: np.ndarray) -> np.ndarray:
-    """``P_n = S_0 S_1 ... S_n`` for ``(N, 3, 3)`` steps, by a vectorised doubling scan."""
-    P = steps.copy()
-    shift = 1
-    while shift < len(P):
-        P[shift:] = P[:-shift] @ P[shift:]
-        shift *= 2
-    return P
+    @property
+    def attitude(self) -> np.ndarray:
+        """The true attitude as unit quaternions, ``(K, 4)`` scalar first, body -> world."""
+        return matrix_to_quat(self.R)
 
 
 def _random_rate(rng: np.random.Generator, rate_rms: float, axis_weights: np.ndarray,
@@ -107,12 +122,17 @@ def _integrate_attitude(rate, t_end: float, n_steps: int, R0: np.ndarray) -> np.
     ``exp([Omega]x)`` with ``Omega = dt/2 (w1 + w2) + sqrt(3)/12 dt^2 (w1 x w2)``.
     """
     dt = t_end / n_steps
-    t0 = np.arange(n_steps) * dt
+    omega = _magnus_step(rate, np.arange(n_steps) * dt, dt)
+    steps = np.concatenate([R0[None], rotation_exp(omega)])
+    return cumulative_product(steps)
+
+
+def _magnus_step(rate, t0: np.ndarray, dt: float) -> np.ndarray:
+    """The body rotation vectors of fourth-order Magnus steps of length ``dt`` (may be
+    negative) from the times ``t0`` (see :func:`_integrate_attitude`)."""
     c = np.sqrt(3.0) / 6.0
     w1, w2 = rate(t0 + (0.5 - c) * dt), rate(t0 + (0.5 + c) * dt)
-    omega = 0.5 * dt * (w1 + w2) + (np.sqrt(3.0) / 12.0) * dt**2 * np.cross(w1, w2)
-    steps = np.concatenate([R0[None], rotation_exp(omega)])
-    return _cumulative_product(steps)
+    return 0.5 * dt * (w1 + w2) + (np.sqrt(3.0) / 12.0) * dt**2 * np.cross(w1, w2)
 
 
 def _euler_pattern(t: np.ndarray, duration: float, tilt_deg: float, turns: float,
@@ -142,6 +162,27 @@ def random_field(rng: np.random.Generator, inclination_deg: float = 60.0) -> np.
     return np.array([np.cos(inc) * np.cos(dec), np.cos(inc) * np.sin(dec), np.sin(inc)])
 
 
+def _motion(rng: np.random.Generator, t: np.ndarray, motion: str, lag_s: float,
+            oversample: int, random: dict, euler: dict,
+            ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Attitude and body rate at the sample times, and the attitude at ``t - lag_s`` (the
+    moments the magnetometer reads)."""
+    K = len(t)
+    if motion == "random":
+        rate = _random_rate(rng, random["rate_rms"], np.asarray(random["axis_weights"], float),
+                            random["n_harmonics"], random["band_hz"])
+        R0 = rotation_exp(rng.normal(size=3) * np.pi / np.sqrt(3.0))
+        # Attitude on a fine grid that contains every sample time.
+        R = _integrate_attitude(rate, t[-1], (K - 1) * oversample, R0)[::oversample]
+        R_read = R if not lag_s else R @ rotation_exp(_magnus_step(rate, t, -lag_s))
+        return R, rate(t), R_read
+    if motion == "euler":
+        R, w = _euler_pattern(t, **euler)
+        R_read = R if not lag_s else _euler_pattern(t - lag_s, **euler)[0]
+        return R, w, R_read
+    raise ValueError(f"motion must be 'random' or 'euler', got {motion!r}")
+
+
 def simulate(rng: np.random.Generator, *, motion: str = "random", rate_hz: float = 25.0,
              duration_s: float = 24.0, T: np.ndarray | None = None,
              h: np.ndarray | None = None, mag_noise: float = 0.0, gyro_noise: float = 0.0,
@@ -149,22 +190,25 @@ def simulate(rng: np.random.Generator, *, motion: str = "random", rate_hz: float
              rate_rms: float = 0.8, axis_weights: tuple[float, float, float] = (1.0, 1.0, 1.0),
              n_harmonics: int = 3, band_hz: tuple[float, float] = (0.02, 0.3),
              tilt_deg: float = 20.0, turns: float = 1.0, wobbles: float = 10.0,
-             oversample: int = 8) -> Trajectory:
+             oversample: int = 8, mount: np.ndarray | None = None, lag_s: float = 0.0,
+             accel_noise: float = 0.0, gravity: float = 9.81) -> Trajectory:
     """Simulate one calibration manoeuvre.
 
     Parameters
     ----------
     rng : numpy.random.Generator
         Draws, in this order: the field's declination (if ``m0`` is None), the random motion
-        (if ``motion="random"``), the initial attitude, then magnetometer and gyro noise.
+        (if ``motion="random"``), the initial attitude, then magnetometer, gyro and
+        accelerometer noise.
     motion : {"random", "euler"}
         Sum of random sinusoids, or Wu and Shi's Euler-angle pattern.
     rate_hz, duration_s : float
         Sample rate and length; ``K = round(rate_hz * duration_s)`` samples at ``k / rate_hz``.
     T, h : array_like, optional
         Magnetometer distortion (identity and zero by default).
-    mag_noise, gyro_noise : float
-        Standard deviations of the white magnetometer (field units) and gyro (rad/s) noise.
+    mag_noise, gyro_noise, accel_noise : float
+        Standard deviations of the white magnetometer (field units), gyro (rad/s) and
+        accelerometer (m/s^2) noise.
     gyro_bias : array_like of shape (3,), optional
         Constant gyro bias in rad/s (zero by default).
     m0 : array_like of shape (3,), optional
@@ -176,6 +220,12 @@ def simulate(rng: np.random.Generator, *, motion: str = "random", rate_hz: float
         Euler motion: roll and pitch amplitude, yaw turns and roll/pitch cycles over the run.
     oversample : int
         Magnus steps per sample interval for the random motion.
+    mount : array_like of shape (3, 3), optional
+        Rotation from the inertial axes to the magnetometer's (identity by default).
+    lag_s : float
+        The magnetometer reads the field of ``t_k - lag_s`` (see the module notes).
+    gravity : float
+        Magnitude of the specific force at rest, m/s^2.
 
     Returns
     -------
@@ -186,23 +236,21 @@ def simulate(rng: np.random.Generator, *, motion: str = "random", rate_hz: float
         raise ValueError(f"need rate_hz > 0 and at least 2 samples, got K={K}")
     T = np.eye(3) if T is None else np.asarray(T, dtype=float)
     h = np.zeros(3) if h is None else np.asarray(h, dtype=float)
+    M = np.eye(3) if mount is None else np.asarray(mount, dtype=float)
     bias = np.zeros(3) if gyro_bias is None else np.asarray(gyro_bias, dtype=float)
     m0 = random_field(rng) if m0 is None else np.asarray(m0, dtype=float)
     m0 = m0 / np.linalg.norm(m0)
     t = np.arange(K) / rate_hz
-    if motion == "random":
-        rate = _random_rate(rng, rate_rms, np.asarray(axis_weights, float), n_harmonics,
-                            band_hz)
-        R0 = rotation_exp(rng.normal(size=3) * np.pi / np.sqrt(3.0))
-        # Attitude on a fine grid that contains every sample time.
-        R = _integrate_attitude(rate, t[-1], (K - 1) * oversample, R0)[::oversample]
-        w = rate(t)
-    elif motion == "euler":
-        R, w = _euler_pattern(t, K / rate_hz, tilt_deg, turns, wobbles)
-    else:
-        raise ValueError(f"motion must be 'random' or 'euler', got {motion!r}")
+    R, w, R_read = _motion(
+        rng, t, motion, float(lag_s), oversample,
+        {"rate_rms": rate_rms, "axis_weights": axis_weights, "n_harmonics": n_harmonics,
+         "band_hz": band_hz},
+        {"duration": K / rate_hz, "tilt_deg": tilt_deg, "turns": turns, "wobbles": wobbles})
     m = np.einsum("kji,j->ki", R, m0)                 # m = R^T m0
-    y = m @ T.T + h + rng.normal(0.0, mag_noise, size=(K, 3))
+    m_read = m if R_read is R else np.einsum("kji,j->ki", R_read, m0)
+    y = m_read @ (T @ M).T + h + rng.normal(0.0, mag_noise, size=(K, 3))
     g = w + bias + rng.normal(0.0, gyro_noise, size=(K, 3))
+    a = np.einsum("kji,j->ki", R, [0.0, 0.0, -gravity]) + rng.normal(0.0, accel_noise,
+                                                                      size=(K, 3))
     return Trajectory(t=t, y=y, angular_rate=g, w=w, R=R, m=m, m0=m0, T=T, h=h,
-                      gyro_bias=bias)
+                      gyro_bias=bias, acceleration=a, mount=M, lag_s=float(lag_s))

@@ -43,7 +43,7 @@ from __future__ import annotations
 
 import inspect
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import ClassVar
 
@@ -57,13 +57,13 @@ from magbench.core.model import Calibration
 from magbench.engine.sweep import Study
 from magbench.engine.trial import H_COLUMNS, T_COLUMNS, estimate_columns, run_method
 from magbench.methods.api import calibrate
-from magbench.methods.registry import get_method
+from magbench.methods.registry import get_method, method_label
 from magbench.sources.recordings import Recording, load_recording
 from magbench.studies.times import split_times, with_times
 
 __all__ = ["DEFAULT_MAX_SAMPLES", "PARTNERS", "PREPROCESSING", "REAL_ROW_COLUMNS", "RealStudy",
            "applicability", "calibrated_coverage", "evaluate_recording", "fit_recording",
-           "is_meaningful", "is_usable", "method_summary", "recording_summary"]
+           "is_meaningful", "is_usable", "method_summary", "preprocessing", "recording_summary"]
 
 DEFAULT_MAX_SAMPLES = 2000
 PREPROCESSING = ("none", "scale", "centre")
@@ -92,7 +92,7 @@ def applicability(name: str, rec: Recording) -> str:
     return ""
 
 
-def _preprocessing(y: np.ndarray, how: str) -> tuple[np.ndarray, float]:
+def preprocessing(y: np.ndarray, how: str) -> tuple[np.ndarray, float]:
     """Offset and scale with ``y' = (y - offset) / scale`` for the named preprocessing."""
     if how == "none":
         return np.zeros(3), 1.0
@@ -105,20 +105,22 @@ def _preprocessing(y: np.ndarray, how: str) -> tuple[np.ndarray, float]:
 
 
 def fit_recording(rec: Recording, method: str, preprocess: str = "centre",
-                  options: dict | None = None) -> Calibration:
+                  options: dict | None = None, inputs: dict | None = None) -> Calibration:
     """Calibrate ``rec`` with ``method`` after preprocessing; ``T, h`` in the recorded units.
 
     With ``y' = (y - o) / s`` and the method's ``y' = T' m + h'``, the recording obeys
-    ``y = (s T') m + (s h' + o)``.
+    ``y = (s T') m + (s h' + o)``. ``inputs`` are the method's inertial keywords; by default
+    a gyro-aided method gets the recording's ``angular_rate`` and ``time``.
     """
-    offset, scale = _preprocessing(rec.y, preprocess)
-    extra = {}
-    if get_method(method).needs_gyro:
+    offset, scale = preprocessing(rec.y, preprocess)
+    extra = dict(inputs or {})
+    if inputs is None and get_method(method).needs_gyro:
         extra = {"angular_rate": rec.gyro, "time": rec.t}
     cal = calibrate((rec.y - offset) / scale, method, raw=True, **extra,
                     **dict(options or {}))
-    return Calibration(scale * cal.T, scale * cal.h + offset, cal.n_iter, cal.converged,
-                       cal.message, cal.gyro_bias)
+    # replace() keeps every other field (the gyro bias, an alignment to the inertial axes),
+    # none of which a common scale and offset of the samples changes.
+    return replace(cal, T=scale * cal.T, h=scale * cal.h + offset)
 
 
 def calibrated_coverage(y: np.ndarray, T: np.ndarray, h: np.ndarray) -> float:
@@ -340,12 +342,8 @@ def method_summary(per_recording: pd.DataFrame) -> pd.DataFrame:
         out = good[np.isfinite(good["J_r_out"])]
         rho_in = float(good["J_r_in"].mean()) if len(good) else np.nan
         rho_out = float(out["J_r_out"].mean()) if len(out) else np.nan
-        try:
-            label = get_method(name).label
-        except ValueError:
-            label = name
         rows.append({
-            "preprocess": how, "algorithm": name, "label": label,
+            "preprocess": how, "algorithm": name, "label": method_label(name),
             "n_recordings": len(g), "n_applicable": len(applicable),
             "n_meaningful": len(good), "n_out": len(out),
             "RB_pct": 100.0 * len(good) / len(applicable) if len(applicable) else np.nan,
@@ -358,3 +356,50 @@ def method_summary(per_recording: pd.DataFrame) -> pd.DataFrame:
             "tau_s": float(good["time_s"].mean()) if len(good) else np.nan,
         })
     return pd.DataFrame(rows)
+
+
+#: The methods whose accuracy on a method's kept recordings is its selection's yardstick.
+SELECTION_REFERENCE = ("twostep", "crassidis", "dorveaux", "vasconcelos", "ali", "wu_shi",
+                       "magical")
+#: A kept subset whose recordings are this much easier for the reference methods sets the bar.
+SELECTION_FACTOR = 2.0
+
+
+def selection_inflation(per_recording: pd.DataFrame,
+                        reference: Sequence[str] = SELECTION_REFERENCE) -> pd.DataFrame:
+    """How much of a method's in-sample accuracy comes from which recordings it kept.
+
+    A method meaningful on only some recordings is scored on those (eq. 78): if they are the
+    easy ones its 1/mean J_r is high whatever it does. For every (preprocessing, method) that
+    kept a strict subset, the other reference methods' accuracy on that subset is set beside
+    their accuracy on all the recordings they solved; ``inflation`` is the median ratio over
+    them (1 = a representative subset) and ``others_on_kept`` their median accuracy on the
+    subset. ``set_by_selection`` flags an inflation of at least :data:`SELECTION_FACTOR`.
+
+    Returns
+    -------
+    DataFrame
+        ``preprocess``, ``algorithm``, ``n_kept``, ``others_on_kept``, ``inflation``,
+        ``set_by_selection``; only the methods that kept a strict, non-empty subset.
+    """
+    rows = []
+    usable = per_recording[~per_recording["skipped"].astype(bool)]
+    for (how, name), g in usable.groupby(["preprocess", "algorithm"], sort=False):
+        kept = set(g.loc[g["meaningful"].astype(bool), "dataset"])
+        if not kept or len(kept) == len(g):
+            continue
+        same = usable[(usable["preprocess"] == how) & usable["algorithm"].isin(reference)
+                      & (usable["algorithm"] != name) & usable["meaningful"].astype(bool)]
+        on_kept, ratio = [], []
+        for _, o in same.groupby("algorithm"):
+            sub = o[o["dataset"].isin(kept)]
+            if len(sub):
+                on_kept.append(1.0 / sub["J_r_in"].mean())
+                ratio.append(on_kept[-1] * o["J_r_in"].mean())
+        inflation = float(np.median(ratio)) if ratio else np.nan
+        rows.append({"preprocess": how, "algorithm": name, "n_kept": len(kept),
+                     "others_on_kept": float(np.median(on_kept)) if on_kept else np.nan,
+                     "inflation": inflation,
+                     "set_by_selection": bool(inflation >= SELECTION_FACTOR)})
+    return pd.DataFrame(rows, columns=["preprocess", "algorithm", "n_kept", "others_on_kept",
+                                       "inflation", "set_by_selection"])

@@ -21,7 +21,8 @@ import numpy as np
 import pandas as pd
 
 from magbench.core.crb import crb_mse, efficient_expected_J
-from magbench.core.files import write_csv_atomic
+from magbench.core.files import read_csv_columns, write_csv_atomic
+from magbench.core.intervals import bootstrap_paired_ratio
 from magbench.core.metrics import accuracy_cost, summarize, trivial_cost
 from magbench.core.seeding import rng
 from magbench.engine.sweep import Study
@@ -29,11 +30,13 @@ from magbench.engine.trial import H_COLUMNS, T_COLUMNS, estimate_columns, run_me
 from magbench.methods.api import calibrate
 from magbench.methods.registry import get_method
 from magbench.sources.synthetic import Point, make_dataset
+from magbench.studies.selection import write_efficient_selection
 from magbench.studies.times import split_times, with_times
 
-__all__ = ["POINT_COLUMNS", "ROW_COLUMNS", "TIME_COLUMNS", "TRUTH_COLUMNS", "OptionAxis",
-           "ReviewStudy", "coverage_label", "method_options", "point_with", "points_for",
-           "read_trials", "summarize_review", "trial_rows", "with_coverage_column"]
+__all__ = ["POINT_COLUMNS", "ROW_COLUMNS", "SUMMARY_COLUMNS", "TIME_COLUMNS", "TRUTH_COLUMNS",
+           "OptionAxis", "ReviewStudy", "coverage_label", "efficiency_intervals",
+           "method_options", "point_with", "points_for", "read_trials", "summarize_review",
+           "trial_rows", "with_coverage_column"]
 
 POINT_COLUMNS = ["K", "sigma", "beta", "gamma", "cap_deg", "band_deg"]
 TRUTH_COLUMNS = [f"h_true_{i}" for i in range(3)] + [f"T_true_{i}{j}" for i in range(3)
@@ -43,6 +46,10 @@ ROW_COLUMNS = (POINT_COLUMNS + ["trial", "seed", "algorithm", "ok", "error", "n_
                + TRUTH_COLUMNS + H_COLUMNS + T_COLUMNS)
 #: The columns of a study's times sidecar (:mod:`magbench.studies.times`).
 TIME_COLUMNS = ["trial", "algorithm", "time_s"]
+#: The columns :func:`summarize_review` needs: ``time_s`` comes from the sidecar (or from an
+#: older trials file that still holds it), ``trial`` matches the sidecar's rows.
+SUMMARY_COLUMNS = POINT_COLUMNS + ["trial", "algorithm", "meaningful", "J", "time_s", "sq_err",
+                                   "crb", "crb_J"]
 
 
 def truth_columns(T: np.ndarray, h: np.ndarray) -> dict:
@@ -124,6 +131,12 @@ class ReviewStudy(Study):
         return {"trials": ("trials.csv", columns),
                 "times": ("trials_times.csv", TIME_COLUMNS)}
 
+    @property
+    def summary_columns(self) -> list[str]:
+        """The columns :meth:`summarize` reads (and holds in memory), ``time_s`` from the
+        times sidecar."""
+        return SUMMARY_COLUMNS + ([] if self.axis is None else [self.axis.column])
+
     def units(self) -> list[tuple[int, int]]:
         return [(i, t) for i in range(len(self.points)) for t in range(self.trials)]
 
@@ -140,10 +153,21 @@ class ReviewStudy(Study):
         return out
 
     def summarize(self, out_dir: Path | str) -> pd.DataFrame:
-        """Write and return ``summary.csv`` from ``trials.csv``."""
-        trials = read_trials(Path(out_dir) / "trials.csv")
-        summary = summarize_review(trials, [] if self.axis is None else [self.axis.column])
+        """Write and return ``summary.csv`` from ``trials.csv``; with points of partial
+        coverage, also ``efficient_selection.csv`` (what the robustness test does to an
+        efficient estimator's scores there, :mod:`magbench.studies.selection`).
+
+        Reads only the columns the statistics use (:data:`SUMMARY_COLUMNS`), in chunks: a
+        tenth of the file's values, so a million-trial sweep is summarised in bounded memory.
+        """
+        extra = [] if self.axis is None else [self.axis.column]
+        path = Path(out_dir) / "trials.csv"
+        trials = with_times(read_csv_columns(path, self.summary_columns), path, "trial")
+        summary = summarize_review(trials, extra)
         write_csv_atomic(summary, Path(out_dir) / "summary.csv")
+        if any(p.cap_deg < 180 or p.band_deg < 90 for p in self.points):
+            write_efficient_selection(list(self.points), self.trials, self.seed, self.delta,
+                                      out_dir)
         return summary
 
 
@@ -209,6 +233,30 @@ def summarize_review(trials: pd.DataFrame, extra: Sequence[str] = ()) -> pd.Data
     """RB %, rho, tau (eqs. 77-79) and the Cramer-Rao columns per point and method (and per
     value of the ``extra`` columns, such as an option axis's)."""
     return summarize(trials, POINT_COLUMNS + list(extra) + ["algorithm"])
+
+
+def efficiency_intervals(trials: pd.DataFrame, by: Sequence[str], sweep: str) -> pd.DataFrame:
+    """Efficiency (Cramer-Rao bound / MSE over the meaningful runs, as in :func:`summarize`)
+    with its 95 % paired-bootstrap interval, per group.
+
+    ``trials`` needs ``meaningful``, ``crb`` and ``sq_err`` and the ``by`` columns; each
+    group's resamples are drawn from the stream named by ``sweep``, ``"efficiency"`` and the
+    group's values. Returns ``by`` plus ``n``, ``n_meaningful``, ``efficiency``, ``eff_lo``
+    and ``eff_hi``.
+    """
+    rows = []
+    for key, g in trials.groupby(list(by), sort=False):
+        key = key if isinstance(key, tuple) else (key,)
+        ok = g[g["meaningful"].astype(bool)]
+        stream = [f"{c}={v}" for c, v in zip(by, key, strict=True)]
+        low, high = bootstrap_paired_ratio(ok["crb"], ok["sq_err"], sweep, "efficiency",
+                                             *stream)
+        mse = float(ok["sq_err"].mean()) if len(ok) else np.nan
+        rows.append({**dict(zip(by, key, strict=True)), "n": len(g), "n_meaningful": len(ok),
+                     "efficiency": float(ok["crb"].mean()) / mse if mse > 0 else np.nan,
+                     "eff_lo": low, "eff_hi": high})
+    return pd.DataFrame(rows, columns=[*by, "n", "n_meaningful", "efficiency", "eff_lo",
+                                       "eff_hi"])
 
 
 def coverage_label(cap_deg: float, band_deg: float) -> str:

@@ -28,6 +28,7 @@ from magbench.engine.sweep import run_study
 from magbench.methods.api import calibrate
 from magbench.methods.registry import get_method, methods
 from magbench.sources.synthetic import Point, make_dataset
+from magbench.studies.peer_accuracy import peer_accuracy, summarize_peer_accuracy
 from magbench.studies.real import DEFAULT_MAX_SAMPLES
 from magbench.studies.review import ReviewStudy
 from magbench.studies.times import times_path
@@ -429,9 +430,12 @@ def malloc_thresholds() -> str:
 
 def run_bench(results_dir: Path | str, names: Sequence[str] | None = None,
               sizes: Sequence[int] = SIZES, parallel_trials: int = 250,
-              progress: Callable[[str], None] | None = print) -> Path:
+              progress: Callable[[str], None] | None = print,
+              peer_datasets: int = 200) -> Path:
     """Run every benchmark and write ``calls.csv``, ``first_calls.csv``, ``peers.csv``,
-    ``peer_install.csv``, ``calibrate.csv`` and ``parallel.csv`` under ``<results_dir>/bench``."""
+    ``peer_accuracy.csv`` and ``peer_accuracy_summary.csv`` (``peer_datasets`` datasets per
+    geometry, 0 = none; :mod:`magbench.studies.peer_accuracy`), ``peer_install.csv``,
+    ``calibrate.csv`` and ``parallel.csv`` under ``<results_dir>/bench``."""
     folder = Path(results_dir) / "bench"
     folder.mkdir(parents=True, exist_ok=True)
     names = list(names or [m for m in methods() if not get_method(m).needs_gyro])
@@ -454,6 +458,10 @@ def run_bench(results_dir: Path | str, names: Sequence[str] | None = None,
     calls["malloc"] = malloc
     write_csv_atomic(calls, folder / "calls.csv")
     write_csv_atomic(bench_peers(), folder / "peers.csv")
+    if peer_datasets:
+        accuracy = peer_accuracy(PEERS, datasets=peer_datasets)
+        write_csv_atomic(accuracy, folder / "peer_accuracy.csv")
+        write_csv_atomic(summarize_peer_accuracy(accuracy), folder / "peer_accuracy_summary.csv")
     write_csv_atomic(peer_install_size(), folder / "peer_install.csv")
     write_csv_atomic(cal := bench_calibrate(), folder / "calibrate.csv")
     if progress:

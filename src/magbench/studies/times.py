@@ -14,6 +14,8 @@ from pathlib import Path
 
 import pandas as pd
 
+from magbench.core.files import read_csv_columns
+
 __all__ = ["split_times", "times_path", "with_times"]
 
 
@@ -45,7 +47,7 @@ def with_times(trials: pd.DataFrame, trials_path: Path | str, key: str) -> pd.Da
     path = times_path(trials_path)
     if "time_s" in trials or not path.exists():
         return trials if "time_s" in trials else trials.assign(time_s=float("nan"))
-    times = pd.read_csv(path)
+    times = read_csv_columns(path, [key, "algorithm", "time_s"])      # chunked: any length
     same = (len(times) == len(trials) and
             (times[key].to_numpy() == trials[key].to_numpy()).all() and
             (times["algorithm"].astype(str).to_numpy()

@@ -60,7 +60,7 @@ from magbench.engine.trial import run_method
 from magbench.methods.algorithms import wu_shi, wu_shi_nm
 from magbench.methods.algorithms._wu_shi_init import initial_estimate, upper_inverse
 from magbench.methods.api import calibrate, unit_scale
-from magbench.methods.registry import get_method, methods
+from magbench.methods.registry import get_method, method_label, methods
 from magbench.sources.wushi_sim import WuShiData, attitude_matrices, simulate, truth
 from magbench.studies.times import split_times, with_times
 
@@ -367,7 +367,7 @@ def table1(runs: pd.DataFrame, crb: dict[str, float] | None = None) -> pd.DataFr
         errors = group.loc[~group["ok"].astype(bool), "error"]
         capped = group.loc[group["ok"].astype(bool) & ~group["converged"].astype(bool), "error"]
         reasons = pd.concat([errors, capped])
-        label = get_method(name).label if name in methods() else name
+        label = method_label(name)
         row = {"algorithm": name, "label": label, "runs": len(group),
                "estimates": len(good), "failures": len(errors),
                "at_cap": len(capped),

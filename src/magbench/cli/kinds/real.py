@@ -59,7 +59,7 @@ def figures(name: str, out_dir: Path) -> list[Path]:
         return []
     per_method = pd.read_csv(out_dir / "fig6_real.csv")
     per_recording = pd.read_csv(out_dir / "real_summary.csv")
-    return [save_figure(figure6(per_method), out_dir / "fig6_real.png"),
+    return [save_figure(figure6(per_method, per_recording), out_dir / "fig6_real.png"),
             save_figure(figure6_recordings(per_method, per_recording),
                         out_dir / "fig6_real_recordings.png")]
 

@@ -1,0 +1,63 @@
+"""Cross-method comparisons on matched datasets.
+
+Two methods' accuracies, each over its own meaningful runs, compare different datasets: a
+method that fails the hard ones is scored on the easy ones. Every comparison here is over the
+runs meaningful for both methods (the same datasets), as a ratio of mean costs with its paired
+bootstrap interval and the number of shared runs.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+
+from magbench.core.intervals import bootstrap_paired_ratio
+from magbench.report.format import format_number
+
+__all__ = ["Paired", "paired", "point_trials"]
+
+
+@dataclass(frozen=True)
+class Paired:
+    """``mean(value of a) / mean(value of b)`` over the ``n`` runs meaningful for both."""
+
+    ratio: float
+    low: float
+    high: float
+    n: int
+
+    @property
+    def different(self) -> bool:
+        """The 95 % paired interval excludes 1."""
+        return bool(np.isfinite(self.low) and (self.high < 1 or self.low > 1))
+
+    def text(self, digits: int = 3) -> str:
+        """``0.896 [0.87, 0.92], n = 107``."""
+        interval = (f" [{format_number(self.low, 2)}, {format_number(self.high, 2)}]"
+                    if np.isfinite(self.low) else "")
+        return f"{format_number(self.ratio, digits)}{interval}, n = {self.n}"
+
+
+def point_trials(trials: pd.DataFrame, column: str, value: object) -> pd.DataFrame:
+    """The rows of one sweep point (``column == value``)."""
+    return trials[trials[column] == value]
+
+
+def paired(trials: pd.DataFrame, a: str, b: str, value: str = "J",
+           key: tuple = ()) -> Paired:
+    """Method ``a`` against ``b`` on the runs of ``trials`` (one sweep point) meaningful for
+    both: the ratio of their mean ``value``, its 95 % paired bootstrap interval (stream named
+    by ``key``, ``a`` and ``b``) and the number of shared runs."""
+    rows = trials[trials["algorithm"].isin([a, b])]
+    ok = rows.assign(meaningful=rows["meaningful"].astype(bool)).pivot(
+        index="trial", columns="algorithm", values="meaningful")
+    both = ok.reindex(columns=[a, b]).eq(True).all(axis=1)
+    values = rows.pivot(index="trial", columns="algorithm", values=value).loc[both[both].index]
+    n = int(both.sum())
+    if n == 0:
+        return Paired(np.nan, np.nan, np.nan, 0)
+    x, y = values[a].to_numpy(float), values[b].to_numpy(float)
+    low, high = bootstrap_paired_ratio(x, y, *map(str, key), a, b)
+    return Paired(float(x.mean() / y.mean()), low, high, n)

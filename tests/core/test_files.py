@@ -1,0 +1,41 @@
+"""Atomic writes and the chunked column reader."""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from magbench.core.files import read_csv_columns, write_csv_atomic
+
+
+@pytest.fixture
+def table() -> pd.DataFrame:
+    rng = np.random.default_rng(0)
+    n = 53
+    return pd.DataFrame({"K": rng.integers(10, 20, n), "algorithm": rng.choice(["a", "bb"], n),
+                         "J": rng.exponential(1.0, n), "meaningful": rng.random(n) < 0.8,
+                         "error": np.where(rng.random(n) < 0.9, "", "failed: x"),
+                         "skip": rng.random(n)})
+
+
+@pytest.mark.parametrize("suffix", [".csv", ".csv.gz"])
+@pytest.mark.parametrize("chunk_rows", [7, 1000])
+def test_reads_the_columns_one_read_csv_reads(tmp_path, table, suffix, chunk_rows):
+    path = tmp_path / f"t{suffix}"
+    write_csv_atomic(table, path)
+    columns = ["K", "algorithm", "J", "meaningful", "error"]
+    got = read_csv_columns(path, [*columns, "absent"], chunk_rows=chunk_rows)
+    pd.testing.assert_frame_equal(got, pd.read_csv(path, usecols=columns), check_exact=True)
+
+
+def test_an_empty_table_keeps_its_columns(tmp_path, table):
+    write_csv_atomic(table.iloc[:0], tmp_path / "t.csv")
+    got = read_csv_columns(tmp_path / "t.csv", ["K", "J"])
+    assert list(got.columns) == ["K", "J"] and len(got) == 0
+
+
+def test_write_is_atomic_and_compresses_gz(tmp_path, table):
+    write_csv_atomic(table, tmp_path / "t.csv.gz")
+    assert (tmp_path / "t.csv.gz").read_bytes()[:2] == b"\x1f\x8b"
+    assert not list(tmp_path.glob(".tmp-*"))
