@@ -268,3 +268,19 @@ def test_judge_fails_a_fit_that_lost_the_data_scale():
     judge(result, Gate())
     assert result.fitness["status"] == "FAIL"
     assert "from the data's radius" in result.fitness["reasons"][0]
+
+
+def test_an_extra_score_can_decide_the_choice():
+    rec = synthetic(600)
+    plain = calibrate_recording(rec, ["ellipsoid", "fang", "twostep"], bootstrap=0)
+    assert len(plain.tie) > 1
+    loser = plain.chosen["algorithm"]
+
+    def penalise(summary, trials, work):                # e.g. a direction error per method
+        assert len(trials) and work.K > 0
+        return "direction_deg", [5.0 if a == loser else 1.0 for a in summary["algorithm"]]
+
+    extra = calibrate_recording(rec, ["ellipsoid", "fang", "twostep"], bootstrap=0,
+                                extra=penalise)
+    assert extra.chosen["algorithm"] != loser
+    assert "direction_deg" in extra.ranked.columns

@@ -38,7 +38,7 @@ writes). :func:`calibrate_recording` runs these steps, each a small function:
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -65,7 +65,14 @@ from magbench.core.verdict import (
 )
 from magbench.methods.registry import get_method
 from magbench.sources.recordings import Recording
-from magbench.studies.choice import ROBUST_ON_CAPS, THIN_GAP_DEG, Choice, allowed, choose
+from magbench.studies.choice import (
+    ROBUST_ON_CAPS,
+    SCORES,
+    THIN_GAP_DEG,
+    Choice,
+    allowed,
+    choose,
+)
 from magbench.studies.holdout import estimate, evaluate_folds, fold_summary, held_out_corrected
 from magbench.studies.real import fit_recording
 
@@ -78,6 +85,8 @@ __all__ = ["FIRST_ROUND", "ROBUST_ON_CAPS", "THIN_GAP_DEG", "CalibrationResult",
 FIRST_ROUND = ("sphere", "twostep_hi", "diagonal", "ellipsoid", "fang", "twostep", "wu_shi_nm")
 #: The method whose objective (Wu and Shi's (11)) is K times J_r (81).
 J_R_MINIMISER = "wu_shi_nm"
+#: ``extra(summary, trials, work) -> (column, values)``: a further score for the choice.
+ExtraScore = Callable[[pd.DataFrame, pd.DataFrame, Recording], tuple[str, Sequence[float]]]
 
 
 @dataclass
@@ -171,11 +180,16 @@ def second_round_reason(tie: Sequence[str], chosen: pd.Series | None, gap_deg: f
     return ""
 
 
-def _rank_trials(trials: pd.DataFrame, work: Recording, gap_deg: float, centre: np.ndarray
-                 ) -> Choice:
+def _rank_trials(trials: pd.DataFrame, work: Recording, gap_deg: float, centre: np.ndarray,
+                 extra: ExtraScore | None = None) -> Choice:
     summary = fold_summary(trials)
+    scores = SCORES
+    if extra is not None:
+        column, values = extra(summary, trials, work)
+        summary = summary.assign(**{column: values})
+        scores = (*SCORES, column)
     corrected = {a: held_out_corrected(trials, work, a) for a in summary["algorithm"]}
-    return choose(summary, corrected, gap_deg,
+    return choose(summary, corrected, gap_deg, scores=scores,
                   refuse=lambda row: refusal_reason(*estimate(row), work.y, centre))
 
 
@@ -192,17 +206,18 @@ def _named_choice(choice: Choice, work: Recording, centre: np.ndarray) -> Choice
 
 
 def _fit_and_choose(work: Recording, centre: np.ndarray, names: list[str], later: list[str],
-                    gap: float, named: bool, fit: dict) -> tuple[pd.DataFrame, Choice, str]:
+                    gap: float, named: bool, fit: dict, extra: ExtraScore | None = None
+                    ) -> tuple[pd.DataFrame, Choice, str]:
     """One round of fitting and choosing (module notes, steps 2-3): the first round's
     candidates, then the second round's when :func:`second_round_reason` gives a reason (also
     returned, "" otherwise)."""
     limit = 0.0 if named else gap
     trials = fit_round(work, names, **fit)
-    choice = _rank_trials(trials, work, limit, centre)
+    choice = _rank_trials(trials, work, limit, centre, extra)
     reason = second_round_reason(choice.tie, choice.chosen, gap, names) if later else ""
     if reason:
         trials = pd.concat([trials, fit_round(work, later, **fit)], ignore_index=True)
-        choice = _rank_trials(trials, work, limit, centre)
+        choice = _rank_trials(trials, work, limit, centre, extra)
     if named:
         choice = _named_choice(choice, work, centre)
     return trials, choice, reason
@@ -260,8 +275,8 @@ def calibrate_recording(rec: Recording, candidates: Sequence[str], *,
                         bootstrap: int = 50, rounds: int = 3,
                         second_round: Sequence[str] = (), max_samples: int | None = None,
                         gate: Gate | None = None,
-                        expected_field: float | tuple[float, float] | None = None
-                        ) -> CalibrationResult:
+                        expected_field: float | tuple[float, float] | None = None,
+                        extra: ExtraScore | None = None) -> CalibrationResult:
     """Thin, screen, fit, choose, trim and judge (module notes).
 
     Parameters
@@ -285,6 +300,10 @@ def calibrate_recording(rec: Recording, candidates: Sequence[str], *,
         Fitness thresholds (default :class:`~magbench.core.verdict.Gate`).
     expected_field : float or (low, high), optional
         The field strength expected, in the recording's units.
+    extra : callable, optional
+        Another score for the choice: ``extra(summary, trials, work) -> (column, values)``,
+        one value per row of ``summary`` (lower is better); a simpler model must tie on it too
+        (:func:`magbench.studies.choice.choose`'s ``scores``).
     """
     options = options or {}
     current = screen(rec.y)
@@ -301,7 +320,7 @@ def calibrate_recording(rec: Recording, candidates: Sequence[str], *,
         work, stride = prepare(rec, current, max_samples)
         cover = coverage_report(work.y - current.centre)
         trials, choice, reason = _fit_and_choose(work, current.centre, names, later,
-                                                 cover["largest_gap_deg"], named, fit)
+                                                 cover["largest_gap_deg"], named, fit, extra)
         if reason:
             names, later, escalated = names + later, [], reason
         if choice.chosen is None:
