@@ -150,6 +150,18 @@ def test_efficiency_intervals_match_the_summary_and_bracket_it(tmp_path):
     assert (merged["efficiency"] < merged["eff_hi"]).all()
 
 
+def test_write_efficiency_reads_the_trials_file_per_point_and_method(tmp_path):
+    from magbench.studies.review import POINT_COLUMNS, efficiency_intervals, write_efficiency
+
+    study = spec(trials=12)
+    trials, _ = run_sweep(study, tmp_path)
+    written = pd.read_csv(write_efficiency(tmp_path, "t"))
+    expected = efficiency_intervals(trials, [*POINT_COLUMNS, "algorithm"], "t")
+    assert len(written) == 4 and set(written["algorithm"]) == {"magical", "dorveaux"}
+    np.testing.assert_allclose(written["efficiency"], expected["efficiency"], rtol=1e-12)
+    np.testing.assert_allclose(written["eff_lo"], expected["eff_lo"], rtol=1e-12)
+
+
 def test_the_capacity_check_counts_the_columns_the_summary_reads(tmp_path, monkeypatch):
     import magbench.engine.sweep as sweep
 
