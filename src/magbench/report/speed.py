@@ -10,6 +10,7 @@ import pandas as pd
 
 from magbench.methods.registry import method_label
 from magbench.report.format import format_number, render
+from magbench.report.peer_accuracy import peer_accuracy_lines
 
 __all__ = ["bench_report_section"]
 
@@ -24,6 +25,8 @@ def bench_report_section(results_dir: Path | str) -> str:
         lines += _first_call_lines(pd.read_csv(folder / "first_calls.csv"))
     if (folder / "peers.csv").exists():
         lines += _peer_lines(pd.read_csv(folder / "peers.csv"))
+    if (folder / "peer_accuracy_summary.csv").exists():
+        lines += peer_accuracy_lines(pd.read_csv(folder / "peer_accuracy_summary.csv"))
     if (folder / "calibrate.csv").exists():
         lines += calibrate_lines(pd.read_csv(folder / "calibrate.csv"))
     if (folder / "parallel.csv").exists():
