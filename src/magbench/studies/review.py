@@ -245,7 +245,8 @@ def efficiency_intervals(trials: pd.DataFrame, by: Sequence[str], sweep: str) ->
     and ``eff_hi``.
     """
     rows = []
-    for key, g in trials.groupby(list(by), sort=False):
+    # dropna=False: an option axis's default run has an empty value and is a group of its own.
+    for key, g in trials.groupby(list(by), sort=False, dropna=False):
         key = key if isinstance(key, tuple) else (key,)
         ok = g[g["meaningful"].astype(bool)]
         stream = [f"{c}={v}" for c, v in zip(by, key, strict=True)]
@@ -259,12 +260,13 @@ def efficiency_intervals(trials: pd.DataFrame, by: Sequence[str], sweep: str) ->
                                        "eff_hi"])
 
 
-def write_efficiency(out_dir: Path | str, sweep: str) -> Path:
-    """Write ``<out_dir>/efficiency.csv``: :func:`efficiency_intervals` per point and method,
-    from the ``meaningful``, ``crb`` and ``sq_err`` columns of ``trials.csv`` (read in chunks,
-    the other columns never held)."""
+def write_efficiency(out_dir: Path | str, sweep: str, extra: Sequence[str] = ()) -> Path:
+    """Write ``<out_dir>/efficiency.csv``: :func:`efficiency_intervals` per point and method
+    (and value of the ``extra`` columns, such as an option axis's), from the ``meaningful``,
+    ``crb`` and ``sq_err`` columns of ``trials.csv`` (read in chunks, the other columns never
+    held)."""
     out_dir = Path(out_dir)
-    by = [*POINT_COLUMNS, "algorithm"]
+    by = [*POINT_COLUMNS, *extra, "algorithm"]
     trials = read_csv_columns(out_dir / "trials.csv", [*by, "meaningful", "crb", "sq_err"])
     path = out_dir / "efficiency.csv"
     write_csv_atomic(efficiency_intervals(trials, by, sweep), path)

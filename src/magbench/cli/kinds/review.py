@@ -88,7 +88,7 @@ def finish(study, out_dir: Path, common: dict) -> None:
         write_timing(study, out_dir, progress=common["progress"])
     summary = study.summarize(out_dir)
     write_sweep_tables(study.name, summary, out_dir, delta=study.delta)
-    write_efficiency(out_dir, study.name)
+    write_efficiency(out_dir, study.name, [] if study.axis is None else [study.axis.column])
 
 
 def figures(name: str, out_dir: Path) -> list[Path]:
