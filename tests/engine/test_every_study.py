@@ -45,6 +45,9 @@ def kind_args(kind: str, tmp_path: Path) -> tuple[list[str], str, str]:
     if kind == "heading":
         return (["sweep=heading", "trials=3", "sweep.parts=[mc]", "sweep.duration_s=6"],
                 "heading", "heading_trials.csv")
+    if kind == "compensation":
+        return (["sweep=compensation", "trials=3", "sweep.strengths=[0.1]",
+                 "sweep.duration_s=6"], "compensation", "trials.csv")
     if kind == "wushi":
         return (["sweep=wushi", "trials=3", "sweep.N=40", "sweep.time_N=[40]",
                  "sweep.time_repeats=1", "sweep.time_calls=1", "sweep.control_runs=0",
@@ -56,7 +59,7 @@ def kind_args(kind: str, tmp_path: Path) -> tuple[list[str], str, str]:
              "sweep.max_samples=100"], "real", "real_trials.csv")
 
 
-KINDS = ["review", "gyro", "wushi", "real", "heading"]
+KINDS = ["review", "gyro", "wushi", "real", "heading", "compensation"]
 
 
 def table(folder: Path, name: str) -> pd.DataFrame:

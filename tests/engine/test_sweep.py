@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 from dataclasses import dataclass
 from typing import ClassVar
 
@@ -60,6 +61,24 @@ def interrupted(folder, chunk_size=2, stop_at=7):
         run_study(Toy(stop_at=stop_at), folder, chunk_size=chunk_size, progress=False)
 
 
+def cut_at(folder, unit, chunk_size=2, study=None):
+    """Run ``study`` (a Toy of the same settings by default) and stop it with a
+    KeyboardInterrupt at ``unit``, as a kill would (the fingerprint is unchanged)."""
+    original = Toy.run_unit
+
+    def stopping(self, u):
+        if u == unit:
+            raise KeyboardInterrupt
+        return original(self, u)
+
+    Toy.run_unit = stopping
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            run_study(study or Toy(), folder, chunk_size=chunk_size, progress=False)
+    finally:
+        Toy.run_unit = original
+
+
 def test_a_resumed_run_reuses_finished_chunks_and_gives_the_same_rows(tmp_path):
     run_study(Toy(), tmp_path / "full", chunk_size=2, progress=False)
     # The stop_at field changes the fingerprint, so interrupt with a study of the same settings
@@ -92,14 +111,7 @@ def test_a_resumed_run_reuses_finished_chunks_and_gives_the_same_rows(tmp_path):
 def test_damaged_parts_are_recomputed_never_reused(tmp_path, damage):
     run_study(Toy(), tmp_path / "full", chunk_size=4, progress=False)
     cut = tmp_path / "cut"
-    original = Toy.run_unit
-    Toy.run_unit = lambda self, u: (_ for _ in ()).throw(KeyboardInterrupt) if u == 9 \
-        else original(self, u)
-    try:
-        with pytest.raises(KeyboardInterrupt):
-            run_study(Toy(), cut, chunk_size=4, progress=False)
-    finally:
-        Toy.run_unit = original
+    cut_at(cut, 9, chunk_size=4)
     parts = cut / "parts"
     part = sorted(parts.glob("c*.rows.csv"))[0]
     text = part.read_text()
@@ -181,3 +193,127 @@ def test_a_run_too_large_for_the_disk_or_memory_is_refused_before_any_work(tmp_p
     monkeypatch.setattr(sweep, "_free_bytes", lambda folder: (1000, 600))
     run_study(Toy(), tmp_path / "out", progress=False)          # just fits
     assert len(read(tmp_path / "out")) == 12
+
+
+#: Run in a fresh interpreter where ``import fcntl`` and ``import resource`` fail (as on
+#: Windows): ``calibrate`` works and a sweep still runs (without an OS lock, with a warning
+#: naming it).
+NO_FCNTL = """
+import sys, warnings
+class Block:
+    def find_spec(self, name, path=None, target=None):
+        if name in ("fcntl", "resource"):
+            raise ImportError(f"no {name} on this system")
+sys.meta_path.insert(0, Block())
+sys.modules.pop("fcntl", None)
+sys.modules.pop("resource", None)
+import numpy as np, pandas as pd
+from magbench.cli import main
+from magbench.core.geometry import fibonacci_sphere
+from magbench.engine.sweep import run_study
+from tests.engine.test_sweep import Toy
+folder = sys.argv[1]
+y = fibonacci_sphere(200) * 50 + np.array([10.0, -5.0, 3.0])
+pd.DataFrame(y, columns=["mx", "my", "mz"]).to_csv(folder + "/rec.csv", index=False)
+code = main(["calibrate", "progress=false", f"file={folder}/rec.csv", "method=sphere",
+             f"out={folder}/cal", "bootstrap=0"])
+with warnings.catch_warnings(record=True) as seen:
+    warnings.simplefilter("always")
+    run_study(Toy(), folder + "/toy", progress=False)
+print(code, "fcntl" in sys.modules or "resource" in sys.modules,
+      [str(w.message)[:27] for w in seen])
+"""
+
+
+def test_calibrate_and_a_sweep_need_no_fcntl(tmp_path):
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    repo = Path(__file__).resolve().parents[2]
+    env = {**os.environ, "PYTHONPATH": f"{repo / 'src'}{os.pathsep}{repo}"}
+    done = subprocess.run([sys.executable, "-c", NO_FCNTL, str(tmp_path)], cwd=repo, env=env,
+                          capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.strip().splitlines()[-1] == "0 False ['no file locking on this sys']"
+    assert (tmp_path / "cal" / "calibration.json").exists()
+    assert len(read(tmp_path / "toy")) == 12
+
+
+def test_a_kill_between_the_tables_and_run_json_is_resumed(tmp_path, monkeypatch):
+    """Tables merged, run.json not yet written: the parts are complete, so a rerun finishes
+    the run instead of refusing the folder."""
+    import magbench.engine.sweep as sweep
+
+    run_study(Toy(), tmp_path / "full", chunk_size=4, progress=False)
+    real = sweep.write_run_record
+
+    def killed(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(sweep, "write_run_record", killed)
+    with pytest.raises(KeyboardInterrupt):
+        run_study(Toy(), tmp_path / "cut", chunk_size=4, progress=False)
+    assert (tmp_path / "cut" / "rows.csv").exists() and (tmp_path / "cut" / "parts").exists()
+    assert not (tmp_path / "cut" / "run.json").exists()
+    monkeypatch.setattr(sweep, "write_run_record", real)
+    run_study(Toy(), tmp_path / "cut", chunk_size=4, progress=False)
+    record = json.loads((tmp_path / "cut" / "run.json").read_text())
+    assert record["units_resumed"] == 12
+    for name in ("rows.csv", "extra.csv"):
+        pd.testing.assert_frame_equal(read(tmp_path / "cut", name), read(tmp_path / "full", name))
+
+
+@pytest.mark.parametrize("change", ["delete_rows", "cut_half", "edit_value", "remove"])
+def test_a_finished_table_changed_afterwards_is_refused_never_reused(tmp_path, change):
+    from magbench.core.files import file_sha256
+
+    run_study(Toy(), tmp_path, progress=False)
+    record = json.loads((tmp_path / "run.json").read_text())
+    assert record["tables"]["rows"] == {"file": "rows.csv", "rows": 12,
+                                        "sha256": file_sha256(tmp_path / "rows.csv")}
+    assert record["tables"]["extra"]["rows"] == 12
+    path = tmp_path / "rows.csv"
+    lines = path.read_text().splitlines(keepends=True)
+    if change == "delete_rows":
+        path.write_text("".join(lines[:-3]))
+    elif change == "cut_half":
+        path.write_text(path.read_text()[: len(path.read_text()) // 2])
+    elif change == "edit_value":
+        path.write_text("".join([lines[0], lines[1].replace(",", ",1", 1), *lines[2:]]))
+    else:
+        path.unlink()
+    with pytest.raises(ResultsExist, match=r"rows\.csv \((checksum differs from run\.json|"
+                                           r"missing)\).*changed after it ended.*overwrite"):
+        run_study(Toy(), tmp_path, progress=False)
+    run_study(Toy(), tmp_path, progress=False, overwrite=True)
+    run_study(Toy(), tmp_path / "fresh", progress=False)
+    pd.testing.assert_frame_equal(read(tmp_path), read(tmp_path / "fresh"))
+
+
+def test_chunks_of_another_configuration_are_never_reused_even_under_its_manifest(tmp_path):
+    """Chunk files copied from a run with another seed into this run's parts: every chunk
+    record carries its fingerprint, so they are recomputed, not merged."""
+    import shutil
+
+    interrupted(tmp_path / "seed7", chunk_size=2, stop_at=7)        # Toy(stop_at=7), seed 0
+    run_study(Toy(seed=2), tmp_path / "run", chunk_size=2, progress=False)
+    cut = tmp_path / "seed2"
+    cut_at(cut, 3, study=Toy(seed=2))
+    for part in (tmp_path / "seed7" / "parts").glob("c*"):
+        if not (cut / "parts" / part.name).exists():
+            shutil.copy(part, cut / "parts" / part.name)
+    with pytest.warns(RuntimeWarning, match="written by another configuration"):
+        run_study(Toy(seed=2), cut, chunk_size=2, progress=False)
+    pd.testing.assert_frame_equal(read(cut), read(tmp_path / "run"))
+
+
+def test_another_chunk_size_on_resume_warns_and_gives_the_same_rows(tmp_path):
+    run_study(Toy(), tmp_path / "full", chunk_size=5, progress=False)
+    cut = tmp_path / "cut"
+    cut_at(cut, 7)
+    with pytest.warns(RuntimeWarning, match=r"3 finished chunk\(s\) \(6 units\) were cut with "
+                                            "another chunk_size"):
+        run_study(Toy(), cut, chunk_size=5, progress=False)
+    pd.testing.assert_frame_equal(read(cut), read(tmp_path / "full"))
+    assert json.loads((cut / "run.json").read_text())["units_resumed"] == 0

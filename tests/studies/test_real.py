@@ -356,3 +356,18 @@ def test_real_sweep_on_shared_recordings(tmp_path):
         ("cavesurvey_sap6_bb", "sphere"), "J_r_in"]
     assert rec.loc[("bno055_hand", "ellipsoid"), "K"] == 809
     assert set(per_method["algorithm"]) == {"ellipsoid", "sphere"}
+
+
+def test_a_recording_edited_between_runs_changes_the_fingerprint(tmp_path):
+    """The real sweep's fingerprint holds each recording's SHA-256: rows of an edited
+    recording are never reused on resume."""
+    for name in ("a", "b"):
+        (tmp_path / name).mkdir()
+        write(tmp_path / name / "data.csv", ellipsoid(60, seed=len(name)))
+    study = RealStudy(root=str(tmp_path), datasets=["a", "b"], algorithms=["sphere"])
+    first = study.fingerprint()
+    assert set(study.describe()["recording_sha256"]) == {"a", "b"}
+    assert study.fingerprint() == first                              # nothing changed
+    path = tmp_path / "b" / "data.csv"
+    path.write_text(path.read_text().replace("1", "2", 1))
+    assert study.fingerprint() != first

@@ -27,7 +27,7 @@ from magbench.core.files import write_csv_atomic
 from magbench.core.model import Calibration
 from magbench.sources.recordings import Recording, read_samples
 
-__all__ = ["corrected_frame", "load_calibration", "run_apply"]
+__all__ = ["corrected_frame", "load_calibration", "output_csv", "run_apply"]
 
 
 def load_calibration(path: Path) -> tuple[Calibration, list | None]:
@@ -54,6 +54,23 @@ def load_calibration(path: Path) -> tuple[Calibration, list | None]:
     if columns is not None and (not isinstance(columns, list) or len(columns) != 3):
         raise UsageError(f"{path}: columns must list the three input columns, got {columns!r}")
     return cal, columns
+
+
+def output_csv(cfg: DictConfig, source: Path, default: Path, example: str) -> Path:
+    """The CSV file to write: ``out``, else ``default``; refuses a folder (suggesting
+    ``example`` inside it), the input file itself, or an existing file without
+    ``overwrite=true``, and checks its folder can be written."""
+    out = Path(str(cfg.out)) if cfg.get("out") else default
+    if out.is_dir():
+        raise UsageError(f"out={out} is a folder; expected the name of the CSV file to write, "
+                         f"e.g. out={out / example}")
+    if out.exists() and out.resolve() == source.resolve():
+        raise UsageError(f"out={out} is the input file; choose another name")
+    if out.exists() and cfg.get("overwrite") is not True:
+        raise UsageError(f"out={out} exists; choose another name or pass overwrite=true to "
+                         "replace it")
+    writable_folder(out.parent, "the folder of out")
+    return out
 
 
 def corrected_frame(rec: Recording, cal: Calibration, names: list[str]) -> pd.DataFrame:
@@ -83,16 +100,7 @@ def run_apply(cfg: DictConfig) -> int:
             raise UsageError(str(exc)) from None
     for w in caught:
         print(f"magbench: warning: {w.message}", file=sys.stderr)
-    out = Path(str(cfg.out)) if cfg.get("out") else Path(f"{rec.name}-corrected.csv")
-    if out.is_dir():
-        raise UsageError(f"out={out} is a folder; expected the name of the CSV file to write, "
-                         f"e.g. out={out / 'corrected.csv'}")
-    if out.exists() and out.resolve() == path.resolve():
-        raise UsageError(f"out={out} is the input file; choose another name")
-    if out.exists() and cfg.get("overwrite") is not True:
-        raise UsageError(f"out={out} exists; choose another name or pass overwrite=true to "
-                         "replace it")
-    writable_folder(out.parent, "the folder of out")
+    out = output_csv(cfg, path, Path(f"{rec.name}-corrected.csv"), "corrected.csv")
     # A file without a header has no names to keep: call the axes mx, my, mz.
     names = [f"m{'xyz'[i]}" if c.startswith("column ") else c for i, c in enumerate(rec.columns)]
     frame = corrected_frame(rec, cal, names)

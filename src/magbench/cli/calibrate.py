@@ -42,6 +42,7 @@ from magbench.cli.config import (
     UsageError,
     check_columns,
     check_common,
+    check_compensate,
     check_field_strength,
     check_instance,
     check_integer,
@@ -61,8 +62,10 @@ from magbench.core.exports import (
 from magbench.core.files import write_csv_atomic, write_text_atomic
 from magbench.core.gauge import safe_gauge
 from magbench.core.model import Calibration
-from magbench.core.units import UNKNOWN, Units
+from magbench.core.units import UNKNOWN, Units, parse_units
+from magbench.methods.api import calibrate as magbench_calibrate
 from magbench.methods.registry import get_method, methods
+from magbench.sources.logs import is_log, log_units
 from magbench.sources.recordings import Recording, read_samples
 from magbench.studies.auto import candidate_rounds
 from magbench.studies.calibration import (
@@ -70,6 +73,12 @@ from magbench.studies.calibration import (
     bootstrap_check,
     calibrate_recording,
     estimate,
+)
+from magbench.studies.flight import (
+    check_regressors,
+    mounting_rotation,
+    time_varying_terms,
+    usable_regressors,
 )
 from magbench.studies.real import DEFAULT_MAX_SAMPLES, PREPROCESSING, applicability
 
@@ -269,8 +278,11 @@ def run_calibrate(cfg: DictConfig, picture: PictureWorker | None = None) -> int:
     n_boot = check_integer(cfg.get("bootstrap", 50), "bootstrap", 0, 10_000)
     columns = check_columns(cfg)
     units = check_units(cfg)
+    if not units.known and not units.counts and is_log(path):
+        units = parse_units(log_units(path))    # a log's compass unit is the firmware's
     expected = check_field_strength(cfg, units)
     instance = check_instance(cfg)
+    compensate = check_compensate(cfg)
     out = Path(str(cfg.out)) if cfg.get("out") else default_out(path)
     check_out_calibration(out, cfg.get("overwrite"))
     name = cfg.get("method")
@@ -290,6 +302,11 @@ def run_calibrate(cfg: DictConfig, picture: PictureWorker | None = None) -> int:
             raise UsageError(str(exc)) from None
     for w in caught:
         print(f"magbench: warning: {w.message}", file=sys.stderr)
+    if compensate:
+        try:
+            check_regressors(rec, compensate)
+        except ValueError as exc:
+            raise UsageError(str(exc)) from None
     candidates, second = _candidates(cfg, rec.has_gyro)
     options = check_options(cfg, candidates + second)
     thinned = rec.thinned(max_samples)
@@ -329,6 +346,8 @@ def run_calibrate(cfg: DictConfig, picture: PictureWorker | None = None) -> int:
                                n_file=rec.K, preprocess=preprocess, units=units,
                                expected_field=expected)
     payload |= _instance_keys(rec)
+    varying, corrected = _add_time_varying(result, payload, compensate, options)
+    mounting = _add_mounting(result, payload, corrected)
     job = {"path": out / "calibration.png", "dpi": PICTURE_DPI,
            "compress_level": PICTURE_COMPRESSION, "kwargs": _picture_arguments(result, payload)}
     sent = picture is not None and picture.send(job)
@@ -343,6 +362,10 @@ def run_calibrate(cfg: DictConfig, picture: PictureWorker | None = None) -> int:
     print(f"choice: {result.how}")
     print(f"chosen: {payload['label']} ({payload['model']} model)")
     print("\n".join(_verdict_lines(payload)))
+    if varying:
+        print(varying)
+    if mounting:
+        print(mounting)
     for warning in payload["warnings"]:
         print(f"magbench: warning: {warning}", file=sys.stderr)
     problem = picture.wait() if sent else ""
@@ -353,6 +376,57 @@ def run_calibrate(cfg: DictConfig, picture: PictureWorker | None = None) -> int:
     print(f"wrote {out}/: {', '.join([*written, 'ranking.csv', 'calibration.png'])} "
           f"(in {time.perf_counter() - start:.2f} s)")
     return 0
+
+
+def _add_mounting(result: CalibrationResult, payload: dict,
+                  corrected: np.ndarray | None = None) -> str:
+    """Adds the detected mounting rotation to ``payload`` (``mounting_rotation``: the id of
+    the autopilots' rotation enum, or None with the reason) when the recording has an
+    attitude or an accelerometer (:mod:`magbench.studies.flight`); its line, or "".
+    ``corrected``: the samples corrected with kept time-varying terms, used instead of
+    ``A (y - b)``."""
+    found = mounting_rotation(result.rec, np.array(payload["A"]), np.array(payload["b"]),
+                              result.inliers, corrected)
+    if found is None:
+        return ""
+    payload["mounting_rotation"] = found.to_dict()
+    return found.line()
+
+
+def _add_time_varying(result: CalibrationResult, payload: dict, wanted: list[str] | None,
+                      options: dict) -> tuple[str, np.ndarray | None]:
+    """Fits ``y = T m + h + C u`` after the chosen static fit and adds ``time_varying`` to
+    ``payload`` (regressors, held-out errors static and with the terms, kept or not, and the
+    fit's ``A``, ``b``, ``C``). The static start is the chosen method if it fits the full model
+    without a gyro, else Fang (the terms are fitted with a full ``A``). ``wanted``:
+    ``compensate`` (None: auto). Returns the line ("" when there is nothing to fit) and, when
+    the terms are kept, every sample corrected with them (NaN where ``u`` is missing)."""
+    rec: Recording = result.rec
+    names = usable_regressors(rec, wanted)
+    if not names:
+        return "", None
+    spec = get_method(payload["method"])
+    name = payload["method"] if spec.model == "full" and not spec.needs_gyro else "fang"
+    opts = options.get(name) or {}
+
+    def static_fit(samples: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        return magbench_calibrate(samples, name, **opts).correction()
+
+    choice = time_varying_terms(rec, names, static_fit, result.inliers)
+    payload["time_varying"] = {"method": name, **choice.to_dict(names)}
+    head = (f"time-varying terms (y = T m + h + C u, u = {', '.join(names)}; {name}; held out "
+            "on interleaved time blocks): ")
+    if choice.fit is None:
+        return head + f"not kept ({choice.reason})", None
+    terms = "; ".join(f"{n} ({', '.join(f'{c:.3g}' for c in choice.fit.C[:, j])})"
+                      for j, n in enumerate(names))
+    verdict = "kept" if choice.kept else f"not kept ({choice.reason})"
+    line = (head + f"held-out mean squared norm residual {choice.static_out:.3g} static, "
+            f"{choice.varying_out:.3g} with the terms: {verdict}; C per unit of u (file "
+            f"units): {terms}")
+    corrected = choice.fit.apply(rec.y, rec.extra[names].to_numpy(float)) if choice.kept \
+        else None
+    return line, corrected
 
 
 def _write_exports(cal: Calibration, payload: dict, out: Path) -> list[str]:

@@ -26,7 +26,7 @@ from magbench.cli.config import (
 from magbench.cli.kinds import Kind, get_kind, kind_names, kind_of, kind_of_sweep, study_for
 from magbench.core.files import write_csv_atomic, write_text_atomic
 from magbench.engine.record import cpu_model, cpu_seconds, git_commit, process_age_s
-from magbench.engine.sweep import run_study
+from magbench.engine.sweep import run_lock, run_study
 from magbench.figures.speed import plot_scale, plot_scaling
 from magbench.report import write_report
 from magbench.report.speed import bench_report_section
@@ -45,21 +45,22 @@ def run(cfg: DictConfig, figures: bool = True) -> int:
     kind = kind_of(cfg)
     study, common = study_for(cfg)
     out_dir = writable_folder(common["results_dir"], "results_dir") / study.name
-    run_study(study, out_dir, n_jobs=common["n_jobs"], chunk_size=common["chunk_size"],
-              backend=common["backend"], scheduler_address=common["scheduler_address"],
-              progress=common["progress"], config=OmegaConf.to_container(cfg, resolve=True),
-              overwrite=common["overwrite"])
-    kind.finish(study, out_dir, common)
-    drawn = kind.figures(study.name, out_dir) if figures else []
-    if kind.section is not None:
-        kind.section(out_dir)
-    table = next(iter(study.tables.values()))[0]
-    trials = pd.read_csv(out_dir / table, usecols=["ok"])
-    n_bad = int((~trials["ok"].astype(bool)).sum())
-    shown = ", ".join(p.name for p in drawn) or ("no figure for this sweep" if figures
-                                                    else "drawn by the report")
-    print(f"sweep {study.name}: {len(trials)} rows ({n_bad} not ok) -> {out_dir}/ "
-          f"({table}, figures: {shown})")
+    with run_lock(out_dir):    # held until the last file of the run is written
+        run_study(study, out_dir, n_jobs=common["n_jobs"], chunk_size=common["chunk_size"],
+                  backend=common["backend"], scheduler_address=common["scheduler_address"],
+                  progress=common["progress"], config=OmegaConf.to_container(cfg, resolve=True),
+                  overwrite=common["overwrite"])
+        kind.finish(study, out_dir, common)
+        drawn = kind.figures(study.name, out_dir) if figures else []
+        if kind.section is not None:
+            kind.section(out_dir)
+        table = next(iter(study.tables.values()))[0]
+        trials = pd.read_csv(out_dir / table, usecols=["ok"])
+        n_bad = int((~trials["ok"].astype(bool)).sum())
+        shown = ", ".join(p.name for p in drawn) or ("no figure for this sweep" if figures
+                                                        else "drawn by the report")
+        print(f"sweep {study.name}: {len(trials)} rows ({n_bad} not ok) -> {out_dir}/ "
+              f"({table}, figures: {shown})")
     return 0
 
 

@@ -34,6 +34,7 @@ __all__ = [
     "base_config",
     "check_columns",
     "check_common",
+    "check_compensate",
     "check_field_strength",
     "check_instance",
     "check_integer",
@@ -148,6 +149,26 @@ def check_integer(value: object, what: str, low: int, high: int | None = None) -
     if high is not None and value > high:
         raise UsageError(f"{what} must be an integer <= {high}, got {value!r}")
     return value
+
+
+#: What ``compensate`` may list: the regressors of the time-varying terms.
+COMPENSATE = ("current", "throttle", "temperature")
+
+
+def check_compensate(cfg: DictConfig) -> list[str] | None:
+    """The ``compensate`` key of calibrate: None for ``auto`` (the recording's current or
+    throttle and temperature), [] for ``none``, else the listed regressors."""
+    value = cfg.get("compensate", "auto")
+    if value in ("auto", None):
+        return None
+    if value == "none":
+        return []
+    names = list(OmegaConf.to_container(value)) if OmegaConf.is_list(value) else [value]
+    bad = [n for n in names if n not in COMPENSATE]
+    if bad or not names:
+        raise UsageError(f"compensate must be auto, none or a list of {', '.join(COMPENSATE)}, "
+                         f"e.g. compensate=[current,temperature], got {value!r}")
+    return [str(n) for n in names]
 
 
 #: The largest dataset a synthetic point may ask for: every trial holds K x 3 samples and a few

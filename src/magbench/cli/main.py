@@ -26,7 +26,10 @@ if TYPE_CHECKING:
 
     from magbench.cli.picture import PictureWorker
 
-__all__ = ["COMMANDS", "end_process", "main"]
+__all__ = ["COMMANDS", "INTERRUPTED", "end_process", "main"]
+
+#: The one line a Ctrl-C prints, whenever it comes.
+INTERRUPTED = "magbench: interrupted; finished chunks are kept and a rerun completes the rest"
 
 
 def _run(cfg: DictConfig) -> int:
@@ -65,6 +68,12 @@ def _apply(cfg: DictConfig) -> int:
     return run_apply(cfg)
 
 
+def _extract(cfg: DictConfig) -> int:
+    from magbench.cli.extract import run_extract
+
+    return run_extract(cfg)
+
+
 def _methods(cfg: DictConfig) -> int:
     from magbench.cli.config import check_common
 
@@ -84,12 +93,16 @@ COMMANDS: dict[str, tuple[Callable[..., int], str, str, tuple[str, ...]]] = {
     "calibrate": (_calibrate, "calibrate your own recording and write the correction",
                   "python -m magbench calibrate file=data.csv",
                   ("file", "method", "candidates", "columns", "out", "preprocess",
-                   "max_samples", "bootstrap", "seed", "units", "field_strength", "instance",
-                   "overwrite", "options", "call_timeout_s", "plugins")),
+                   "max_samples", "compensate", "bootstrap", "seed", "units", "field_strength",
+                   "instance", "overwrite", "options", "call_timeout_s", "plugins")),
     "apply": (_apply, "correct a recording with a saved calibration.json (m = A (y - b))",
               "python -m magbench apply calibration=cal/calibration.json file=flight.csv "
               "out=flight-corrected.csv", ("calibration", "file", "columns", "instance", "out",
                                             "overwrite")),
+    "extract": (_extract, "write a flight log's compass and its other streams, time-aligned, "
+                "as CSV (PX4 .ulg, ArduPilot .bin/.log)",
+                "python -m magbench extract file=flight.ulg instance=0 out=data.csv",
+                ("file", "instance", "out", "overwrite")),
     "reproduce": (_reproduce, "every sweep at its committed size, then the report (make "
                   "reproduce); per-step times to results/bench/reproduce_times.csv",
                   "python -m magbench reproduce",
@@ -261,6 +274,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         # Point stdout at /dev/null so the interpreter's final flush cannot raise again.
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         code = 128 + signal.SIGPIPE
+    except KeyboardInterrupt:       # a Ctrl-C before or after the command's own handling
+        print(INTERRUPTED, file=sys.stderr)
+        code = 130
     if argv is None:
         end_process(code)
     return code
@@ -330,6 +346,7 @@ def _main(argv: Sequence[str] | None, start_up: bool = False) -> int:
 def _dispatch(command: str, args: list[str], picture: PictureWorker | None,
               start_up: bool = False) -> int:
     from magbench.cli.config import UsageError, compose_config
+    from magbench.engine.isolation import WorkerDied
     from magbench.engine.sweep import FolderBusy, ResultsExist, TooLarge
 
     previous = signal.signal(signal.SIGTERM, _terminate) if _main_thread() else None
@@ -345,6 +362,11 @@ def _dispatch(command: str, args: list[str], picture: PictureWorker | None,
     except (UsageError, FolderBusy, ResultsExist, TooLarge) as exc:
         print(f"magbench: error: {exc}", file=sys.stderr)
         return 2
+    except WorkerDied as exc:
+        # Not the user's input: a unit's own code (outside any method call) killed its
+        # process. One line and a failing status; finished chunks are kept.
+        print(f"magbench: error: {exc}", file=sys.stderr)
+        return 1
     except OSError as exc:
         # A file-system refusal the checks could not foresee (a disk that fills, a folder
         # removed under a run): one line naming the path, not a traceback.
@@ -354,8 +376,7 @@ def _dispatch(command: str, args: list[str], picture: PictureWorker | None,
         return 2
     except KeyboardInterrupt as stop:
         what = "terminated" if isinstance(stop, Terminated) else "interrupted"
-        print(f"magbench: {what}; finished chunks are kept and a rerun completes the rest",
-              file=sys.stderr)
+        print(INTERRUPTED.replace("interrupted", what), file=sys.stderr)
         return 143 if isinstance(stop, Terminated) else 130
     finally:
         if previous is not None:

@@ -5,7 +5,6 @@ from __future__ import annotations
 import json
 import os
 import platform
-import resource
 import subprocess
 import sys
 from pathlib import Path
@@ -48,6 +47,8 @@ def cpu_seconds() -> float:
     (Linux; elsewhere only this process and finished children are counted). The difference of
     two calls is the CPU time spent in between, workers included.
     """
+    import resource  # here: POSIX only, and nothing that imports the engine needs it
+
     own = resource.getrusage(resource.RUSAGE_SELF)
     done = resource.getrusage(resource.RUSAGE_CHILDREN)
     total = own.ru_utime + own.ru_stime + done.ru_utime + done.ru_stime

@@ -24,27 +24,29 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
-import fcntl
 import hashlib
 import json
 import os
 import shutil
+import signal
 import sys
 import threading
 import time
 import warnings
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from datetime import UTC, datetime
 from pathlib import Path
+from typing import IO
 
 import pandas as pd
 
 from magbench.core.files import atomic_path, file_sha256, write_csv_atomic, write_text_atomic
+from magbench.engine.isolation import die_with_parent, run_isolated, watch_calls
 from magbench.engine.plugins import load_plugins
 from magbench.engine.record import write_run_record
 
 __all__ = ["FolderBusy", "ResultsExist", "Study", "TooLarge", "check_capacity", "finished_run",
-           "folder_lock", "parallel_backend", "run_study"]
+           "folder_lock", "parallel_backend", "run_lock", "run_study"]
 
 
 class FolderBusy(RuntimeError):
@@ -101,21 +103,48 @@ class Study:
         return hashlib.sha256(text.encode()).hexdigest()[:16]
 
 
+def _lock_exclusive(handle: IO[str]) -> bool:
+    """Take the operating system's exclusive lock on an open file without waiting; False if
+    another process holds it. ``fcntl`` where it exists (POSIX), ``msvcrt`` on Windows, chosen
+    here rather than at import so that nothing that imports the engine needs either."""
+    try:
+        import fcntl
+    except ImportError:
+        fcntl = None
+    if fcntl is not None:
+        try:
+            fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            return False
+        return True
+    try:
+        import msvcrt
+    except ImportError:
+        _warn("no file locking on this system: two runs on one results folder are not refused")
+        return True
+    try:
+        handle.seek(0)
+        msvcrt.locking(handle.fileno(), msvcrt.LK_NBLCK, 1)
+    except OSError:
+        return False
+    return True
+
+
 @contextlib.contextmanager
 def folder_lock(folder: Path) -> Iterator[None]:
     """Hold an exclusive lock on ``folder`` (``.lock``) for the block; :class:`FolderBusy` if
-    another process holds it. The lock dies with its process, so a killed run leaves none."""
+    another holder (another process, or another block of this one) has it. The lock dies with
+    its process, so a killed run leaves none."""
+    folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     path = folder / ".lock"
     handle = open(path, "a+")
     try:
-        try:
-            fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
+        if not _lock_exclusive(handle):
             handle.seek(0)
             holder = handle.read().strip() or "another process"
             raise FolderBusy(f"{folder} is in use by a running magbench ({holder}); wait for "
-                             "it to finish or choose another results_dir") from None
+                             "it to finish or choose another results_dir")
         handle.seek(0)
         handle.truncate()
         handle.write(f"pid {os.getpid()} since {datetime.now(UTC):%Y-%m-%d %H:%M:%S} UTC")
@@ -123,6 +152,36 @@ def folder_lock(folder: Path) -> Iterator[None]:
         yield
     finally:
         handle.close()
+
+
+#: Folders held by :func:`run_lock` in this process: :func:`run_study` runs in them without
+#: taking the lock again.
+_HELD: set[Path] = set()
+
+
+@contextlib.contextmanager
+def run_lock(folder: Path | str) -> Iterator[None]:
+    """Hold ``folder`` for a whole command: the trials (:func:`run_study` inside the block uses
+    this lock), then the timing, statistics, figures and report text written after them, so
+    that no other run can start in the folder until all of its files are in place.
+
+    Raises
+    ------
+    FolderBusy
+        Another run holds ``folder``.
+    """
+    key = Path(folder).resolve()
+    with folder_lock(Path(folder)):
+        _HELD.add(key)
+        try:
+            yield
+        finally:
+            _HELD.discard(key)
+
+
+def _lock_for_run(folder: Path) -> contextlib.AbstractContextManager:
+    """The folder's lock, unless a :func:`run_lock` of this process holds it already."""
+    return contextlib.nullcontext() if folder.resolve() in _HELD else folder_lock(folder)
 
 
 @contextlib.contextmanager
@@ -135,7 +194,7 @@ def parallel_backend(backend: str, n_jobs: int,
     single-threaded worker processes bound to 127.0.0.1.
     """
     if backend == "loky":
-        yield {"backend": "loky", "n_jobs": n_jobs}
+        yield {"backend": _loky_backend(), "n_jobs": n_jobs}
         return
     if backend != "dask":
         raise ValueError(f"backend must be 'loky' or 'dask', got {backend!r}")
@@ -146,12 +205,48 @@ def parallel_backend(backend: str, n_jobs: int,
         if scheduler_address:
             client = stack.enter_context(Client(scheduler_address))
         else:
+            # A task whose worker dies is failed at the first death, not retried on three
+            # more workers: the run finds the call that kills in a supervised process.
+            import dask
+
+            stack.enter_context(dask.config.set({"distributed.scheduler.allowed-failures": 0}))
             cluster = stack.enter_context(LocalCluster(
                 n_workers=max(n_jobs, 1), threads_per_worker=1, processes=True,
                 host="127.0.0.1", dashboard_address=None))
             client = stack.enter_context(Client(cluster))
         stack.enter_context(parallel_config(backend="dask"))
         yield {"n_jobs": -1, "client": client}
+
+
+def _loky_backend() -> object:
+    """joblib's loky backend whose workers, from their start, end with the run (even those
+    that never get a chunk)."""
+    from joblib.parallel import LokyBackend
+
+    return LokyBackend(initializer=_worker_start, initargs=(os.getpid(),))
+
+
+@contextlib.contextmanager
+def _interrupt_blocked() -> Iterator[None]:
+    """Block SIGINT in this thread for the block: processes and threads started in it inherit
+    the block, so a Ctrl-C (sent to the whole process group) reaches only the run, which
+    stops its workers itself, and no worker prints a traceback of its own. A Ctrl-C in the
+    block is delivered when it ends."""
+    mask = getattr(signal, "pthread_sigmask", None)
+    if mask is None or threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = mask(signal.SIG_BLOCK, {signal.SIGINT})
+    try:
+        yield
+    finally:
+        mask(signal.SIG_SETMASK, previous)
+
+
+def _worker_start(parent_pid: int) -> None:
+    """A loky worker's first act: die with the run that started it."""
+    die_with_parent()
+    _exit_with_parent(parent_pid)
 
 
 _WATCHED_PARENT: list[int] = []
@@ -162,9 +257,9 @@ def _exit_with_parent(parent_pid: int | None, poll_s: float = 1.0) -> None:
 
     A run killed with SIGKILL cannot shut its worker pool down, and loky's idle workers (and,
     through them, the resource trackers) would otherwise live on, orphaned, for many minutes.
-    Polling the parent's pid from a daemon thread is portable across POSIX systems and costs
-    nothing while the run lives. ``parent_pid`` is None in-process and on Dask, whose workers
-    have their own parents.
+    On Linux the kernel's parent-death signal (:func:`die_with_parent`) ends them even inside
+    one long compiled call; polling the parent's pid from a daemon thread covers the other
+    POSIX systems. ``parent_pid`` is None on Dask, whose workers have their own parents.
     """
     if parent_pid is None or os.getpid() == parent_pid or _WATCHED_PARENT:
         return
@@ -178,10 +273,16 @@ def _exit_with_parent(parent_pid: int | None, poll_s: float = 1.0) -> None:
     threading.Thread(target=watch, name="magbench-parent-watch", daemon=True).start()
 
 
-def _run_chunk(study: Study, units: list, start: int,
-               parent_pid: int | None = None) -> tuple[int, dict[str, list[dict]]]:
+def _run_chunk(study: Study, units: list, start: int, parent_pid: int | None = None,
+               marker: str | None = None) -> tuple[int, dict[str, list[dict]]]:
+    """A worker's task: the rows of one chunk. ``marker`` is touched first, so that after a
+    worker's death the run knows which chunks were under way (:func:`_run_todo`)."""
     _exit_with_parent(parent_pid)
+    if marker is not None:
+        with contextlib.suppress(OSError):      # a remote worker may not see the folder
+            Path(marker).touch()
     load_plugins(study.plugins)
+    watch_calls()
     out: dict[str, list[dict]] = {name: [] for name in study.tables}
     for unit in units:
         for name, rows in study.run_unit(unit).items():
@@ -196,7 +297,7 @@ class _Parts:
         self.dir = out_dir / "parts"
         self.study = study
         manifest = self.dir / "manifest.json"
-        fingerprint = study.fingerprint()
+        self.fingerprint = fingerprint = study.fingerprint()
         if self.dir.exists():
             try:
                 found = json.loads(manifest.read_text()).get("fingerprint")
@@ -212,6 +313,7 @@ class _Parts:
             self.dir.mkdir(parents=True)
             write_text_atomic(json.dumps({"fingerprint": fingerprint, "study": study.name}),
                               manifest)
+        self.clear_markers()        # a killed run's markers say nothing about this one
 
     def _stem(self, start: int, stop: int) -> str:
         return f"c{start:07d}-{stop:07d}"
@@ -219,25 +321,57 @@ class _Parts:
     def path(self, start: int, stop: int, table: str) -> Path:
         return self.dir / f"{self._stem(start, stop)}.{table}.csv"
 
+    def marker(self, start: int, stop: int) -> Path:
+        """Touched by the worker that starts the chunk."""
+        return self.dir / f"{self._stem(start, stop)}.started"
+
+    def started(self, start: int, stop: int) -> bool:
+        return self.marker(start, stop).exists()
+
+    def has_record(self, start: int, stop: int) -> bool:
+        return (self.dir / f"{self._stem(start, stop)}.json").exists()
+
+    def clear_markers(self) -> None:
+        for path in self.dir.glob("*.started"):
+            path.unlink(missing_ok=True)
+
     def done(self, start: int, stop: int) -> bool:
-        """True if the chunk's parts are complete and unchanged; damaged ones are removed."""
+        """True if the chunk's parts are complete and unchanged and were written by this
+        configuration (the fingerprint in its record); others are removed, with a warning."""
         record = self.dir / f"{self._stem(start, stop)}.json"
         if not record.exists():
             return False
         try:
             sums = json.loads(record.read_text())
-            intact = all(file_sha256(self.path(start, stop, t)) == sums[t]["sha256"]
-                         for t in self.study.tables)
-        except (OSError, ValueError, KeyError, TypeError):
-            intact = False
+            ours = sums.get("fingerprint") == self.fingerprint
+            intact = ours and all(file_sha256(self.path(start, stop, t)) == sums[t]["sha256"]
+                                  for t in self.study.tables)
+        except (OSError, ValueError, KeyError, TypeError, AttributeError):
+            ours = intact = False
         if not intact:
-            _warn(f"{record.name}: part files damaged or incomplete; units {start}-{stop - 1} "
-                  "are recomputed")
+            why = ("damaged or incomplete" if ours else
+                   "written by another configuration (its record's fingerprint)")
+            _warn(f"{record.name}: part files {why}; units {start}-{stop - 1} are recomputed")
             record.unlink(missing_ok=True)
         return intact
 
+    def drop_other_chunking(self, chunks: Sequence[tuple[int, int]]) -> None:
+        """Remove finished chunks whose unit ranges are not among ``chunks`` (a rerun with
+        another ``chunk_size``), saying how many units they held."""
+        wanted = {self._stem(a, b) for a, b in chunks}
+        other = [r for r in self.dir.glob("c*.json") if r.stem not in wanted]
+        if not other:
+            return
+        units = sum(int(b) - int(a[1:]) for a, b in (r.stem.split("-") for r in other))
+        _warn(f"{self.dir}: {len(other)} finished chunk(s) ({units} units) were cut with "
+              "another chunk_size and are not reused; their units are recomputed (rerun with "
+              "the first run's chunk_size to reuse them)")
+        for record in other:
+            for path in self.dir.glob(f"{record.stem}.*"):
+                path.unlink(missing_ok=True)
+
     def write(self, start: int, stop: int, rows: dict[str, list[dict]]) -> None:
-        sums = {}
+        sums: dict[str, object] = {"fingerprint": self.fingerprint}
         for table, (_, columns) in self.study.tables.items():
             path = self.path(start, stop, table)
             write_csv_atomic(pd.DataFrame(rows.get(table, []), columns=list(columns)), path)
@@ -320,28 +454,133 @@ def _warn(message: str) -> None:
 
 
 def finished_run(study: Study, out_dir: Path | str) -> str | None:
-    """What ``out_dir`` holds of a finished run of ``study``'s kind.
+    """What ``out_dir`` holds of a run of ``study``'s kind.
 
     Returns
     -------
     str or None
-        None when no table of the study is there; ``"same"`` when its ``run.json`` records the
-        study's fingerprint and every table is present; otherwise a short description of the
-        other run (its fingerprint, or why it cannot be identified).
+        None when no table of the study is there, or when the folder holds an unfinished run
+        of this configuration (its ``parts/``, perhaps with tables merged just before a kill)
+        to resume; ``"same"`` when its ``run.json`` records the study's fingerprint and every
+        table matches the checksum and row count recorded there; ``"changed: ..."`` naming
+        the tables that do not; otherwise a short description of the other run (its
+        fingerprint, or why it cannot be identified).
     """
     out_dir = Path(out_dir)
-    files = [out_dir / file for file, _ in study.tables.values()]
-    if not any(f.exists() for f in files):
-        return None
+    files = {table: out_dir / file for table, (file, _) in study.tables.items()}
     try:
-        found = json.loads((out_dir / "run.json").read_text()).get("fingerprint")
+        record = json.loads((out_dir / "run.json").read_text())
+        found = record.get("fingerprint")
     except (OSError, ValueError, AttributeError):
-        found = None
+        record, found = {}, None
+    if found != study.fingerprint() and _parts_of(study, out_dir):
+        return None
+    if not any(f.exists() for f in files.values()):
+        return None
     if found is None:
         return "a run with no readable run.json"
-    if found == study.fingerprint() and all(f.exists() for f in files):
-        return "same"
-    return f"a run of another configuration (fingerprint {found})"
+    if found != study.fingerprint():
+        return f"a run of another configuration (fingerprint {found})"
+    changed = _changed_tables(files, record.get("tables") or {})
+    return f"changed: {', '.join(changed)}" if changed else "same"
+
+
+def _parts_of(study: Study, out_dir: Path) -> bool:
+    """True if ``out_dir/parts`` holds an unfinished run of this configuration."""
+    try:
+        manifest = json.loads((out_dir / "parts" / "manifest.json").read_text())
+        return manifest.get("fingerprint") == study.fingerprint()
+    except (OSError, ValueError, AttributeError):
+        return False
+
+
+def _changed_tables(files: Mapping[str, Path], recorded: Mapping[str, dict]) -> list[str]:
+    """The tables that are missing or differ from the checksum and row count in run.json
+    (a run.json without them, from an older magbench, is trusted as it was)."""
+    changed = []
+    for table, path in files.items():
+        if not path.exists():
+            changed.append(f"{path.name} (missing)")
+        elif table in recorded and file_sha256(path) != recorded[table].get("sha256"):
+            changed.append(f"{path.name} (checksum differs from run.json)")
+    return changed
+
+
+def _table_record(files: Mapping[str, Path], counts: Mapping[str, int]) -> dict[str, dict]:
+    """For run.json: each table's file, row count and SHA-256."""
+    return {table: {"file": path.name, "rows": counts[table], "sha256": file_sha256(path)}
+            for table, path in files.items()}
+
+
+def _run_todo(study: Study, units: list, todo: list[tuple[int, int]], parts: _Parts,
+              done: Callable[[int, int, dict], None], n_jobs: int, backend: str,
+              scheduler_address: str | None) -> None:
+    """Run the unfinished chunks; a worker's death costs a rerun of the chunks under way.
+
+    ``n_jobs=1`` runs them in one supervised child process (:func:`run_isolated`), so that a
+    method that ends its process cannot end the run. With workers, a death (loky's
+    ``TerminatedWorkerError``, Dask's ``KilledWorker``, anything a task raises) stops the
+    pool: the chunks that were under way (their start markers) are rerun one unit at a time in
+    a supervised child, which finds the call that kills and makes it a row, and the rest go
+    back to the workers.
+    """
+    if n_jobs == 1 and backend == "loky":
+        run_isolated(study, units, todo, done)
+        return
+    while todo:
+        try:
+            _run_parallel(study, units, todo, parts, done, n_jobs, backend, scheduler_address)
+            return
+        except KeyboardInterrupt:
+            raise
+        except BaseException as exc:  # a worker died or a task failed: find which, in a child
+            todo = [c for c in todo if not parts.has_record(*c)]
+            suspects = [c for c in todo if parts.started(*c)] or todo
+            _warn(f"a worker of {study.name} stopped ({type(exc).__name__}); {len(suspects)} "
+                  "chunk(s) under way are rerun one unit at a time in a supervised process")
+            run_isolated(study, units, suspects, done)
+            todo = [c for c in todo if c not in suspects]
+            parts.clear_markers()
+
+
+def _run_parallel(study: Study, units: list, todo: list[tuple[int, int]], parts: _Parts,
+                  done: Callable[[int, int, dict], None], n_jobs: int, backend: str,
+                  scheduler_address: str | None) -> None:
+    """The chunks on joblib's workers or a Dask cluster, each written as it finishes."""
+    from joblib import Parallel, delayed
+
+    stops = dict(todo)
+    with parallel_backend(backend, n_jobs, scheduler_address) as engine:
+        if backend == "dask":
+            _run_on_dask(engine["client"], study, units, todo, parts, done)
+            return
+        with contextlib.ExitStack() as stack:
+            with _interrupt_blocked():  # the workers, their manager and tracker start here
+                parallel = stack.enter_context(Parallel(
+                    n_jobs=engine["n_jobs"], backend=engine["backend"],
+                    return_as="generator_unordered"))
+                results = parallel(delayed(_run_chunk)(study, units[a:b], a, os.getpid(),
+                                                       str(parts.marker(a, b)))
+                                   for a, b in todo)
+            for start, rows in results:
+                done(start, stops[start], rows)
+
+
+def _run_on_dask(client: object, study: Study, units: list, todo: list[tuple[int, int]],
+                 parts: _Parts, done: Callable[[int, int, dict], None]) -> None:
+    """The chunks as Dask futures: a task that failed, or whose workers died (``KilledWorker``),
+    raises here at once, and the tasks still pending are cancelled."""
+    from distributed import as_completed
+
+    futures = [client.submit(_run_chunk, study, units[a:b], a, None, str(parts.marker(a, b)),
+                             pure=False) for a, b in todo]
+    stops = dict(todo)
+    try:
+        for future in as_completed(futures):
+            start, rows = future.result()
+            done(start, stops[start], rows)
+    finally:
+        client.cancel(futures)
 
 
 def run_study(study: Study, out_dir: Path | str, *, n_jobs: int = 1, chunk_size: int = 25,
@@ -384,7 +623,6 @@ def run_study(study: Study, out_dir: Path | str, *, n_jobs: int = 1, chunk_size:
     TooLarge
         The estimated output exceeds the free disk space or memory (:func:`check_capacity`).
     """
-    from joblib import Parallel, delayed
     from tqdm import tqdm
 
     out_dir = Path(out_dir)
@@ -394,32 +632,31 @@ def run_study(study: Study, out_dir: Path | str, *, n_jobs: int = 1, chunk_size:
     chunks = [(s, min(s + chunk_size, len(units))) for s in range(0, len(units), chunk_size)]
     written = {table: out_dir / file for table, (file, _) in study.tables.items()}
     check_capacity(study, units, out_dir)
-    with folder_lock(out_dir):
+    with _lock_for_run(out_dir):
         before = finished_run(study, out_dir)
         if before == "same" and not overwrite:
             print(f"{out_dir}: already holds this run (fingerprint {study.fingerprint()}); "
                   "its tables are reused (overwrite=true recomputes them)", file=sys.stderr)
             return written
+        if before is not None and before.startswith("changed: ") and not overwrite:
+            raise ResultsExist(f"{out_dir}: {before[9:]}: the finished run's tables were "
+                               "changed after it ended; pass overwrite=true to recompute them")
         if before is not None and not overwrite:
             raise ResultsExist(f"{out_dir} holds {before}; choose another results_dir= or "
                                "pass overwrite=true to replace it")
         parts = _Parts(out_dir, study)
+        parts.drop_other_chunking(chunks)
         todo = [c for c in chunks if not parts.done(*c)]
         resumed = len(units) - sum(stop - start for start, stop in todo)
         weights = [study.unit_weight(u) for u in units]
         with tqdm(total=sum(weights), desc=f"{study.name}", unit="trial", file=sys.stderr,
                   disable=not progress, smoothing=0.1) as bar:
             bar.update(sum(weights) - sum(sum(weights[a:b]) for a, b in todo))
-            if todo:
-                with parallel_backend(backend, n_jobs, scheduler_address) as engine, \
-                        Parallel(n_jobs=engine["n_jobs"], backend=engine.get("backend"),
-                                 return_as="generator_unordered") as parallel:
-                    stops = dict(todo)
-                    watch = os.getpid() if backend == "loky" else None
-                    for start, rows in parallel(delayed(_run_chunk)(study, units[a:b], a, watch)
-                                                for a, b in todo):
-                        parts.write(start, stops[start], rows)
-                        bar.update(sum(weights[start:stops[start]]))
+            def done(start: int, stop: int, rows: dict[str, list[dict]]) -> None:
+                parts.write(start, stop, rows)
+                bar.update(sum(weights[start:stop]))
+
+            _run_todo(study, units, todo, parts, done, n_jobs, backend, scheduler_address)
         counts = {table: parts.merge(chunks, table, written[table]) for table in study.tables}
         finished = datetime.now(UTC)
         write_run_record(out_dir, study=study.name, fingerprint=study.fingerprint(),
@@ -428,6 +665,7 @@ def run_study(study: Study, out_dir: Path | str, *, n_jobs: int = 1, chunk_size:
                          started=started.isoformat(timespec="seconds"),
                          finished=finished.isoformat(timespec="seconds"),
                          wall_s=round(time.perf_counter() - clock, 3),
-                         units=len(units), units_resumed=resumed, rows=counts)
+                         units=len(units), units_resumed=resumed, rows=counts,
+                         tables=_table_record(written, counts))
         shutil.rmtree(parts.dir)
     return written

@@ -4,6 +4,8 @@ Every study (review sweeps, coverage, gyro, Wu-Shi, real recordings) calls a met
 :func:`run_method`, so a method behaves the same everywhere: any exception, a non-finite or
 singular answer, a call past ``call_timeout_s`` or a stop at the iteration cap becomes an
 :class:`Outcome` with a reason in ``error`` (a row with ``ok=False``), and the study goes on.
+A method that raises any ``BaseException`` (``SystemExit`` included) gives a row too;
+only a ``KeyboardInterrupt`` in the process that runs the sweep (the user's Ctrl-C) stops it.
 Only the calibration call is timed. A randomised method gets a Generator keyed by the study's
 stream, the method's name and an optional tail (:mod:`magbench.core.seeding`), so its draws do
 not depend on which other methods run or on the workers.
@@ -17,7 +19,7 @@ import signal
 import threading
 import time
 from collections.abc import Callable, Iterator, Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -25,7 +27,8 @@ from magbench.core.model import Calibration
 from magbench.core.seeding import rng
 from magbench.methods.registry import get_method
 
-__all__ = ["CallTimeout", "Outcome", "estimate_columns", "run_method", "time_limit"]
+__all__ = ["CallTimeout", "Outcome", "estimate_columns", "run_method", "supervise_calls",
+           "time_limit"]
 
 T_COLUMNS = [f"T_{i}{j}" for i in range(3) for j in range(3)]
 H_COLUMNS = [f"h_{i}" for i in range(3)]
@@ -33,6 +36,63 @@ H_COLUMNS = [f"h_{i}" for i in range(3)]
 
 class CallTimeout(Exception):
     """A calibration call ran past ``call_timeout_s``."""
+
+
+@dataclass
+class _Supervision:
+    """What a supervising process asked of this one (:func:`supervise_calls`)."""
+
+    before_call: Callable[[str, float | None], None] | None = None
+    after_call: Callable[[], None] | None = None
+    skip: Mapping[str, str] = field(default_factory=dict)
+    worker: bool = False
+
+
+_SUPERVISION = _Supervision()
+
+
+def supervise_calls(before_call: Callable[[str, float | None], None] | None = None,
+                    skip: Mapping[str, str] | None = None, worker: bool = True,
+                    after_call: Callable[[], None] | None = None) -> None:
+    """Set how :func:`run_method` behaves in a worker process of a sweep.
+
+    Parameters
+    ----------
+    before_call : callable, optional
+        Called with the method's name and time limit just before each call, so that the
+        process that supervises this one knows which call a death of this process belongs to.
+    skip : mapping, optional
+        Method name -> reason: calls that killed a worker on the current unit before. They are
+        not made again; each gives a row with the reason.
+    worker : bool
+        This process is a worker: a ``KeyboardInterrupt`` from a method becomes a row here
+        (the process that runs the sweep handles the user's Ctrl-C).
+    """
+    _SUPERVISION.before_call = before_call
+    _SUPERVISION.after_call = after_call
+    _SUPERVISION.skip = dict(skip or {})
+    _SUPERVISION.worker = worker
+
+
+@contextlib.contextmanager
+def _memory_limits_kept() -> Iterator[None]:
+    """Put back the soft memory limits a method lowered (``resource.setrlimit``), so that one
+    method's limit does not fail the calls after it in the same process."""
+    try:
+        import resource
+    except ImportError:             # no resource limits on this system
+        yield
+        return
+    kinds = [getattr(resource, k) for k in ("RLIMIT_AS", "RLIMIT_DATA") if hasattr(resource, k)]
+    before = [resource.getrlimit(k) for k in kinds]
+    try:
+        yield
+    finally:
+        for kind, (soft, hard) in zip(kinds, before, strict=True):
+            now_soft, now_hard = resource.getrlimit(kind)
+            if now_soft != soft:
+                with contextlib.suppress(ValueError, OSError):
+                    resource.setrlimit(kind, (soft if now_hard == hard else now_hard, now_hard))
 
 
 @contextlib.contextmanager
@@ -152,21 +212,32 @@ def run_method(name: str, fit: Callable[[dict], Calibration], *,
     Returns
     -------
     Outcome
-        Never raises for a failure of the method: any ``Exception`` becomes the reason.
+        Never raises for a failure of the method: anything it raises becomes the reason
+        (see :func:`supervise_calls` for ``KeyboardInterrupt`` and calls skipped after a
+        worker's death).
     """
     opts = dict(options or {})
     spec = get_method(name)
     if spec.randomized and "rng" not in opts:
         opts["rng"] = rng(seed, *stream, name, *stream_tail)
     spec.prepare()          # numba's import is a worker's start-up, not part of the timed call
+    if name in _SUPERVISION.skip:
+        return Outcome(name, None, _SUPERVISION.skip[name], float("nan"))
+    if _SUPERVISION.before_call is not None:
+        _SUPERVISION.before_call(name, call_timeout_s)
     start = time.perf_counter()
     try:
-        with time_limit(call_timeout_s):
+        with _memory_limits_kept(), time_limit(call_timeout_s):
             cal = fit(opts)
         elapsed = time.perf_counter() - start
-    except Exception as exc:  # failures are data: any error of the method becomes a row
+    except BaseException as exc:  # failures are data: anything a method raises becomes a row
+        if isinstance(exc, KeyboardInterrupt) and not _SUPERVISION.worker:
+            raise
         return Outcome(name, None, f"{type(exc).__name__}: {exc}",
                        time.perf_counter() - start)
+    finally:
+        if _SUPERVISION.after_call is not None:
+            _SUPERVISION.after_call()
     if not (np.isfinite(cal.T).all() and np.isfinite(cal.h).all()):
         return Outcome(name, None, f"CalibrationFailed: {name}: estimate is not finite",
                        elapsed)

@@ -35,11 +35,13 @@ import pandas as pd
 
 from magbench.core.geometry import MIN_COVERAGE, MIN_THICKNESS, check_geometry
 from magbench.core.model import check_magnitude
+from magbench.sources.logs import EXTRA_COLUMNS, MIN_LOG_SAMPLES, is_log, read_log
 
 __all__ = [
     "ACC_COLUMNS",
     "ATTITUDE_COLUMNS",
     "DATA_ENV",
+    "EXTRA_COLUMNS",
     "GYRO_COLUMNS",
     "INSTANCE_COLUMNS",
     "MAG_COLUMNS",
@@ -48,6 +50,7 @@ __all__ = [
     "data_dir",
     "list_recordings",
     "load_recording",
+    "log_recording",
     "read_inertial",
     "read_samples",
 ]
@@ -84,6 +87,9 @@ class Recording:
         Names of the magnetometer columns read (``column i`` without a header).
     instance : tuple of (str, str) or None
         The instance column and the value kept, when the file has one.
+    extra : DataFrame or None
+        Other time-aligned columns, one row per sample (those of :data:`EXTRA_COLUMNS` the
+        file has).
     """
 
     name: str
@@ -94,6 +100,7 @@ class Recording:
     stride: int = 1
     columns: tuple = MAG_COLUMNS
     instance: tuple[str, str] | None = None
+    extra: pd.DataFrame | None = None
 
     @property
     def K(self) -> int:
@@ -107,7 +114,9 @@ class Recording:
         """The recording restricted to some rows (times and gyro alike)."""
         return replace(self, y=self.y[index],
                        t=None if self.t is None else self.t[index],
-                       gyro=None if self.gyro is None else self.gyro[index])
+                       gyro=None if self.gyro is None else self.gyro[index],
+                       extra=None if self.extra is None else
+                       self.extra.iloc[index].reset_index(drop=True))
 
     def thinned(self, max_samples: int | None) -> Recording:
         """Every ``s``-th sample, ``s = ceil(K / max_samples)``; unchanged if already small."""
@@ -479,6 +488,16 @@ def _count_lines(path: Path) -> int:
     return n
 
 
+def _extra_frame(values: dict[int, np.ndarray], positions: dict[int, str],
+                 used: slice | np.ndarray) -> pd.DataFrame | None:
+    """The :data:`EXTRA_COLUMNS` read (``positions``: position -> name) on the rows kept, in
+    that order; None when the file has none."""
+    if not positions:
+        return None
+    by_name = {name: values[p][used] for p, name in positions.items()}
+    return pd.DataFrame({c: by_name[c] for c in EXTRA_COLUMNS if c in by_name})
+
+
 #: The geometry check of a longer recording looks at an even stride of this many samples: the
 #: spread and the coverage of 10 million samples are those of any 100 000 evenly spread ones,
 #: at a hundredth of the time and memory.
@@ -507,7 +526,9 @@ def read_samples(path: Path | str, columns: Sequence[object] | None = None, *,
         (:func:`check_geometry`).
     instance : str or number, optional
         The rows to keep when the header has an instance column (:data:`INSTANCE_COLUMNS`),
-        compared as text or as numbers (``1`` matches ``1.0``).
+        compared as text or as numbers (``1`` matches ``1.0``); for a flight log (a ``.ulg``,
+        ``.bin`` or ``.log`` file, :mod:`magbench.sources.logs`), the compass number, needed
+        when it has several.
 
     Returns
     -------
@@ -530,6 +551,9 @@ def read_samples(path: Path | str, columns: Sequence[object] | None = None, *,
         neither seconds nor ISO 8601 times is left out.
     """
     path = Path(path)
+    if is_log(path):          # .ulg, .bin, .log: magbench.sources.logs
+        return log_recording(path, instance, min_samples=min_samples, check=check,
+                             min_coverage=min_coverage, min_thickness=min_thickness)
     if path.is_dir():
         raise ValueError(f"file {path} is a folder; expected a CSV of magnetometer samples")
     if not path.is_file():
@@ -562,8 +586,12 @@ def read_samples(path: Path | str, columns: Sequence[object] | None = None, *,
               **({} if t_pos is None else {t_pos: "t"}),
               **({} if gyro_pos is None or t_pos is None else
                  dict(zip(gyro_pos, GYRO_COLUMNS, strict=True)))}
+    # Attitude, accelerometer, current, ... ride along (Recording.extra); text there is NaN.
+    extra_pos = {header.index(c): c for c in EXTRA_COLUMNS
+                 if header and c in header and header.index(c) not in wanted}
+    wanted |= extra_pos
     table, failed = _read_columns(path, layout, wanted, where,
-                                  optional=() if t_pos is None else (t_pos,))
+                                  optional=(() if t_pos is None else (t_pos,)) + tuple(extra_pos))
     keep, chosen = _instance_rows(path, layout, header, instance, table.shape[0])
     if keep is not None:
         table = table[keep]
@@ -597,7 +625,8 @@ def read_samples(path: Path | str, columns: Sequence[object] | None = None, *,
                          "are needed (the method's number of unknowns)")
     rec = Recording(path.parent.name if path.name == "data.csv" else path.stem, y,
                     None if t is None else t[used], None if gyro is None else gyro[used],
-                    n_rows=int(y.shape[0]), columns=tuple(names), instance=chosen)
+                    n_rows=int(y.shape[0]), columns=tuple(names), instance=chosen,
+                    extra=_extra_frame(values, extra_pos, used))
     if check:
         stride = math.ceil(rec.K / GEOMETRY_SAMPLES)
         check_geometry(rec.y[::stride], min_coverage=min_coverage,
@@ -744,3 +773,51 @@ def read_inertial(path: Path | str) -> InertialRecording:
     return InertialRecording(path.parent.name if path.name == "data.csv" else path.stem,
                              table["t"].to_numpy(dtype=float),
                              table[list(MAG_COLUMNS)].to_numpy(dtype=float), **streams)
+
+
+def log_recording(path: Path | str, instance: object = None, *, min_samples: int = 4,
+                  check: bool = True, min_coverage: float = MIN_COVERAGE,
+                  min_thickness: float = MIN_THICKNESS) -> Recording:
+    """One compass of a flight log (:mod:`magbench.sources.logs`) as a :class:`Recording`.
+
+    ``check`` (a calibration) also asks for :data:`MIN_LOG_SAMPLES` samples and the geometry
+    of :func:`~magbench.core.geometry.check_geometry`. The other streams go to
+    ``Recording.extra``; the gyro is ``Recording.gyro`` as well (rows where it is missing are
+    dropped with a warning, as the CSV reader does).
+
+    Raises
+    ------
+    ValueError
+        What :meth:`FlightLog.choose` and :func:`read_log` raise; non-finite or unusable
+        magnitudes; bad geometry. One line each.
+    """
+    path = Path(path)
+    log = read_log(path)
+    chosen = log.choose(instance, max(min_samples, MIN_LOG_SAMPLES) if check else min_samples)
+    table = log.table(chosen)
+    gyro_cols = list(GYRO_COLUMNS)
+    if all(c in table for c in gyro_cols):
+        missing = table[gyro_cols].isna().any(axis=1).to_numpy()
+        if missing.any():
+            warnings.warn(f"{path.name}: dropped {int(missing.sum())} of {len(table)} compass "
+                          "samples with no gyro sample around them (outside the gyro stream or "
+                          "in a gap of it)", UserWarning, stacklevel=2)
+            table = table[~missing].reset_index(drop=True)
+    y = table[list(MAG_COLUMNS)].to_numpy(float)
+    if not np.isfinite(y).all():
+        raise ValueError(f"{path.name}: the compass stream holds non-finite values")
+    what = f"the compass samples of {path.name} (instance {chosen})"
+    check_magnitude(y, what)
+    if y.shape[0] < min_samples:
+        raise ValueError(f"{path.name}: instance {chosen} has {y.shape[0]} usable samples; at "
+                         f"least {min_samples} are needed")
+    extra = table[[c for c in EXTRA_COLUMNS if c in table]]
+    rec = Recording(path.stem, y, table["t"].to_numpy(float),
+                    table[gyro_cols].to_numpy(float) if all(c in table for c in gyro_cols)
+                    else None, n_rows=len(y), columns=MAG_COLUMNS,
+                    instance=("instance", str(chosen)),
+                    extra=extra if len(extra.columns) else None)
+    if check:
+        check_geometry(rec.y, min_coverage=min_coverage, min_thickness=min_thickness,
+                       what=path.name)
+    return rec

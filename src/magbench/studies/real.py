@@ -41,6 +41,7 @@ they count neither for nor against robustness.
 
 from __future__ import annotations
 
+import functools
 import inspect
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
@@ -50,7 +51,7 @@ from typing import ClassVar
 import numpy as np
 import pandas as pd
 
-from magbench.core.files import write_csv_atomic
+from magbench.core.files import file_sha256, write_csv_atomic
 from magbench.core.geometry import coverage, sphere_fit
 from magbench.core.metrics import real_cost
 from magbench.core.model import Calibration
@@ -251,6 +252,14 @@ class RealStudy(Study):
     def unit_weight(self, unit: str) -> int:
         return 1
 
+    def describe(self) -> dict:
+        """The settings and the SHA-256 of every recording's file: a recording edited between
+        a killed run and its rerun makes another fingerprint, so no stale row is reused."""
+        out = super().describe()
+        out["recording_sha256"] = {name: _recording_sha256(Path(self.root) / name / "data.csv")
+                                   for name in self.datasets}
+        return out
+
     def run_unit(self, name: str) -> dict[str, list[dict]]:
         rec = load_recording(self.root, name, check=False).thinned(self.max_samples)
         partner = None
@@ -276,6 +285,21 @@ class RealStudy(Study):
         write_csv_atomic(per_recording, out_dir / "real_summary.csv")
         write_csv_atomic(per_method, out_dir / "fig6_real.csv")
         return per_recording, per_method
+
+
+def _recording_sha256(path: Path) -> str:
+    """SHA-256 of a recording's file ('missing' if it is not there), read once per version of
+    the file (its size and modification time) in this process."""
+    try:
+        stat = path.stat()
+    except OSError:
+        return "missing"
+    return _sha256_of(str(path), stat.st_size, stat.st_mtime_ns)
+
+
+@functools.lru_cache(maxsize=256)
+def _sha256_of(path: str, size: int, mtime_ns: int) -> str:
+    return file_sha256(path)
 
 
 def recording_summary(trials: pd.DataFrame) -> pd.DataFrame:

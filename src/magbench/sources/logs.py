@@ -1,0 +1,428 @@
+"""Flight logs: PX4 ULog (``.ulg``) and ArduPilot DataFlash (``.bin`` binary, ``.log`` text).
+
+One compass at a time (``instance``); its samples set the time base, and every other stream
+is interpolated onto their times, so a log gives the columns a CSV recording has:
+
+==========================  ===========================================================
+``t``                       seconds since the autopilot booted
+``mx, my, mz``              the compass, in the log's units (PX4 gauss, ArduPilot mGauss)
+``gx, gy, gz``              gyro, rad/s, vehicle body axes (FRD)
+``ax, ay, az``              accelerometer, m/s^2, body axes (``-g`` at rest)
+``qw, qx, qy, qz``          attitude, quaternion scalar first, body to world (NED)
+``current``                 battery current, A
+``throttle``                throttle demand, 0 to 1
+``temperature``             degrees C: the compass's own (PX4), else the IMU's (ArduPilot)
+==========================  ===========================================================
+
+A stream the log lacks is absent; a sample that falls outside another stream's span, or in a
+gap of it longer than :data:`GAP_INTERVALS` of that stream's median interval, gets NaN in
+that stream's columns (never a value carried across a gap). Vectors are interpolated
+linearly, the attitude quaternion by normalised linear interpolation along the shorter arc.
+
+The sources, and their conventions:
+
+- PX4 ULog (pyulog): ``sensor_mag`` (multi-instance; ``x, y, z`` in gauss, uncalibrated and
+  before ``CAL_MAGn_ROT``; ``temperature``; ``device_id``), ``sensor_combined``
+  (``gyro_rad``, ``accelerometer_m_s2``; else ``sensor_gyro`` / ``sensor_accel`` instance 0),
+  ``vehicle_attitude.q`` ("rotation from the FRD body frame to the NED earth frame", Hamilton,
+  ``q[0]`` the scalar: PX4 ``msg/VehicleAttitude.msg``, so taken as it is),
+  ``battery_status.current_a`` (negative means unknown), ``actuator_controls_0.control[3]``.
+  Times are ``timestamp_sample`` where logged, else ``timestamp`` (microseconds).
+- ArduPilot DataFlash (pymavlink's ``DFReader``): ``MAG`` (instance ``I``; older logs
+  ``MAG2``, ``MAG3``). ``MagX..Z`` is the field after the firmware's own correction,
+  ``M (raw + OFS) + MOT`` (``AP_Compass_Backend::correct_field``); this reader returns
+  ``Mag - Ofs - MO``, which is the raw field when ``COMPASS_DIA``/``ODI`` are at their
+  defaults (1, 0), as MAVExplorer's magfit does. ``IMU`` instance 0 (``GyrX..``,
+  ``AccX..``, ``T``), ``ATT`` (``Roll, Pitch, Yaw`` in degrees, body to NED as
+  ``Matrix3::from_euler``, converted to the quaternion), ``BAT`` instance 0 (``Curr``),
+  ``CTUN.ThO``. Times are ``TimeUS``.
+
+The body axes are the vehicle's: they are the compass's own when its mounting rotation is
+none (:mod:`magbench.core.mounting` detects it).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import math
+import os
+import sys
+import tempfile
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from magbench.core.quaternions import matrix_to_quat
+from magbench.core.rotations import euler_zyx_to_matrix
+
+__all__ = ["EXTRA_COLUMNS", "GAP_INTERVALS", "LOG_COLUMNS", "LOG_SUFFIXES", "MIN_LOG_SAMPLES",
+           "FlightLog", "align", "is_log", "log_units", "rate_hz", "read_log"]
+
+#: File suffixes read as flight logs.
+LOG_SUFFIXES = (".ulg", ".bin", ".log")
+
+#: Optional time-aligned columns beside the gyro (``Recording.extra``; a CSV may have them
+#: too): accelerometer m/s^2, attitude quaternion (scalar first, body to world), current A,
+#: throttle 0-1, temperature C.
+EXTRA_COLUMNS = ("ax", "ay", "az", "qw", "qx", "qy", "qz", "current", "throttle", "temperature")
+
+#: The columns a log adds to ``t, mx, my, mz`` (when it has the stream), in this order.
+LOG_COLUMNS = ("gx", "gy", "gz", *EXTRA_COLUMNS)
+
+#: A stream's value is interpolated only between two of its samples at most this many of its
+#: median intervals apart (a longer gap gives NaN).
+GAP_INTERVALS = 5.0
+
+#: Fewest compass samples a calibration from a log accepts: each half in time must hold the
+#: full model's minimum (10), since the verdict is held out.
+MIN_LOG_SAMPLES = 20
+
+
+def log_units(path: Path | str) -> str:
+    """The compass unit of a log by its kind: PX4 logs gauss, ArduPilot milligauss."""
+    return "gauss" if Path(path).suffix.lower() == ".ulg" else "milligauss"
+
+
+def is_log(path: Path | str) -> bool:
+    """Whether ``path`` is read as a flight log (by its suffix)."""
+    return Path(path).suffix.lower() in LOG_SUFFIXES
+
+
+@dataclass
+class Stream:
+    """One logged stream: times (s, increasing) and values (n, d)."""
+
+    t: np.ndarray
+    values: np.ndarray
+
+    def clean(self) -> Stream:
+        """Sorted by time, repeated times and rows with a non-finite time dropped."""
+        keep = np.isfinite(self.t)
+        t, v = self.t[keep], self.values[keep]
+        order = np.argsort(t, kind="stable")
+        t, v = t[order], v[order]
+        first = np.concatenate([[True], np.diff(t) > 0]) if t.size else np.zeros(0, bool)
+        return Stream(t[first], v[first])
+
+
+@dataclass
+class FlightLog:
+    """The streams of one log, before alignment.
+
+    Attributes
+    ----------
+    path : Path
+    kind : str
+        ``ulog`` or ``dataflash``.
+    mags : dict
+        ``instance -> Stream`` of the compasses (values: x, y, z and, PX4, temperature).
+    devices : dict
+        ``instance -> device id`` where logged.
+    units : str
+        The compass's units.
+    streams : dict
+        ``group -> (columns, Stream)`` for the gyro, accelerometer, attitude, current,
+        throttle and board temperature.
+    """
+
+    path: Path
+    kind: str
+    mags: dict[int, Stream]
+    units: str
+    devices: dict[int, int] = field(default_factory=dict)
+    streams: dict[str, tuple[tuple[str, ...], Stream]] = field(default_factory=dict)
+
+    def describe(self) -> str:
+        """The compasses, e.g. ``0 (device 396809, 6 samples), 1 (...)``."""
+        parts = []
+        for i, s in sorted(self.mags.items()):
+            dev = f"device {self.devices[i]}, " if i in self.devices else ""
+            parts.append(f"{i} ({dev}{len(s.t)} samples)")
+        return ", ".join(parts)
+
+    def choose(self, instance: object, min_samples: int = 1) -> int:
+        """The compass instance to read.
+
+        Raises
+        ------
+        ValueError
+            No compass; an unknown instance; several and none named (listed); or every
+            candidate shorter than ``min_samples``.
+        """
+        name = self.path.name
+        instance = _instance_number(instance, name)
+        if not self.mags:
+            raise ValueError(f"{name}: no magnetometer stream in this {self.kind} log "
+                             f"({'sensor_mag' if self.kind == 'ulog' else 'MAG'} messages)")
+        if instance is not None and int(instance) not in self.mags:
+            raise ValueError(f"{name}: no compass instance {instance}; instances: "
+                             f"{self.describe()}")
+        pool = [int(instance)] if instance is not None else sorted(self.mags)
+        if all(len(self.mags[i].t) < min_samples for i in pool):
+            counts = " and ".join(str(len(self.mags[i].t)) for i in pool)
+            what = "stream is" if len(pool) == 1 else "streams are"
+            raise ValueError(f"{name}: the magnetometer {what} too short to calibrate: {counts} "
+                             f"samples (instance{'' if len(pool) == 1 else 's'} "
+                             f"{', '.join(map(str, pool))}); at least {min_samples} are needed "
+                             "(log the compass at its full rate over a calibration manoeuvre)")
+        if len(pool) > 1:
+            raise ValueError(f"{name} has {len(pool)} compasses; choose one with instance=N: "
+                             f"{self.describe()}")
+        return pool[0]
+
+    def table(self, instance: int) -> pd.DataFrame:
+        """The compass ``instance`` and every other stream on its times (module notes)."""
+        mag = self.mags[instance]
+        out = {"t": mag.t, "mx": mag.values[:, 0], "my": mag.values[:, 1],
+               "mz": mag.values[:, 2]}
+        extra: dict[str, np.ndarray] = {}
+        for group, (columns, stream) in self.streams.items():
+            values = align(mag.t, stream, quaternion=group == "attitude")
+            if np.isfinite(values).any():           # a stream never measured is left out
+                extra.update(zip(columns, values.T, strict=True))
+        if mag.values.shape[1] > 3 and np.isfinite(mag.values[:, 3]).any():
+            extra["temperature"] = mag.values[:, 3]       # the compass's own, preferred
+        out.update((c, extra[c]) for c in LOG_COLUMNS if c in extra)
+        return pd.DataFrame(out)
+
+
+def _instance_number(value: object, name: str) -> int | None:
+    """``instance`` as a compass number (``1``, ``"1"``, ``1.0``), or None if unset."""
+    if value is None:
+        return None
+    try:
+        number = float(str(value).strip())
+    except ValueError:
+        number = math.nan
+    if not (number.is_integer() and number >= 0):
+        raise ValueError(f"{name}: instance must be a compass number of the log (0, 1, ...), "
+                         f"got {value!r}")
+    return int(number)
+
+
+def align(t: np.ndarray, stream: Stream, *, quaternion: bool = False) -> np.ndarray:
+    """``stream`` linearly interpolated at times ``t`` (NaN outside it and across gaps).
+
+    A gap is two consecutive samples more than :data:`GAP_INTERVALS` median intervals apart.
+    ``quaternion``: rows are unit quaternions; their signs are made continuous first and the
+    result is normalised (normalised linear interpolation along the shorter arc).
+    """
+    s = stream.clean()
+    out = np.full((len(t), s.values.shape[1]), np.nan)
+    if len(s.t) < 2:
+        return out
+    v = s.values.astype(float)
+    if quaternion:
+        flips = np.cumprod(np.where(np.einsum("ki,ki->k", v[1:], v[:-1]) < 0, -1.0, 1.0))
+        v = v * np.concatenate([[1.0], flips])[:, None]
+    j = np.searchsorted(s.t, t, side="right")           # s.t[j-1] <= t < s.t[j]
+    inside = (j > 0) & (j < len(s.t)) | (t == s.t[-1])
+    j = np.clip(j, 1, len(s.t) - 1)
+    dt = s.t[j] - s.t[j - 1]
+    limit = GAP_INTERVALS * float(np.median(np.diff(s.t)))
+    inside &= dt <= limit
+    w = ((t - s.t[j - 1]) / dt)[:, None]
+    values = (1 - w) * v[j - 1] + w * v[j]
+    if quaternion:
+        values /= np.linalg.norm(values, axis=1, keepdims=True)
+    out[inside] = values[inside]
+    return out
+
+
+def read_log(path: Path | str) -> FlightLog:
+    """Read a ULog or DataFlash log's streams (by suffix).
+
+    Raises
+    ------
+    ValueError
+        An unknown suffix, a file that is not such a log, or a missing reader package (the
+        ``logs`` extra); one line.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise ValueError(f"file {path} not found; expected a flight log (.ulg, .bin or .log)")
+    suffix = path.suffix.lower()
+    readers: dict[str, Callable[[Path], FlightLog]] = {".ulg": _read_ulog, ".bin": _read_dataflash,
+                                                       ".log": _read_dataflash}
+    if suffix not in readers:
+        raise ValueError(f"{path.name}: not a flight log ({', '.join(LOG_SUFFIXES)})")
+    return readers[suffix](path)
+
+
+def _need(module: str, package: str) -> object:
+    import importlib
+
+    try:
+        return importlib.import_module(module)
+    except ImportError:
+        raise ValueError(f"reading this log needs {package}: pip install 'magbench[logs]' (or "
+                         f"pip install {package})") from None
+
+
+ULOG_TOPICS = ["sensor_mag", "sensor_combined", "sensor_accel", "sensor_gyro",
+               "vehicle_attitude", "battery_status", "actuator_controls_0"]
+
+
+def _read_ulog(path: Path) -> FlightLog:
+    pyulog = _need("pyulog", "pyulog")
+    try:
+        with contextlib.redirect_stdout(io.StringIO()), \
+                contextlib.redirect_stderr(io.StringIO()):    # pyulog prints its warnings
+            ulog = pyulog.ULog(str(path), ULOG_TOPICS)
+    except Exception as exc:        # pyulog raises bare exceptions on a corrupt file
+        raise ValueError(f"{path.name}: cannot read as ULog ({exc})") from None
+    data = {(d.name, d.multi_id): d.data for d in ulog.data_list}
+
+    def times(d: dict) -> np.ndarray:
+        return np.asarray(d.get("timestamp_sample", d["timestamp"]), dtype=float) / 1e6
+
+    def cols(d: dict, names: list[str]) -> np.ndarray:
+        return np.column_stack([np.asarray(d[n], dtype=float) if n in d else
+                                np.full(len(d["timestamp"]), np.nan) for n in names])
+
+    mags, devices = {}, {}
+    for (name, i), d in data.items():
+        if name == "sensor_mag":
+            mags[i] = Stream(times(d), cols(d, ["x", "y", "z", "temperature"])).clean()
+            if "device_id" in d and len(d["device_id"]):
+                devices[i] = int(d["device_id"][0])
+    log = FlightLog(path, "ulog", mags, "gauss", devices)
+    combined = data.get(("sensor_combined", 0))
+    if combined is not None:
+        t = times(combined)
+        log.streams["gyro"] = (("gx", "gy", "gz"), Stream(t, cols(
+            combined, [f"gyro_rad[{i}]" for i in range(3)])))
+        t_acc = t + np.asarray(combined.get("accelerometer_timestamp_relative", 0)) / 1e6
+        log.streams["accel"] = (("ax", "ay", "az"), Stream(t_acc, cols(
+            combined, [f"accelerometer_m_s2[{i}]" for i in range(3)])))
+    else:
+        for topic, group, names in (("sensor_gyro", "gyro", ("gx", "gy", "gz")),
+                                    ("sensor_accel", "accel", ("ax", "ay", "az"))):
+            if (topic, 0) in data:
+                d = data[(topic, 0)]
+                log.streams[group] = (names, Stream(times(d), cols(d, ["x", "y", "z"])))
+    if ("vehicle_attitude", 0) in data:
+        d = data[("vehicle_attitude", 0)]
+        log.streams["attitude"] = (("qw", "qx", "qy", "qz"),
+                                   Stream(times(d), cols(d, [f"q[{i}]" for i in range(4)])))
+    if ("battery_status", 0) in data:
+        d = data[("battery_status", 0)]
+        current = cols(d, ["current_a"])
+        current[current < 0] = np.nan                      # -1: not measured
+        log.streams["current"] = (("current",), Stream(times(d), current))
+    if ("actuator_controls_0", 0) in data:
+        d = data[("actuator_controls_0", 0)]
+        log.streams["throttle"] = (("throttle",), Stream(times(d), cols(d, ["control[3]"])))
+    return log
+
+
+#: DataFlash messages read and the fields taken from each.
+DATAFLASH_TYPES = ["MAG", "MAG2", "MAG3", "IMU", "ATT", "BAT", "CTUN"]
+
+
+@contextlib.contextmanager
+def _held_back() -> Iterator[io.StringIO]:
+    """Standard output and error, the file descriptors themselves, go to a buffer for the
+    block (pymavlink's compiled indexer prints a line per unreadable byte from C); the text
+    is in the yielded buffer afterwards."""
+    text = io.StringIO()
+    for stream in (sys.stdout, sys.stderr):
+        stream.flush()
+    saved = [os.dup(1), os.dup(2)]
+    with tempfile.TemporaryFile(mode="w+b") as sink:
+        try:
+            os.dup2(sink.fileno(), 1)
+            os.dup2(sink.fileno(), 2)
+            with contextlib.redirect_stdout(text), contextlib.redirect_stderr(text):
+                yield text
+        finally:
+            for stream in (sys.stdout, sys.stderr):
+                stream.flush()
+            os.dup2(saved[0], 1)
+            os.dup2(saved[1], 2)
+            for fd in saved:
+                os.close(fd)
+            sink.seek(0)
+            text.write(sink.read().decode(errors="replace"))
+            text.seek(0)
+
+
+def _dataflash_rows(path: Path) -> dict[str, list]:
+    """Every wanted message as a list of field dicts, per type. pymavlink's own messages
+    (a line per unreadable byte) are held back; a file with no readable message is one
+    error."""
+    reader = _need("pymavlink.DFReader", "pymavlink")
+    cls = reader.DFReader_binary if path.suffix.lower() == ".bin" else reader.DFReader_text
+    rows: dict[str, list] = {t: [] for t in DATAFLASH_TYPES}
+    try:
+        with _held_back() as chatter:
+            log = cls(str(path), zero_time_base=False)
+            while (msg := log.recv_match(type=DATAFLASH_TYPES)) is not None:
+                rows[msg.get_type()].append(msg.to_dict())
+    except Exception as exc:        # pymavlink raises bare exceptions on a corrupt file
+        raise ValueError(f"{path.name}: cannot read as a DataFlash log "
+                         f"({' '.join(str(exc).split()) or type(exc).__name__})") from None
+    if not any(rows.values()) and "bad header" in chatter.read():
+        raise ValueError(f"{path.name}: not a DataFlash log (no valid message header; expected "
+                         "ArduPilot's binary .bin or text .log)")
+    return rows
+
+
+def _frame(rows: list[dict], instance_key: str | None = None,
+           instance: int = 0) -> pd.DataFrame | None:
+    """The rows as a table, restricted to ``instance`` when they carry an instance field."""
+    if not rows:
+        return None
+    frame = pd.DataFrame(rows)
+    key = next((k for k in (instance_key, "I", "Inst", "Instance") if k and k in frame), None)
+    if key is not None:
+        frame = frame[frame[key] == instance]
+    return frame if len(frame) else None
+
+
+def _read_dataflash(path: Path) -> FlightLog:
+    rows = _dataflash_rows(path)
+    mags: dict[int, Stream] = {}
+    frame = pd.DataFrame(rows["MAG"]) if rows["MAG"] else None
+    parts = [] if frame is None else (
+        [(int(i), f) for i, f in frame.groupby("I")] if "I" in frame else [(0, frame)])
+    parts += [(n - 1, pd.DataFrame(rows[f"MAG{n}"])) for n in (2, 3) if rows[f"MAG{n}"]]
+    for i, f in parts:
+        raw = np.column_stack([f[f"Mag{a}"] - f.get(f"Ofs{a}", 0) - f.get(f"MO{a}", 0)
+                               for a in "XYZ"]).astype(float)
+        mags[i] = Stream(f["TimeUS"].to_numpy(float) / 1e6, raw).clean()
+    log = FlightLog(path, "dataflash", mags, "milligauss")
+    imu = _frame(rows["IMU"])
+    if imu is not None:
+        t = imu["TimeUS"].to_numpy(float) / 1e6
+        log.streams["gyro"] = (("gx", "gy", "gz"), Stream(t, imu[["GyrX", "GyrY", "GyrZ"]]
+                                                            .to_numpy(float)))
+        log.streams["accel"] = (("ax", "ay", "az"), Stream(t, imu[["AccX", "AccY", "AccZ"]]
+                                                             .to_numpy(float)))
+        if "T" in imu:
+            log.streams["temperature"] = (("temperature",), Stream(t, imu[["T"]].to_numpy(float)))
+    att = _frame(rows["ATT"])
+    if att is not None:
+        angles = np.deg2rad(att[["Roll", "Pitch", "Yaw"]].to_numpy(float))
+        q = matrix_to_quat(euler_zyx_to_matrix(angles[:, 0], angles[:, 1], angles[:, 2]))
+        log.streams["attitude"] = (("qw", "qx", "qy", "qz"),
+                                   Stream(att["TimeUS"].to_numpy(float) / 1e6, q))
+    bat = _frame(rows["BAT"])
+    if bat is not None and "Curr" in bat:
+        log.streams["current"] = (("current",), Stream(bat["TimeUS"].to_numpy(float) / 1e6,
+                                                       bat[["Curr"]].to_numpy(float)))
+    ctun = _frame(rows["CTUN"])
+    if ctun is not None and "ThO" in ctun:
+        log.streams["throttle"] = (("throttle",), Stream(ctun["TimeUS"].to_numpy(float) / 1e6,
+                                                         ctun[["ThO"]].to_numpy(float)))
+    return log
+
+
+def rate_hz(t: np.ndarray) -> float:
+    """Median sample rate of increasing times (nan with fewer than two)."""
+    return float(1.0 / np.median(np.diff(t))) if len(t) > 1 else math.nan
+

@@ -1,0 +1,111 @@
+"""What a flight log adds to a calibration: the compass's mounting rotation and its
+time-varying terms.
+
+After the static calibration ``m = A (y - b)`` (the safe gauge, so ``m`` stays in the
+compass's own axes), the logged attitude (or, without one, the accelerometer at rest) ranks
+the autopilots' standard rotations by how constant the field is in world axes
+(:func:`magbench.core.mounting.detect_mounting`). The current (or throttle) and temperature
+streams are the regressors of ``y = T m + h + C u(t)``, kept only when they lower the
+held-out error (:mod:`magbench.methods.regressors`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from magbench.core.mounting import MountingResult, detect_mounting
+from magbench.core.quaternions import quat_to_matrix
+from magbench.methods.regressors import HeldOutChoice, StaticFit, held_out_choice
+from magbench.sources.recordings import Recording
+
+__all__ = ["QUATERNION", "REGRESSORS", "check_regressors", "mounting_rotation",
+           "time_varying_terms",
+           "usable_regressors"]
+
+QUATERNION = ["qw", "qx", "qy", "qz"]
+ACCEL = ["ax", "ay", "az"]
+
+
+def mounting_rotation(rec: Recording, A: np.ndarray, b: np.ndarray,
+                      keep: np.ndarray | None = None,
+                      corrected: np.ndarray | None = None) -> MountingResult | None:
+    """The mounting rotation of a recording's compass, or None without attitude or accelerometer.
+
+    Parameters
+    ----------
+    rec : Recording
+        With ``extra`` holding ``qw..qz`` (preferred) or ``ax..az``.
+    A, b : ndarray
+        The correction ``m = A (y - b)``.
+    keep : ndarray of bool, optional
+        Samples to use (the calibration's inliers); rows without attitude are left out too.
+    corrected : ndarray of shape (K, 3), optional
+        The corrected samples to use instead of ``A (y - b)`` (with time-varying terms).
+    """
+    if rec.extra is None:
+        return None
+    base = np.ones(rec.K, bool) if keep is None else np.asarray(keep, bool)
+    m = (rec.y - b) @ np.asarray(A).T if corrected is None else np.asarray(corrected)
+    base = base & np.isfinite(m).all(axis=1)
+    if all(c in rec.extra for c in QUATERNION):
+        q = rec.extra[QUATERNION].to_numpy(float)
+        use = base & np.isfinite(q).all(axis=1)
+        if use.sum() >= 2:
+            unit = q[use] / np.linalg.norm(q[use], axis=1, keepdims=True)   # nearly unit
+            return detect_mounting(m[use], attitude=quat_to_matrix(unit))
+    if all(c in rec.extra for c in ACCEL):
+        a = rec.extra[ACCEL].to_numpy(float)
+        use = base & np.isfinite(a).all(axis=1)
+        if use.sum() >= 2:
+            return detect_mounting(m[use], accel=a[use])
+    return None
+
+
+#: Regressors of the time-varying terms, in the order ``compensate=auto`` looks for them: the
+#: current (else the throttle, its stand-in, as ArduPilot's COMPASS_MOTCT allows) and the
+#: temperature.
+REGRESSORS = ("current", "throttle", "temperature")
+
+
+def usable_regressors(rec: Recording, wanted: list[str] | None = None) -> list[str]:
+    """The regressors to fit: ``wanted`` as given, or (None) those of :data:`REGRESSORS` the
+    recording has with values in at least 90 % of its samples and not constant (current
+    before throttle: one of them)."""
+    if wanted is not None:
+        return list(wanted)
+    if rec.extra is None:
+        return []
+    found = []
+    for name in REGRESSORS:
+        if name not in rec.extra or (name == "throttle" and "current" in found):
+            continue
+        values = rec.extra[name].to_numpy(float)
+        finite = values[np.isfinite(values)]
+        if finite.size >= 0.9 * rec.K and np.ptp(finite) > 0:
+            found.append(name)
+    return found
+
+
+def check_regressors(rec: Recording, names: list[str]) -> None:
+    """:class:`ValueError` (one line) if the recording lacks one of ``names``."""
+    missing = [n for n in names if rec.extra is None or n not in rec.extra]
+    if missing:
+        have = ", ".join(c for c in REGRESSORS if rec.extra is not None and c in rec.extra)
+        raise ValueError(f"compensate: the recording has no {', '.join(missing)} column "
+                         f"(it has: {have or 'none of current, throttle, temperature'})")
+
+
+def time_varying_terms(rec: Recording, names: list[str], static_fit: StaticFit,
+                       keep: np.ndarray | None = None) -> HeldOutChoice:
+    """:func:`magbench.methods.regressors.held_out_choice` on the samples (``keep``, default
+    all) where every regressor in ``names`` has a value.
+
+    Raises
+    ------
+    ValueError
+        If the recording lacks one of ``names``.
+    """
+    check_regressors(rec, names)
+    u = rec.extra[names].to_numpy(float)
+    use = np.isfinite(u).all(axis=1) & (np.ones(rec.K, bool) if keep is None else keep)
+    return held_out_choice(rec.y[use], u[use], static_fit)

@@ -1,0 +1,138 @@
+"""``python -m magbench extract``: a flight log's compass as CSV; one-line errors; calibrate's
+answer on the shared sample logs."""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from magbench.cli import main
+from magbench.cli.main import command_help
+from magbench.sources.logs import read_log
+from tests.sources.test_logs import SHARED_LOGS, T0, mag0, px4_log
+
+
+def test_extract_writes_the_aligned_table_that_calibrate_reads_back(tmp_path, capsys):
+    log = px4_log(tmp_path / "flight.ulg")
+    out = tmp_path / "data.csv"
+    assert main(["extract", f"file={log}", "instance=0", f"out={out}"]) == 0
+    said = capsys.readouterr().out
+    assert said.startswith(f"flight.ulg: compass instance 0 (device 11, gauss), {len(T0)} "
+                           "samples at 20 Hz from t = 0.200 to 5.950 s; columns t, mx, my, mz, "
+                           "gx, gy, gz, ax, ay, az, qw, qx, qy, qz, current, throttle, "
+                           "temperature; no value (outside the stream or in a gap): gx 6,")
+    frame = pd.read_csv(out)
+    expected = read_log(log).table(0)
+    pd.testing.assert_frame_equal(frame, expected, check_exact=False, rtol=1e-12)
+    np.testing.assert_allclose(frame[["mx", "my", "mz"]], mag0(T0), rtol=1e-5)
+    # The CSV reader keeps the same extra columns (rows without gyro dropped, as for the log).
+    from magbench.sources.recordings import read_samples
+
+    with pytest.warns(UserWarning, match="dropped 6 of 116 rows"):
+        rec = read_samples(out, check=False)
+    assert rec.has_gyro and list(rec.extra.columns) == ["ax", "ay", "az", "qw", "qx", "qy",
+                                                         "qz", "current", "throttle",
+                                                         "temperature"]
+
+
+def test_extract_errors_are_one_line(tmp_path, capsys):
+    log = px4_log(tmp_path / "flight.ulg")
+    assert main(["extract", f"file={log}", f"out={tmp_path / 'x.csv'}"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err == ("magbench: error: flight.ulg has 2 compasses; choose one with instance=N: "
+                   "0 (device 11, 116 samples), 1 (device 22, 50 samples)")
+    assert main(["extract", f"file={log}", "instance=-1"]) == 2
+    assert "instance must be a compass number of the log (0, 1, ...), got '-1'" in \
+        capsys.readouterr().err
+    (tmp_path / "a.csv").write_text("mx,my,mz\n1,2,3\n")
+    assert main(["extract", f"file={tmp_path / 'a.csv'}"]) == 2
+    assert "extract reads flight logs (.ulg, .bin, .log); a.csv is not one" in \
+        capsys.readouterr().err
+    assert main(["extract"]) == 2
+    assert "extract needs file=PATH" in capsys.readouterr().err
+
+
+def test_extract_help_lists_its_keys():
+    text = command_help("extract")
+    for key in ("file", "instance", "out", "overwrite"):
+        assert f"\n  {key} " in text
+
+
+@pytest.mark.skipif(not SHARED_LOGS, reason="the shared sample logs are not here")
+@pytest.mark.parametrize("path", SHARED_LOGS, ids=lambda p: p.name)
+def test_calibrate_on_the_shared_logs_says_the_stream_is_too_short(path, tmp_path, capsys):
+    assert main(["calibrate", f"file={path}", f"out={tmp_path / 'cal'}"]) == 2
+    captured = capsys.readouterr()
+    lines = captured.err.strip().splitlines()
+    assert len(lines) == 1 and "the magnetometer streams are too short to calibrate" in lines[0]
+    assert ("6 and 6 samples" in lines[0]) or ("11 and 11 samples" in lines[0])
+    assert not (tmp_path / "cal").exists()
+    assert main(["calibrate", f"file={path}", "instance=0", f"out={tmp_path / 'cal'}"]) == 2
+    assert "the magnetometer stream is too short" in capsys.readouterr().err
+
+
+def test_calibrate_from_a_log_reports_the_mounting_rotation(tmp_path, capsys):
+    import json
+
+    from tests.studies.test_flight import simulated_ulog
+
+    log = simulated_ulog(tmp_path / "flight.ulg", 6, seed=4, seconds=30.0)
+    out = tmp_path / "cal"
+    assert main(["calibrate", f"file={log}", f"out={out}", "bootstrap=0"]) == 0
+    said = capsys.readouterr().out
+    line = next(s for s in said.splitlines() if s.startswith("mounting rotation:"))
+    assert line.startswith("mounting rotation: ROTATION_YAW_270 (id 6) from the attitude, "
+                           "confidence ")
+    found = json.loads((out / "calibration.json").read_text())["mounting_rotation"]
+    assert found["id"] == 6 and found["confidence"] > 2 and found["basis"] == "attitude"
+
+
+def test_calibrate_from_a_log_fits_the_current_term_and_keeps_it(tmp_path, capsys):
+    import json
+
+    from tests.studies.test_flight import simulated_ulog
+
+    motor = np.array([0.004, -0.002, 0.003])               # gauss per A
+    log = simulated_ulog(tmp_path / "flight.ulg", 0, seed=5, seconds=30.0, motor=motor)
+    out = tmp_path / "cal"
+    assert main(["calibrate", f"file={log}", f"out={out}", "bootstrap=0"]) == 0
+    said = capsys.readouterr().out
+    line = next(s for s in said.splitlines() if s.startswith("time-varying terms"))
+    assert "u = current" in line and ": kept; C per unit of u" in line
+    # The rotation is detected on the samples corrected with the kept term.
+    rotation = next(s for s in said.splitlines() if s.startswith("mounting rotation"))
+    assert rotation.startswith("mounting rotation: ROTATION_NONE (id 0)")
+    terms = json.loads((out / "calibration.json").read_text())["time_varying"]
+    assert terms["kept"] and terms["held_out_time_varying"] < 0.1 * terms["held_out_static"]
+    np.testing.assert_allclose(np.array(terms["C"])[:, 0], motor, atol=2e-4)
+    assert main(["calibrate", f"file={log}", f"out={tmp_path / 'none'}", "bootstrap=0",
+                 "compensate=none"]) == 0
+    assert "time-varying" not in capsys.readouterr().out
+    assert "time_varying" not in json.loads((tmp_path / "none" / "calibration.json").read_text())
+    assert main(["calibrate", f"file={log}", "compensate=[temperature]"]) == 2
+    assert capsys.readouterr().err.strip() == ("magbench: error: compensate: the recording has "
+                                               "no temperature column (it has: current)")
+    assert main(["calibrate", f"file={log}", "compensate=[wind]"]) == 2
+    assert "compensate must be auto, none or a list of current, throttle, temperature" in \
+        capsys.readouterr().err
+
+
+def test_apply_reads_one_compass_of_a_log(tmp_path, capsys):
+    import json
+
+    from magbench.core.exports import to_json_dict
+    from magbench.core.model import Calibration
+
+    log = px4_log(tmp_path / "flight.ulg")
+    cal = tmp_path / "calibration.json"
+    cal.write_text(json.dumps(to_json_dict(Calibration(2 * np.eye(3), np.zeros(3)))))
+    out = tmp_path / "corrected.csv"
+    assert main(["apply", f"calibration={cal}", f"file={log}", f"out={out}"]) == 2
+    assert "has 2 compasses; choose one with instance=N" in capsys.readouterr().err
+    assert main(["apply", f"calibration={cal}", f"file={log}", "instance=1",
+                 f"out={out}"]) == 0
+    frame = pd.read_csv(out)
+    from tests.sources.test_logs import T1, mag1
+
+    np.testing.assert_allclose(frame[["mx", "my", "mz"]], mag1(T1) / 2, rtol=1e-5)
