@@ -38,3 +38,8 @@ def test_the_bench_section_shows_scale_alone(tmp_path):
     scale_csv().to_csv(tmp_path / "bench" / "scale.csv", index=False)
     text = bench_report_section(tmp_path)
     assert text.startswith("## Speed (benchmark)") and "trials^1.00" in text
+
+
+def test_a_rounded_away_shrink_reads_as_zero():
+    frame = scale_csv().assign(worker_peak_rss_mb=[80.0, 79.99, 79.98])
+    assert "largest worker's reached 80 MB (trials^0.00)" in "\n".join(scale_lines(frame))

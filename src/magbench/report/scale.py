@@ -25,6 +25,12 @@ def growth_exponent(scale: pd.DataFrame, column: str) -> float:
     return float(np.log(y1 / y0) / np.log(n1 / n0))
 
 
+def _exponent(scale: pd.DataFrame, column: str) -> str:
+    """:func:`growth_exponent` to two decimals, a rounded-away negative zero as 0.00."""
+    text = f"{growth_exponent(scale, column):.2f}"
+    return "0.00" if text == "-0.00" else text
+
+
 def scale_lines(scale: pd.DataFrame) -> list[str]:
     """Markdown lines: the paragraph on how the time and the memory grow with the trials
     (none with fewer than two sizes)."""
@@ -36,8 +42,8 @@ def scale_lines(scale: pd.DataFrame) -> list[str]:
         "bench.scale", methods=int(small["methods"]), n0=int(small["trials"]),
         n1=int(large["trials"]), time0=compact_number(small["total_s"]),
         time1=compact_number(large["total_s"]),
-        time_exp=f"{growth_exponent(scale, 'total_s'):.2f}",
+        time_exp=_exponent(scale, "total_s"),
         mem0=f"{small['peak_rss_mb']:.0f}", mem1=f"{large['peak_rss_mb']:.0f}",
-        mem_exp=f"{growth_exponent(scale, 'peak_rss_mb'):.2f}",
+        mem_exp=_exponent(scale, "peak_rss_mb"),
         worker1=f"{large['worker_peak_rss_mb']:.0f}",
-        worker_exp=f"{growth_exponent(scale, 'worker_peak_rss_mb'):.2f}")]
+        worker_exp=_exponent(scale, "worker_peak_rss_mb"))]
