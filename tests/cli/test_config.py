@@ -115,6 +115,11 @@ CASES = [
     (["backend=dask", "scheduler_address=garbage", *SWEEP], "scheduler_address must be"),
     (["sweep=baseline", "+sweep.rate_hz=3", *SWEEP], "unknown key(s) sweep.rate_hz"),
     (["calibrate", "file={rec}", "seed=-1"], "seed must be an integer >= 0"),
+    (["bench", "scale=abc"], "scale must be a list of trial counts"),
+    (["bench", "scale=[10]"], "scale[0] must be an integer in [1000, 10000000], got 10"),
+    (["bench", "scale=[10000,1e9]"], "scale[1] must be an integer in [1000, 10000000], got 1"),
+    (["bench", "scale=[100000000]"], "scale[0] must be an integer in [1000, 10000000]"),
+    (["bench", "scale=[]"], "scale must be a list of trial counts"),
     (["calibrate", "file={rec}", "max_samples=0"], "max_samples must be an integer >= 8"),
 ]
 

@@ -61,3 +61,52 @@ def test_coverage_and_gap_of_known_shapes():
     radius, centre = largest_gap(_cap(rng, 20_000, 60.0, axis=(1.0, 0.0, 0.0)))
     assert radius == pytest.approx(120.0, abs=3.0) and centre[0] < -0.99
     assert largest_gap(np.zeros((0, 3)))[0] == 180.0 and coverage(np.zeros((0, 3))) == 0.0
+
+
+def test_direction_cells_are_equal_area():
+    from magbench.core.geometry import DIRECTION_CELLS, direction_cells
+
+    counts = np.bincount(direction_cells(fibonacci_sphere(100 * DIRECTION_CELLS)))
+    assert counts.size == 14 * 28                          # 14 bands of z, 28 of longitude
+    mean = 100 * DIRECTION_CELLS / counts.size
+    assert 0.9 * mean <= counts.min() and counts.max() <= 1.1 * mean
+
+
+def test_a_still_stretch_is_thinned_to_one_cell_and_an_even_sphere_is_not():
+    from magbench.core.geometry import (
+        CELL_CAP_FACTOR,
+        CELL_CAP_MIN,
+        direction_cells,
+        thin_by_direction,
+    )
+
+    rng = np.random.default_rng(0)
+    sphere = rng.permutation(fibonacci_sphere(2000))
+    assert thin_by_direction(sphere).all()                    # nothing to thin
+    still = np.array([0.3, 0.2, 0.9]) + 1e-4 * rng.standard_normal((2000, 3))
+    keep = thin_by_direction(np.vstack([still, sphere]))
+    same = direction_cells(sphere) == direction_cells(still[:1])[0]
+    assert keep[2000:][~same].all()                           # other directions untouched
+    cap = np.bincount(direction_cells(sphere)).max()
+    assert CELL_CAP_MIN <= keep[:2000].sum() <= CELL_CAP_FACTOR * cap   # a cell of the still
+    kept = np.flatnonzero(keep[:2000])
+    assert kept[0] == 0 and kept[-1] > 1500                   # spread over the stretch
+
+
+def test_distinct_rows_collapse_a_still_stretch_whatever_the_offset():
+    from magbench.core.geometry import distinct_rows
+
+    rng = np.random.default_rng(1)
+    sphere = fibonacci_sphere(500) * 50.0 + [900.0, -300.0, 40.0]
+    still = sphere[0] + 0.05 * rng.standard_normal((1500, 3))
+    rows = distinct_rows(np.vstack([still, sphere]))
+    assert np.sum(rows < 1500) <= 8 and np.sum(rows >= 1500) >= 400
+
+
+@pytest.mark.parametrize(("z_range", "low", "high"), [((-1.0, 1.0), 65, 80),
+                                                      ((-0.259, 0.259), 12, 16),
+                                                      ((0.5, 1.0), 35, 55)])
+def test_band_half_width_of_a_sphere_a_band_and_a_cap(z_range, low, high):
+    from magbench.core.geometry import band_half_width
+
+    assert low <= band_half_width(fibonacci_sphere(3000, z_range=z_range)) <= high

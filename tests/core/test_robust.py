@@ -73,3 +73,32 @@ def test_a_collapsed_fit_is_refused_and_a_good_one_is_not():
 ])
 def test_singular_or_non_finite_fits_are_refused(T, h, message):
     assert message in refusal_reason(T, h, fibonacci_sphere(50), np.zeros(3))
+
+
+@pytest.mark.parametrize("share", [0.3, 0.5, 0.7])
+def test_screen_keeps_the_rotation_when_the_recording_is_mostly_still(share):
+    from magbench.core.robust import screen
+
+    y, bad = spiky(0, K=1000, share=0.02)
+    n = int(share / (1 - share) * len(y))
+    still = y[0] * 0 + [2.5, -1.0, 0.5] + 0.005 * np.random.default_rng(1).standard_normal(
+        (n, 3))
+    s = screen(np.vstack([still, y]))
+    np.testing.assert_allclose(s.centre, [2.0, -1.0, 0.5], atol=0.05)
+    assert s.thinned >= n - 80                                # the still stretch is one cell
+    assert set(np.flatnonzero(~s.inliers[n:])) == set(bad)    # only the spikes are outliers
+
+
+def test_a_screen_that_would_empty_most_directions_is_not_applied():
+    from magbench.core.geometry import fibonacci_sphere as fib
+    from magbench.core.robust import Screen, keeps_directions, trimmed
+
+    y = fib(400)
+    every = np.ones(400, dtype=bool)
+    assert keeps_directions(y, every, every)
+    assert not keeps_directions(y, every, y[:, 2] > 0.5)
+    # statistics from a cluster of directions: everything else would be an outlier
+    cluster = y[:, 2] > 0.9
+    residual = np.where(cluster, 0.0, 1.0)
+    out = trimmed(Screen(np.zeros(3), 1.0, every, cluster), residual, y)
+    assert not out.applied and np.array_equal(out.inliers, cluster)     # left as it was

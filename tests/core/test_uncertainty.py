@@ -69,3 +69,45 @@ def test_95_percent_intervals_contain_the_truth_90_to_99_percent_of_the_time(met
     pooled, per_entry = _coverage(method, model, n)
     assert 0.90 <= pooled <= 0.99, pooled
     assert np.nanmin(per_entry) >= 0.85, per_entry
+
+
+@pytest.mark.parametrize("phi", [0.0, 0.5, 0.9])
+def test_correlation_length_of_ar1_noise(phi):
+    from magbench.core.uncertainty import correlation_length
+
+    rng = np.random.default_rng(0)
+    w = rng.standard_normal(20_000)
+    e = np.empty_like(w)
+    e[0] = w[0]
+    for k in range(1, w.size):
+        e[k] = phi * e[k - 1] + w[k]
+    assert correlation_length(e) == pytest.approx((1 + phi) / (1 - phi), rel=0.15, abs=0.1)
+
+
+def test_block_length_is_capped_and_a_drift_gives_long_blocks():
+    from magbench.core.uncertainty import MIN_BLOCKS, block_length
+
+    rng = np.random.default_rng(1)
+    white = rng.standard_normal(1000)
+    assert block_length(white) <= 6
+    drift = white + 3 * np.sin(np.linspace(0, 2 * np.pi, 1000))
+    assert block_length(drift) == 1000 // MIN_BLOCKS
+
+
+def test_block_resample_draws_whole_circular_blocks():
+    from magbench.core.uncertainty import block_resample
+
+    idx = block_resample(103, 10, np.random.default_rng(2))
+    assert idx.size == 103
+    steps = np.diff(idx)[: 100].reshape(10, 10)[:, :9]           # inside each block
+    assert np.all((steps == 1) | (steps == -102))
+
+
+@pytest.mark.parametrize("dof", [2, 3, 7, 11, 30, 200])
+def test_student_t95_against_scipy(dof):
+    from scipy.stats import t
+
+    from magbench.core.uncertainty import student_t95
+
+    tol = 0.01 if dof == 2 else 0.002
+    assert student_t95(dof) == pytest.approx(t.ppf(0.975, dof), rel=tol)

@@ -55,3 +55,39 @@ def test_coverage_warns_on_a_60_degree_cap_not_on_a_hemisphere_or_band():
     assert re.search(r"coverage is insufficient: .* cap of about 6\d deg", cap["warning"])
     axis = np.array(cap["rotate_about"])
     assert abs(axis[2]) < 0.1                        # any horizontal axis tilts the cap over
+
+
+GOOD = dict(p95_pct=1.0, held_out=True, gap_deg=20.0, directions=200, band_deg=70.0,
+            field=1.0, radius=1.0)
+
+
+@pytest.mark.parametrize(("change", "status", "words"), [
+    ({}, "PASS", ""),
+    ({"p95_pct": 7.0}, "WARN", "field error 7.0 % (p95, held out) > 6 %"),
+    ({"p95_pct": 41.8}, "FAIL", "> 12 %"),
+    ({"gap_deg": 120.0}, "WARN", "within 120 deg"),
+    ({"gap_deg": 150.0}, "FAIL", "> 135 deg"),
+    ({"directions": 14}, "WARN", "14 distinct directions (< 20)"),
+    ({"directions": 8}, "FAIL", "8 distinct directions (< 10)"),
+    ({"band_deg": 15.0}, "WARN", "within +-15 deg of one plane"),
+    ({"held_out": False}, "WARN", "no held-out score"),
+    ({"field": 0.02}, "FAIL", "from the data's radius"),
+    ({"expected_field": 1.15}, "WARN", "13 % from the expected 1.15"),
+    ({"expected_field": 2.0}, "FAIL", "50 % from the expected 2"),
+    ({"expected_field": (0.9, 1.1)}, "PASS", ""),
+    ({"expected_field": (1.3, 1.5)}, "FAIL", "expected 1.3-1.5"),
+])
+def test_fitness_statuses_and_reasons(change, status, words):
+    from magbench.core.verdict import Gate, fitness
+
+    out = fitness(Gate(), **{**GOOD, **change})
+    assert out["status"] == status
+    assert (out["reasons"] == []) == (status == "PASS")
+    assert all(words in r for r in out["reasons"][:1])
+
+
+def test_a_failing_reason_comes_before_the_warnings():
+    from magbench.core.verdict import Gate, fitness
+
+    out = fitness(Gate(), **{**GOOD, "p95_pct": 7.0, "directions": 5})
+    assert out["status"] == "FAIL" and out["reasons"][0].startswith("5 distinct")

@@ -150,6 +150,33 @@ def test_efficiency_intervals_match_the_summary_and_bracket_it(tmp_path):
     assert (merged["efficiency"] < merged["eff_hi"]).all()
 
 
+def test_write_efficiency_reads_the_trials_file_per_point_and_method(tmp_path):
+    from magbench.studies.review import POINT_COLUMNS, efficiency_intervals, write_efficiency
+
+    study = spec(trials=12)
+    trials, _ = run_sweep(study, tmp_path)
+    written = pd.read_csv(write_efficiency(tmp_path, "t"))
+    expected = efficiency_intervals(trials, [*POINT_COLUMNS, "algorithm"], "t")
+    assert len(written) == 4 and set(written["algorithm"]) == {"magical", "dorveaux"}
+    np.testing.assert_allclose(written["efficiency"], expected["efficiency"], rtol=1e-12)
+    np.testing.assert_allclose(written["eff_lo"], expected["eff_lo"], rtol=1e-12)
+
+
+def test_write_efficiency_keeps_an_option_axis_default_run_apart(tmp_path):
+    from magbench.studies.review import POINT_COLUMNS, write_efficiency
+
+    point = {c: v for c, v in zip(POINT_COLUMNS, (300, 0.005, 0.05, 0.05, 180.0, 90.0),
+                                  strict=True)}
+    rows = pd.DataFrame([{**point, "algorithm": "magical", "magical.max_iter": value,
+                          "meaningful": kept, "crb": 1.0, "sq_err": err}
+                         for value, errs in ((None, (1.0, 3.0)), (10, (2.0, 2.0, 8.0)))
+                         for kept, err in [(True, e) for e in errs] + [(False, 50.0)]])
+    rows.to_csv(tmp_path / "trials.csv", index=False)
+    table = pd.read_csv(write_efficiency(tmp_path, "t", ["magical.max_iter"]))
+    assert table["n"].tolist() == [3, 4] and table["n_meaningful"].tolist() == [2, 3]
+    np.testing.assert_allclose(table["efficiency"], [1 / 2.0, 1 / 4.0])
+
+
 def test_the_capacity_check_counts_the_columns_the_summary_reads(tmp_path, monkeypatch):
     import magbench.engine.sweep as sweep
 

@@ -46,6 +46,10 @@ def load_calibration(path: Path) -> tuple[Calibration, list | None]:
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:
         raise UsageError(f"calibration file {path} is not valid JSON ({exc}); expected the "
                          "calibration.json written by python -m magbench calibrate") from None
+    if isinstance(data, dict) and data.get("status") == "FAIL":
+        reasons = "; ".join(data.get("fitness", {}).get("reasons", [])) or "see the file"
+        raise UsageError(f"{path}: calibrate judged this recording FAIL ({reasons}); it holds "
+                         "no correction to apply")
     try:
         cal = from_json_dict(data)
     except ValueError as exc:

@@ -1,15 +1,18 @@
 """``python -m magbench calibrate file=PATH [method=NAME] [columns=[mx,my,mz]] [out=DIR]``.
 
 Calibrates a user's own recording. The work is :func:`magbench.studies.calibration.\
-calibrate_recording` (outlier screen, coverage and the models it allows, every candidate fitted
-on all samples and on each half in time, the honest choice with ties, trimming around the
-chosen fit, refusal of collapsed fits, verdict and intervals; its module notes say how each is
-decided); this command reads the file, prints the ranked table and the verdict, and writes.
+calibrate_recording` (thinning by direction and the outlier screen, coverage and the models it
+allows, every candidate fitted on all samples and on interleaved time-block folds, the choice
+that holds out of sample, trimming around the chosen fit, refusal of collapsed fits, verdict,
+intervals and the PASS / WARN / FAIL gate; its module notes say how each is decided); this
+command reads the file, prints the answer first (status, held-out error, method, folder), then
+the reasons and the details, and writes. FAIL exits 3 and writes only ``calibration.json``
+with the reasons (thresholds: the ``gate.*`` keys, :func:`check_gate`).
 The candidates are the registered methods except the review's printed variants (family
 ``variant``: benchmark-only, wrong as printed) and, without gyro data, the gyro-aided ones.
 By default (``candidates=auto``) they are fitted in two rounds: the closed forms and Wu-Shi NM
 first, the iterative rest only when they could change the choice (the rule is in
-:mod:`magbench.studies.calibration`, step 3); ``candidates=all`` fits every one in one round,
+:mod:`magbench.studies.calibration`, step 2); ``candidates=all`` fits every one in one round,
 ``candidates=[a,b]`` only those, and ``method=NAME`` runs any one.
 
 The chosen (or the named) calibration is written in the safe gauge of
@@ -32,6 +35,7 @@ import json
 import sys
 import time
 import warnings
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
@@ -46,6 +50,7 @@ from magbench.cli.config import (
     check_field_strength,
     check_instance,
     check_integer,
+    check_number,
     check_options,
     check_out_calibration,
     check_units,
@@ -63,6 +68,7 @@ from magbench.core.files import write_csv_atomic, write_text_atomic
 from magbench.core.gauge import safe_gauge
 from magbench.core.model import Calibration
 from magbench.core.units import UNKNOWN, Units, parse_units
+from magbench.core.verdict import Gate
 from magbench.methods.api import calibrate as magbench_calibrate
 from magbench.methods.registry import get_method, methods
 from magbench.sources.logs import is_log, log_units
@@ -82,11 +88,8 @@ from magbench.studies.flight import (
 )
 from magbench.studies.real import DEFAULT_MAX_SAMPLES, PREPROCESSING, applicability
 
-#: Why the first round's choice stands when the second round is not fitted (one phrase).
-FIRST_ROUND_WHY = ("Wu-Shi NM, which minimises J_r itself, ties the best, and coverage needs no "
-                   "cap-robust method")
-
-__all__ = ["MIN_COVERAGE", "calibration_json", "default_out", "run_calibrate"]
+__all__ = ["MIN_COVERAGE", "answer_line", "calibration_json", "check_gate", "default_out",
+           "detail_lines", "run_calibrate"]
 
 #: Coverage below which a recording is refused: lower than the sweeps' 0.3, because thin
 #: coverage now falls back to the sphere model instead of a full fit (a hemisphere of real
@@ -136,10 +139,12 @@ def calibration_json(result: CalibrationResult, *, file: str, columns: list, n_f
     """The chosen calibration as a JSON-ready dict: the correction in the safe gauge.
 
     The schema of :func:`magbench.core.exports.to_json_dict` (``A``, ``b`` of ``m = A (y - b)``,
-    ``T = A^-1``, ``h = b``), plus the method, the choice, verdict, intervals, outliers and
-    coverage; ``removed`` records the rotation angle taken out of the method's own ``T^-1``,
-    whether it was a mirror image, and the method's ``T`` itself; ``unit`` the recording's unit
-    and ``field_strength_expected`` the ``field_strength`` key in file units (None if unset).
+    ``T = A^-1``, ``h = b``), plus ``status`` and ``fitness`` (PASS, WARN or FAIL and why), the
+    method, the choice, verdict, intervals, thinning, outliers and coverage; ``removed`` records
+    the rotation angle taken out of the method's own ``T^-1``, whether it was a mirror image, and
+    the method's ``T`` itself; ``unit`` the recording's unit and ``field_strength_expected`` the
+    ``field_strength`` key in file units (None if unset). A FAIL holds no correction at the top
+    level (``apply`` refuses it): the rejected ``A``, ``b``, ``T``, ``h`` are under ``rejected``.
 
     Raises
     ------
@@ -149,8 +154,13 @@ def calibration_json(result: CalibrationResult, *, file: str, columns: list, n_f
     row = result.chosen
     T, h = estimate(row)
     gauge = safe_gauge(T, h)
+    correction = to_json_dict(Calibration(T, h), units=units, columns=columns)
+    status = result.fitness["status"]
+    if status == "FAIL":
+        rejected = {k: correction.pop(k) for k in ("A", "b", "T", "h")}
+        correction["rejected"] = rejected
     return {
-        **to_json_dict(Calibration(T, h), units=units, columns=columns),
+        "status": status, "fitness": result.fitness, **correction,
         "file": file, "method": row["algorithm"], "label": get_method(row["algorithm"]).label,
         "model": get_method(row["algorithm"]).model, "choice": result.how, "tie": result.tie,
         "candidates": {"fitted": sorted(set(result.trials["algorithm"])),
@@ -163,52 +173,89 @@ def calibration_json(result: CalibrationResult, *, file: str, columns: list, n_f
         "verdict": result.verdict,
         "intervals": result.intervals.to_dict() if result.intervals else None,
         "bootstrap": result.bootstrap,
+        "thinning": {"thinned": result.thinned, "distinct_directions": result.directions,
+                     "band_half_width_deg": result.band_deg,
+                     "rule": "equal-area direction cells of about 10 deg; no cell keeps more "
+                             "than 10x the median occupied cell's count"},
         "outliers": {"set_aside": result.outliers, "by_sphere_screen": result.screened,
-                     "by_chosen_fit": result.trimmed,
+                     "by_chosen_fit": result.trimmed, "applied": result.screen.applied,
                      "rule": "norm residual more than 5 robust sigmas (1.4826 MAD) from the "
                              "median"},
         "coverage": result.coverage, "warnings": list(result.warnings),
         "J_r_in": float(row["J_r_in"]), "J_r_out": _finite(row["J_r_out"]),
+        "J_r_worst_fold": _finite(row["J_r_worst"]),
         "worst_out_pct": _finite(row["worst_out_pct"]),
         "J_r_sphere_fit": float(row["J_r_sphere_in"]), "meaningful": bool(row["meaningful"]),
         "converged": bool(row["ok"]), "n_iter": int(row["n_iter"]),
         "preprocess": preprocess, "samples_used": int(row["K"]), "samples_in_file": n_file,
-        "stride": int(result.rec.stride),
+        "stride": int(result.stride),
     }
 
 
-def _verdict_lines(payload: dict) -> list[str]:
-    v, g = payload["verdict"], payload["removed"]
-    f, hd = v["field_error_pct"], v["heading_error_deg"]
-    where = ("held out: each half in time corrected by the fit on the other half" if
-             v["held_out"] else "in sample: no usable half-fits, so this flatters the fit")
-    lines = [f"verdict ({where}; {v['samples']} samples): field magnitude error {f['p95']:.2f} % "
-             f"(95th percentile), {f['max']:.2f} % (max); heading error of a level compass "
-             f"about {hd['p95']:.2f} deg (95 %), {hd['max']:.2f} deg (worst case) in a "
-             "horizontal field, about twice at 60 deg inclination",
-             f"field strength {_field_text(payload)}; the method's own "
-             f"correction held a {g['rotation_deg']:.1f} deg rotation"
-             f"{' and a mirror image' if g['mirrored'] else ''}, removed (m = A (y - b), A "
-             "symmetric positive definite)"]
-    iv = payload["intervals"]
-    if iv:
-        h, hh = np.array(iv["h"]), np.array(iv["h_half_width"])
-        A, Ah = np.array(iv["A"]), np.array(iv["A_half_width"])
-        lines.append("95 % intervals (model-based: Fisher information of the "
-                     f"{iv['model']} model at the estimate, noise sigma {iv['sigma']:.3g}): b = "
-                     + ", ".join(f"{x:.4g} +- {e:.2g}" for x, e in zip(h, hh, strict=True))
-                     + "; A diagonal " + ", ".join(f"{A[i, i]:.4g} +- {Ah[i, i]:.2g}"
-                                                   for i in range(3))
-                     + f", off-diagonal +- {max(Ah[0, 1], Ah[0, 2], Ah[1, 2]):.2g} at most")
-    bs = payload["bootstrap"]
+def answer_line(payload: dict, out: Path) -> str:
+    """The first line of the output: the status, the error, the method and where it went."""
+    v = payload["verdict"]
+    where = "" if v["held_out"] else ", in sample"
+    target = f"-> {out}/" if payload["status"] != "FAIL" else f"(nothing to flash; {out}/" \
+        "calibration.json says why)"
+    return (f"{payload['status']:<4}  field error {v['field_error_pct']['p95']:.1f} % "
+            f"(p95{where}), heading ~{v['heading_error_deg']['p95']:.1f} deg, "
+            f"{payload['method']} ({payload['model']} model) {target}")
+
+
+def _interval_lines(payload: dict) -> list[str]:
+    """b and A with the wider of the model-based and the block-bootstrap half-widths."""
+    iv, bs = payload["intervals"], payload["bootstrap"]
+    if not iv:
+        return []
+    h, A = np.array(iv["h"]), np.array(iv["A"])
+    hh, Ah = np.array(iv["h_half_width"]), np.array(iv["A_half_width"])
+    src_h = src_A = "model-based"
     if bs:
-        a_part = (f"; A median {bs['ratio_A_median']:.2f} (range {bs['ratio_A_range'][0]:.2f}"
-                  f"-{bs['ratio_A_range'][1]:.2f})" if bs["ratio_A_median"] is not None else "")
-        lines.append(f"bootstrap check ({bs['replicates']} refits on resampled samples): "
-                     "bootstrap / Fisher half-widths, b " + ", ".join(
-                         f"{r:.2f}" for r in bs["ratio_h"])
-                     + a_part + "; well above 1 means the noise is not independent or the "
-                     "model misses something")
+        hh, Ah = np.array(bs["wider_h"]), np.array(bs["wider_A"])
+        src_h, src_A = bs["source_h"], bs["source_A"]
+    lines = ["b = " + ", ".join(f"{x:.4g} +- {e:.2g}" for x, e in zip(h, hh, strict=True))
+             + f" (95 %, {src_h})"]
+    if iv["model"] == "bias":
+        lines.append(f"A = {A[0, 0]:.4g} I, fixed (offset-only model: A is not estimated)")
+    elif iv["model"] == "sphere":
+        lines.append(f"A = s I, s = {A[0, 0]:.4g} +- {Ah[0, 0]:.2g} (95 %, {src_A})")
+    else:
+        lines.append("A diagonal " + ", ".join(f"{A[i, i]:.4g} +- {Ah[i, i]:.2g}"
+                                               for i in range(3))
+                     + f", off-diagonal +- {max(Ah[0, 1], Ah[0, 2], Ah[1, 2]):.2g} at most "
+                     f"(95 %, {src_A})")
+    if bs:
+        lines.append(f"intervals: wider of model-based and block bootstrap ({bs['replicates']} "
+                     f"refits, blocks of {bs['block']} samples, residual correlation "
+                     f"{bs['correlation_samples']:.1f} samples)")
+    return lines
+
+
+def detail_lines(result: CalibrationResult, payload: dict, n_file: int) -> list[str]:
+    """The lines after the answer: samples, coverage, choice, table, intervals, gauge."""
+    cover = result.coverage
+    used = f"fitted {result.work.K}" + (f" (1 in {result.stride})" if result.stride > 1 else "")
+    g = payload["removed"]
+    lines = [
+        f"samples: {n_file} in the file; {result.thinned} thinned by direction (still or slow "
+        f"stretches), {result.outliers} outliers set aside; {used}",
+        f"coverage: {cover['coverage']:.2f} of the sphere, largest gap "
+        f"{cover['largest_gap_deg']:.0f} deg, {result.directions} distinct directions",
+        f"choice: {result.how}",
+        _table(result.ranked),
+    ]
+    if result.second_round:
+        lines.append(f"second round fitted: {result.second_round}")
+    elif result.not_fitted:
+        names = result.not_fitted
+        shown = ", ".join(names[:4]) + (f" and {len(names) - 4} more" if len(names) > 4 else "")
+        lines.append(f"not fitted: {shown} (candidates=all fits every method)")
+    lines += _interval_lines(payload)
+    lines.append(f"field strength {_field_text(payload)}; a "
+                 f"{g['rotation_deg']:.1f} deg rotation"
+                 f"{' and a mirror image' if g['mirrored'] else ''} removed (A symmetric "
+                 "positive definite)")
     return lines
 
 
@@ -246,21 +293,47 @@ def _fmt(x: float, width: int = 11, spec: str = ".3g") -> str:
 
 
 def _table(ranked: pd.DataFrame) -> str:
-    lines = [f"{'rank':>4}  {'method':<13}{'model':<9}{'J_r in':>10}{'J_r out':>10}"
-             f"{'worst %':>9}{'time ms':>9}  note"]
+    lines = [f"{'rank':>4}  {'method':<12}{'model':<9}{'J_r in':>9}{'J_r out':>9}"
+             f"{'worst':>9}{'p95 %':>7}  note"]
     for r in ranked.itertuples(index=False):
         rank = "-" if pd.isna(r.rank) else str(r.rank)
         note = ("tie; " if r.tie else "") + (r.note or "")
-        lines.append(f"{rank:>4}  {r.algorithm:<13}{r.model:<9}{_fmt(r.J_r_in, 10)}"
-                     f"{_fmt(r.J_r_out, 10)}{_fmt(r.worst_out_pct, 9, '.2f')}"
-                     f"{1e3 * r.time_s:9.2f}  {note.rstrip('; ')[:70]}")
+        lines.append(f"{rank:>4}  {r.algorithm:<12}{r.model:<9}{_fmt(r.J_r_in, 9, '.2e')}"
+                     f"{_fmt(r.J_r_out, 9, '.2e')}{_fmt(r.J_r_worst, 9, '.2e')}"
+                     f"{_fmt(r.p95_out_pct, 7, '.2f')}  {note.rstrip('; ')[:48]}")
     return "\n".join(lines)
+
+
+def check_gate(cfg: DictConfig) -> Gate:
+    """The ``gate.*`` keys of calibrate: numbers, each WARN threshold on the safe side of its
+    FAIL threshold (exit 2 otherwise)."""
+    given = cfg.get("gate") or {}
+    values = {}
+    for key, default in Gate().__dict__.items():
+        value = given.get(key, default)
+        if isinstance(default, int):
+            values[key] = check_integer(value, f"gate.{key}", 0)
+        else:
+            values[key] = check_number(value, f"gate.{key}", lambda x: x >= 0, ">= 0")
+    gate = Gate(**values)
+    for low, high in (("warn_error_pct", "fail_error_pct"), ("warn_gap_deg", "fail_gap_deg"),
+                      ("fail_directions", "warn_directions"),
+                      ("warn_field_pct", "fail_field_pct")):
+        if getattr(gate, low) > getattr(gate, high):
+            raise UsageError(f"gate.{low} must not exceed gate.{high}, got "
+                             f"{getattr(gate, low)} > {getattr(gate, high)}")
+    unknown = sorted(set(given) - set(Gate().__dict__))
+    if unknown:
+        raise UsageError(f"unknown gate key(s) {', '.join(unknown)}; expected: "
+                         f"{', '.join(Gate().__dict__)}")
+    return gate
 
 
 def run_calibrate(cfg: DictConfig, picture: PictureWorker | None = None) -> int:
     """The ``calibrate`` command; a bad file or value raises :class:`UsageError`.
 
-    ``picture``: a started :class:`~magbench.cli.picture.PictureWorker` draws
+    Returns 0 for PASS and WARN, 3 for FAIL (only ``calibration.json`` written, with the
+    reasons). ``picture``: a started :class:`~magbench.cli.picture.PictureWorker` draws
     ``calibration.png`` in parallel (:func:`magbench.cli.main.main` starts one); without it
     the picture is drawn here. The file is the same either way.
     """
@@ -276,6 +349,7 @@ def run_calibrate(cfg: DictConfig, picture: PictureWorker | None = None) -> int:
                          f"{preprocess!r}")
     max_samples = check_integer(cfg.get("max_samples", DEFAULT_MAX_SAMPLES), "max_samples", 8)
     n_boot = check_integer(cfg.get("bootstrap", 50), "bootstrap", 0, 10_000)
+    gate = check_gate(cfg)
     columns = check_columns(cfg)
     units = check_units(cfg)
     if not units.known and not units.counts and is_log(path):
@@ -309,33 +383,16 @@ def run_calibrate(cfg: DictConfig, picture: PictureWorker | None = None) -> int:
             raise UsageError(str(exc)) from None
     candidates, second = _candidates(cfg, rec.has_gyro)
     options = check_options(cfg, candidates + second)
-    thinned = rec.thinned(max_samples)
     if name is not None:
-        reason = applicability(str(name), thinned)
+        reason = applicability(str(name), rec)
         if reason:
             raise UsageError(reason.removeprefix("skipped: "))
-    if thinned.stride > 1:
-        print(f"using 1 sample in {thinned.stride}: {thinned.K} of {rec.K} "
-              f"(max_samples={max_samples})")
-    result = calibrate_recording(thinned, candidates, preprocess=preprocess, options=options,
+    result = calibrate_recording(rec, candidates, preprocess=preprocess, options=options,
                                  seed=common["seed"], call_timeout_s=common["call_timeout_s"],
-                                 bootstrap=0, second_round=second)
-    cover = result.coverage
-    print(f"{path.name}: {rec.K} samples, preprocessing '{preprocess}'; J_r (eq. 81) in sample "
-          "and out of sample (fit on one half in time, tested on the other), held-out worst "
-          "field error in %")
-    print(f"outliers: {result.outliers} of {thinned.K} samples set aside (norm residual more "
-          f"than 5 robust sigmas from the median: spikes or disturbances)")
-    gap_at = ", ".join(f"{c:+.2f}" for c in cover["gap_centre"])
-    print(f"coverage: {cover['coverage']:.2f} of the sphere; largest uncovered region "
-          f"{cover['largest_gap_deg']:.0f} deg around ({gap_at})")
-    print(_table(result.ranked))
-    if result.second_round:
-        print(f"second round fitted: {result.second_round}")
-    elif result.not_fitted:
-        print(f"not fitted: {', '.join(result.not_fitted)} (the first round decides: "
-              f"{FIRST_ROUND_WHY}; candidates=all fits every method)")
+                                 bootstrap=0, second_round=second, max_samples=max_samples,
+                                 gate=gate, expected_field=expected)
     if result.chosen is None:
+        print(_table(result.ranked))
         raise UsageError("no method produced a calibration that can be written ("
                          + ("no out-of-sample score: name one with method=NAME, or record "
                             "longer" if not name else "see the table")
@@ -346,6 +403,13 @@ def run_calibrate(cfg: DictConfig, picture: PictureWorker | None = None) -> int:
                                n_file=rec.K, preprocess=preprocess, units=units,
                                expected_field=expected)
     payload |= _instance_keys(rec)
+    if payload["status"] == "FAIL":
+        write_text_atomic(json.dumps(payload, indent=2) + "\n", out / "calibration.json")
+        for stale in {*FIRMWARE_FILES, "calibration.h", "ranking.csv", "calibration.png"}:
+            (out / stale).unlink(missing_ok=True)       # an earlier run's, now wrong
+        _report(result, payload, out, rec.K, ["calibration.json (the reasons; no correction)"],
+                start)
+        return 3
     varying, corrected = _add_time_varying(result, payload, compensate, options)
     mounting = _add_mounting(result, payload, corrected)
     job = {"path": out / "calibration.png", "dpi": PICTURE_DPI,
@@ -356,26 +420,31 @@ def run_calibrate(cfg: DictConfig, picture: PictureWorker | None = None) -> int:
         result, n_boot, preprocess=preprocess, options=options, seed=common["seed"])
     T, h = estimate(result.chosen)
     write_text_atomic(json.dumps(payload, indent=2) + "\n", out / "calibration.json")
-    written = ["calibration.json (m = A (y - b))", *_write_exports(Calibration(T, h), payload,
-                                                                  out)]
+    written, notes = _write_exports(Calibration(T, h), payload, out)
+    notes = [line for line in (varying, mounting) if line] + notes
     write_csv_atomic(result.ranked, out / "ranking.csv")
-    print(f"choice: {result.how}")
-    print(f"chosen: {payload['label']} ({payload['model']} model)")
-    print("\n".join(_verdict_lines(payload)))
-    if varying:
-        print(varying)
-    if mounting:
-        print(mounting)
-    for warning in payload["warnings"]:
-        print(f"magbench: warning: {warning}", file=sys.stderr)
     problem = picture.wait() if sent else ""
     if problem:
         print(f"magbench: note: {problem}; drawing the picture here", file=sys.stderr)
     if problem or not sent:
         draw_picture(job)
-    print(f"wrote {out}/: {', '.join([*written, 'ranking.csv', 'calibration.png'])} "
-          f"(in {time.perf_counter() - start:.2f} s)")
+    _report(result, payload, out, rec.K, ["calibration.json (m = A (y - b))", *written,
+                                          "ranking.csv", "calibration.png"], start, notes)
     return 0
+
+
+def _report(result: CalibrationResult, payload: dict, out: Path, n_file: int,
+            written: list[str], start: float, notes: Sequence[str] = ()) -> None:
+    """Print the answer first, then the reasons, the details and what was written; the
+    coverage advice and other warnings go to stderr."""
+    lines = [answer_line(payload, out)]
+    lines += [f"  {payload['status'].lower()}: {r}" for r in payload["fitness"]["reasons"]]
+    lines += detail_lines(result, payload, n_file)
+    lines += list(notes)
+    lines.append(f"wrote {out}/: {', '.join(written)} (in {time.perf_counter() - start:.2f} s)")
+    print("\n".join(lines))
+    for warning in payload["warnings"]:
+        print(f"magbench: warning: {warning}", file=sys.stderr)
 
 
 def _add_mounting(result: CalibrationResult, payload: dict,
@@ -429,10 +498,10 @@ def _add_time_varying(result: CalibrationResult, payload: dict, wanted: list[str
     return line, corrected
 
 
-def _write_exports(cal: Calibration, payload: dict, out: Path) -> list[str]:
+def _write_exports(cal: Calibration, payload: dict, out: Path) -> tuple[list[str], list[str]]:
     """calibration.h always; each firmware file of :func:`magbench.core.exports.firmware_files`
     that can be written (one line says why not the others, each reason once; a stale one from
-    an earlier run in ``out`` is removed). Returns the names written."""
+    an earlier run in ``out`` is removed). Returns the names written and that line, if any."""
     f = payload["verdict"]["field_error_pct"]
     verdict = (f"{payload['label']}: field magnitude error {f['p95']:.2f} % (95th percentile), "
                f"{f['max']:.2f} % (max), "
@@ -447,11 +516,10 @@ def _write_exports(cal: Calibration, payload: dict, out: Path) -> list[str]:
         write_text_atomic(text, out / file)
     for stale in set(FIRMWARE_FILES) - set(written):
         (out / stale).unlink(missing_ok=True)
-    if refused:
-        print("not writing " + "; ".join(
-            f"{', '.join(n for n, r in refused.items() if r == reason)} ({reason})"
-            for reason in dict.fromkeys(refused.values())))
-    return ["calibration.h", *written]
+    notes = ["not writing " + "; ".join(
+        f"{', '.join(n for n, r in refused.items() if r == reason)} ({reason})"
+        for reason in dict.fromkeys(refused.values()))] if refused else []
+    return ["calibration.h", *written], notes
 
 
 #: Samples drawn in the picture: enough to show the shape, few enough to draw fast.
@@ -469,13 +537,13 @@ def _picture_arguments(result: CalibrationResult, payload: dict) -> dict:
     rec: Recording = result.rec
     step = max(1, rec.K // PICTURE_SAMPLES)
     y = rec.y[::step]
-    keep = result.inliers[::step]
+    keep = result.screen.work[::step]
     before = y / float(np.mean(np.linalg.norm(y, axis=1)))
     after = (y - b) @ A.T
     where = Path(payload["file"])
     return {"before": before, "after": after,
             "title": f"{where.parent.name}/{where.name}: {payload['label']} "
                      f"({payload['model']} model)",
-            "inliers": keep, "directions": (rec.y[result.inliers] - b) @ A.T,
+            "inliers": keep, "directions": (result.work.y - b) @ A.T,
             "gap_centre": np.array(result.coverage["gap_centre"]),
             "gap_deg": result.coverage["largest_gap_deg"]}

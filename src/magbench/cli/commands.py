@@ -27,13 +27,13 @@ from magbench.cli.kinds import Kind, get_kind, kind_names, kind_of, kind_of_swee
 from magbench.core.files import write_csv_atomic, write_text_atomic
 from magbench.engine.record import cpu_model, cpu_seconds, git_commit, process_age_s
 from magbench.engine.sweep import run_lock, run_study
-from magbench.figures.speed import plot_scaling
+from magbench.figures.speed import plot_scale, plot_scaling
 from magbench.report import write_report
 from magbench.report.speed import bench_report_section
 from magbench.studies.speed import format_reproduce_times, reproduce_times, run_bench
 from magbench.studies.timing import repeat_timing
 
-__all__ = ["bench", "draw_figures", "report", "reproduce", "run", "sweep_names",
+__all__ = ["bench", "draw_figures", "report", "reproduce", "run", "scale", "sweep_names",
            "timing_check"]
 
 
@@ -84,25 +84,51 @@ def draw_figures(results_dir: Path | str) -> list[Path]:
     if (results_dir / "bench" / "calls.csv").exists():
         written.append(plot_scaling(pd.read_csv(results_dir / "bench" / "calls.csv"),
                                     results_dir / "bench" / "scaling.png"))
+    if (results_dir / "bench" / "scale.csv").exists():
+        written.append(plot_scale(pd.read_csv(results_dir / "bench" / "scale.csv"),
+                                  results_dir / "bench" / "scale.png"))
     return written
 
 
 def bench(cfg: DictConfig) -> int:
     """``python -m magbench bench``: time every method; writes ``<results_dir>/bench/``."""
-    from magbench.cli.config import _flag, check_common, selected_algorithms
+    from magbench.cli.config import _flag, check_common, check_scale, selected_algorithms
 
     common = check_common(cfg)
     names = selected_algorithms(cfg)
+    sizes = check_scale(cfg)
     writable_folder(common["results_dir"], "results_dir")
     if _flag(cfg.get("timing_check", False), "timing_check"):
         return timing_check(cfg)
+    if sizes is not None:
+        return scale(sizes, common)
     folder = run_bench(common["results_dir"], names,
                        progress=(lambda line: print(line, file=sys.stderr))
                        if common["progress"] else None)
     plot_scaling(pd.read_csv(folder / "calls.csv"), folder / "scaling.png")
     write_text_atomic(bench_report_section(common["results_dir"]), folder / "bench.md")
     print(f"benchmark written to {folder}/ (calls.csv, first_calls.csv, scaling.png, peers.csv, "
-          "calibrate.csv, parallel.csv, bench.md)")
+          "peer_accuracy.csv, peer_accuracy_summary.csv, peer_install.csv, calibrate.csv, "
+          "parallel.csv, bench.md)")
+    return 0
+
+
+def scale(sizes: Sequence[int], common: dict) -> int:
+    """``python -m magbench bench scale=[...]``: one sweep point at each number of trials
+    (:func:`magbench.studies.scale.bench_scale`); writes ``<results_dir>/bench/scale.csv`` and
+    ``scale.png`` and prints the paragraph the report gives them."""
+    from magbench.report.scale import scale_lines
+    from magbench.studies.scale import bench_scale
+
+    folder = common["results_dir"] / "bench"
+    folder.mkdir(parents=True, exist_ok=True)
+    table = bench_scale(sizes, n_jobs=common["n_jobs"], workdir=folder,
+                        progress=(lambda line: print(line, file=sys.stderr))
+                        if common["progress"] else None)
+    write_csv_atomic(table, folder / "scale.csv")
+    plot_scale(table, folder / "scale.png")
+    print("\n".join(scale_lines(table)).strip())
+    print(f"scale written to {folder}/ (scale.csv, scale.png)")
     return 0
 
 

@@ -44,6 +44,7 @@ __all__ = [
     "check_options",
     "check_out_calibration",
     "check_override_keys",
+    "check_scale",
     "check_site",
     "check_trials",
     "check_units",
@@ -420,6 +421,27 @@ def _results_dir(cfg: DictConfig) -> Path:
     path = Path(str(cfg.results_dir)).expanduser()
     _no_file_in_the_way(path, "results_dir")
     return path
+
+
+#: The trials of one ``bench scale=[...]`` size: below the smallest the fixed costs hide the
+#: growth; above the largest the run's trials.csv outgrows a disk's free space.
+SCALE_RANGE = (1_000, 10_000_000)
+
+
+def check_scale(cfg: DictConfig) -> list[int] | None:
+    """The bench's ``scale`` key: a non-empty list of trial counts in :data:`SCALE_RANGE`, or
+    None (no scale run)."""
+    value = plain(cfg.get("scale"))
+    if value is None:
+        return None
+    low, high = SCALE_RANGE
+    if not isinstance(value, list) or not value:
+        raise UsageError(f"scale must be a list of trial counts, e.g. scale=[10000,30000], or "
+                         f"null, got {value!r}")
+    for i, v in enumerate(value):
+        if isinstance(v, bool) or not isinstance(v, int) or not low <= v <= high:
+            raise UsageError(f"scale[{i}] must be an integer in [{low}, {high}], got {v!r}")
+    return value
 
 
 def check_trials(cfg: DictConfig, what: str) -> int:

@@ -111,7 +111,7 @@ COMMANDS: dict[str, tuple[Callable[..., int], str, str, tuple[str, ...]]] = {
                "python -m magbench report", ("results_dir",)),
     "bench": (_bench, "time every method, its scaling with K, peers and parallel speed-up",
               "python -m magbench bench", ("results_dir", "algorithms", "progress",
-                                           "timing_check", "sweep")),
+                                           "timing_check", "sweep", "scale", "n_jobs")),
     "methods": (_methods, "list the registered calibration methods and their options",
                 "python -m magbench methods", ("plugins",)),
 }

@@ -6,6 +6,17 @@ coplanar". ``coverage`` is the fraction of :data:`COVERAGE_GRID` Fibonacci direc
 within :data:`COVERAGE_ANGLE_DEG` of some sample direction seen from the sphere-fit centre (1 for
 a full sphere, about 0.5 for a hemisphere or for a single great circle, which is why both
 figures are checked); below :data:`MIN_COVERAGE` the samples cover "too little of the sphere".
+
+*Thinning by direction.* A recording that lies still for half its length holds half its samples
+in one direction; a fit (and an outlier screen's median) then serves that one direction. As
+ArduPilot's and PX4's calibrators do, :func:`thin_by_direction` caps the samples kept per
+direction: the sphere is cut into :data:`DIRECTION_CELLS` nearly equal-area cells (the nearest
+point of a Fibonacci lattice, cells about 10 deg across) and no cell keeps more than
+:data:`CELL_CAP_FACTOR` times the median count of the occupied cells (at least
+:data:`CELL_CAP_MIN`), evenly spread in time. A still stretch then counts as one direction, while
+an evenly turned recording loses nothing (its cells hold about the median). The directions need
+a centre that a still stretch cannot pull: :func:`distinct_rows` keeps one sample per occupied
+cube of a grid over the samples' range (no centre needed), from which a sphere fit is taken.
 """
 
 from __future__ import annotations
@@ -14,15 +25,24 @@ import math
 
 import numpy as np
 
-__all__ = ["COVERAGE_ANGLE_DEG", "COVERAGE_GRID", "GOLDEN_RATIO", "MIN_COVERAGE",
-           "MIN_THICKNESS", "check_geometry", "coverage", "fibonacci_sphere", "largest_gap",
-           "sphere_fit", "thickness", "unit_rows"]
+__all__ = ["CELL_CAP_FACTOR", "CELL_CAP_MIN", "COVERAGE_ANGLE_DEG", "COVERAGE_GRID",
+           "DIRECTION_CELLS", "GOLDEN_RATIO", "MIN_COVERAGE", "MIN_THICKNESS", "band_half_width",
+           "check_geometry", "coverage", "direction_cells", "distinct_rows", "fibonacci_sphere",
+           "largest_gap", "sphere_fit", "thickness", "thin_by_direction", "unit_rows"]
 
 GOLDEN_RATIO = (1.0 + np.sqrt(5.0)) / 2.0
 COVERAGE_GRID = 200
 COVERAGE_ANGLE_DEG = 30.0
 MIN_COVERAGE = 0.3
 MIN_THICKNESS = 0.1
+#: Equal-area direction cells of :func:`direction_cells` (each about 10 deg across).
+DIRECTION_CELLS = 400
+#: A cell keeps at most this many times the median count of the occupied cells ...
+CELL_CAP_FACTOR = 10.0
+#: ... and never fewer than this many samples.
+CELL_CAP_MIN = 3
+#: :func:`distinct_rows`'s cube edge is this fraction of the samples' typical separation.
+DISTINCT_GRID = 20
 
 
 def fibonacci_sphere(K: int, radius: float = 1.0,
@@ -184,3 +204,100 @@ def check_geometry(y: np.ndarray, *, min_coverage: float = MIN_COVERAGE,
                          f"{COVERAGE_ANGLE_DEG:g} deg of a sample direction seen from the "
                          f"sphere-fit centre; at least {min_coverage:g} is needed); point the "
                          "sensor in more directions")
+
+
+def direction_cells(directions: np.ndarray, *, cells: int = DIRECTION_CELLS) -> np.ndarray:
+    """Index of the equal-area cell of each row's direction (about ``cells`` cells).
+
+    The cells are a grid in ``z`` (the unit direction's third component) and longitude: the
+    area element of the unit sphere is ``dz dphi``, so equal steps in both give equal areas
+    (Archimedes' hat-box theorem). ``sqrt(cells / 2)`` bands of ``z`` and twice as many
+    longitude steps make equatorial cells about as tall as wide. Rows need not be normalised;
+    a zero row gets the cell of +X.
+    """
+    d = np.asarray(directions, dtype=float)
+    n = np.sqrt(np.einsum("ij,ij->i", d, d))
+    n[n == 0] = 1.0
+    bands = max(1, round(math.sqrt(cells / 2.0)))
+    z = np.clip(d[:, 2] / n, -1.0, 1.0)
+    band = np.minimum(((z + 1.0) * (bands / 2.0)).astype(np.int64), bands - 1)
+    phi = np.arctan2(d[:, 1], d[:, 0]) + np.pi
+    step = np.minimum((phi * (bands / np.pi)).astype(np.int64), 2 * bands - 1)
+    return band * (2 * bands) + step
+
+
+def thin_by_direction(directions: np.ndarray, *, cells: int = DIRECTION_CELLS,
+                      cap_factor: float = CELL_CAP_FACTOR, cap_min: int = CELL_CAP_MIN
+                      ) -> np.ndarray:
+    """Mask of the samples kept when no direction cell holds more than its share.
+
+    Parameters
+    ----------
+    directions : ndarray, shape (K, 3)
+        Field directions (samples minus a centre), in time order.
+    cells : int
+        Equal-area cells (:func:`direction_cells`).
+    cap_factor, cap_min : float, int
+        A cell keeps at most ``max(cap_min, ceil(cap_factor * median))`` samples, the median
+        taken over the occupied cells' counts (see the module notes).
+
+    Returns
+    -------
+    ndarray of bool, shape (K,)
+        True for a kept sample; in a capped cell the kept ones are evenly spread in time.
+    """
+    cell = direction_cells(directions, cells=cells)
+    counts = np.bincount(cell)
+    cap = max(int(cap_min), math.ceil(cap_factor * float(np.median(counts[counts > 0]))))
+    keep = np.ones(cell.size, dtype=bool)
+    over = counts[cell] > cap
+    if not over.any():
+        return keep
+    members = np.flatnonzero(over)
+    members = members[np.argsort(cell[members], kind="stable")]     # by cell, then time
+    start = np.searchsorted(cell[members], cell[members])
+    rank = np.arange(members.size) - start                          # position within its cell
+    size = counts[cell[members]]
+    # a cell of n samples keeps positions round(s (n - 1) / (cap - 1)), s = 0 .. cap - 1 (steps
+    # above 1, so distinct); position j is one of them when it is that of its nearest s
+    spacing = (size - 1) / (cap - 1)
+    keep[members] = np.round(np.round(rank / spacing) * spacing) == rank
+    return keep
+
+
+def distinct_rows(y: np.ndarray, *, grid: int = DISTINCT_GRID) -> np.ndarray:
+    """Indices of one sample per occupied cube of a grid over the samples (first in time).
+
+    The cube's edge is ``1 / grid`` of the upper quartile of the distances between samples half
+    a recording apart in time (about the field radius for a recording that turns; robust to
+    spikes and to a still stretch of up to about seven eighths of the recording, which a range
+    or a spread of the samples is not). Needs no centre: a still stretch falls in a few cubes
+    whatever the offset.
+    """
+    y = np.asarray(y, dtype=float)
+    half = y.shape[0] // 2
+    if half == 0:
+        return np.arange(y.shape[0])
+    size = float(np.percentile(np.linalg.norm(y[half:2 * half] - y[:half], axis=1), 75)) / grid
+    if not size > 0:
+        return np.arange(y.shape[0])
+    keys = np.floor((y - np.median(y, axis=0)) / size).astype(np.int64)
+    # one integer per cube (a rare collision far out merges two cubes, which does no harm)
+    flat = (keys[:, 0] * 2_097_143 + keys[:, 1]) * 2_097_169 + keys[:, 2]
+    _, first = np.unique(flat, return_index=True)
+    return np.sort(first)
+
+
+def band_half_width(directions: np.ndarray) -> float:
+    """Half-width in degrees of the band about a plane holding 95 % of the directions.
+
+    The plane is the one through the origin closest to the unit directions (normal: the
+    eigenvector of the smallest eigenvalue of their second moment); about 72 for a full
+    sphere, about 44 for a 60 deg cap, about 15 for directions within +-15 deg of a great circle.
+    """
+    u = unit_rows(np.asarray(directions, dtype=float))
+    if u.shape[0] < 3:
+        return 0.0
+    _, vectors = np.linalg.eigh(u.T @ u)
+    off = np.abs(u @ vectors[:, 0])
+    return math.degrees(math.asin(min(1.0, float(np.percentile(off, 95)))))

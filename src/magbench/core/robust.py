@@ -22,16 +22,33 @@ chosen method's own residuals are trimmed afterwards (:mod:`magbench.studies.cal
 away and a large ``T``, every corrected sample lands near one point of the unit sphere and
 J_r tends to 0 (see :mod:`magbench.studies.real`). Such a fit, a near-singular ``A`` or a
 non-finite answer is refused, never written.
+
+*Still stretches* (:func:`screen`). A recording that lies still for half its length puts half
+its samples at one point: the median of the first round sits there, and the rotation is set
+aside as outliers. :func:`screen` therefore takes its centre from the distinct samples
+(:func:`magbench.core.geometry.distinct_rows`), thins the samples by direction around it
+(:func:`magbench.core.geometry.thin_by_direction`), fits the robust sphere on the thinned ones
+and applies its limit to every sample. A screen that would empty most of the occupied direction
+cells is not applied (:func:`keeps_directions`): outliers are the few, never the directions.
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
-from magbench.core.geometry import sphere_fit, unit_rows
+from magbench.core.geometry import (
+    direction_cells,
+    distinct_rows,
+    sphere_fit,
+    thin_by_direction,
+    unit_rows,
+)
 
-__all__ = ["COLLAPSE_RATIO", "CUTOFF", "FLOOR", "MAD_SCALE", "MAX_CONDITION", "outliers",
-           "refusal_reason", "resultant_length", "robust_sphere_fit"]
+__all__ = ["COLLAPSE_RATIO", "CUTOFF", "FLOOR", "MAD_SCALE", "MAX_CONDITION", "Screen",
+           "keeps_directions", "outliers", "refusal_reason", "resultant_length",
+           "robust_sphere_fit", "screen", "trimmed"]
 
 MAD_SCALE = 1.4826
 #: Robust standard deviations from the median beyond which a norm residual is an outlier.
@@ -134,3 +151,67 @@ def refusal_reason(T: np.ndarray, h: np.ndarray, y: np.ndarray, centre: np.ndarr
                 f"vector length {1 - spread:.2f}; {1 - reference:.2f} seen from the sphere "
                 "fit's centre)")
     return ""
+
+
+def keeps_directions(directions: np.ndarray, kept: np.ndarray, screened: np.ndarray) -> bool:
+    """Whether setting aside ``~screened`` leaves at least half of the direction cells that
+    the ``kept`` samples occupy (see :func:`screen`)."""
+    cell = direction_cells(directions)
+    before = np.unique(cell[kept]).size
+    after = np.unique(cell[kept & screened]).size
+    return after >= 0.5 * before
+
+
+@dataclass(frozen=True)
+class Screen:
+    """What :func:`screen` found: the centre and radius, and two masks over the samples.
+
+    ``kept``: the samples left by thinning by direction; ``inliers``: not outliers. The fit
+    uses ``kept & inliers``. ``applied`` is False when the outlier limit was not applied
+    because it would have emptied most directions.
+    """
+
+    centre: np.ndarray
+    radius: float
+    kept: np.ndarray
+    inliers: np.ndarray
+    applied: bool = True
+
+    @property
+    def thinned(self) -> int:
+        return int((~self.kept).sum())
+
+    @property
+    def work(self) -> np.ndarray:
+        return self.kept & self.inliers
+
+
+def screen(y: np.ndarray, *, cutoff: float = CUTOFF) -> Screen:
+    """Thin by direction and set aside outliers, robust to still stretches (module notes).
+
+    Parameters
+    ----------
+    y : ndarray, shape (K, 3)
+        Samples in time order.
+    cutoff : float
+        Outlier limit in robust standard deviations (:func:`outliers`).
+    """
+    y = np.asarray(y, dtype=float)
+    distinct = distinct_rows(y)
+    rough, _, _ = robust_sphere_fit(y[distinct], cutoff=cutoff)
+    kept = thin_by_direction(y - rough)
+    centre, radius, _ = robust_sphere_fit(y[kept], cutoff=cutoff)
+    return trimmed(Screen(centre, radius, kept, np.ones(len(y), dtype=bool)),
+                   np.linalg.norm(y - centre, axis=1) / radius - 1.0, y - centre, cutoff)
+
+
+def trimmed(current: Screen, residuals: np.ndarray, directions: np.ndarray,
+            cutoff: float = CUTOFF) -> Screen:
+    """``current`` with its inliers recomputed from ``residuals`` (every sample), the
+    statistics taken over its thinned inliers; unchanged inliers when the new ones would empty
+    most direction cells (:func:`keeps_directions`)."""
+    reference = current.kept & current.inliers
+    new = ~outliers(residuals, residuals[reference], cutoff=cutoff)
+    if not keeps_directions(directions, current.kept, new):
+        return Screen(current.centre, current.radius, current.kept, current.inliers, False)
+    return Screen(current.centre, current.radius, current.kept, new, current.applied)

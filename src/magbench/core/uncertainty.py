@@ -14,8 +14,11 @@ At the estimate ``T, h`` of ``y_k = T m_k + h + e_k`` (eq. 67) with ``e_k ~ N(0,
   the full model cannot fix, so neither does its interval).
 
 The intervals are ``estimate +- 1.96 sqrt(variance)``: model-based, exact only as far as the
-noise is independent, Gaussian and isotropic and the model holds; a bootstrap over the samples
-(:mod:`magbench.studies.calibration`) checks them on the data.
+noise is independent, Gaussian and isotropic and the model holds. Real noise is correlated in
+time (a slow rotation, a drifting offset, a model error that follows the rotation), so
+``calibrate`` also refits on *block* resamples of the recording (:func:`block_resample`, blocks
+:data:`BLOCK_FACTOR` times the residuals' integrated correlation time,
+:func:`correlation_length`) and reports the wider interval of the two.
 """
 
 from __future__ import annotations
@@ -27,7 +30,9 @@ import numpy as np
 from magbench.core.crb import MODEL_PARAMETERS, parameter_covariance
 from magbench.core.gauge import safe_gauge
 
-__all__ = ["Intervals", "a_jacobian", "fisher_intervals", "noise_sigma"]
+__all__ = ["BLOCK_FACTOR", "MIN_BLOCKS", "WINDOW", "Intervals", "a_jacobian", "block_length",
+           "block_resample", "correlation_length", "fisher_intervals", "noise_sigma",
+           "student_t95"]
 
 Z95 = 1.959963984540054
 
@@ -124,3 +129,66 @@ def fisher_intervals(y: np.ndarray, T: np.ndarray, h: np.ndarray,
     var_A = np.einsum("ij,jk,ik->i", J, C[:9, :9], J)
     return Intervals(h, Z95 * np.sqrt(np.diag(C)[9:]), A,
                      Z95 * np.sqrt(np.clip(var_A, 0, None)).reshape(3, 3), sigma, model)
+
+
+#: The block bootstrap's blocks are this many times the residuals' correlation time ...
+BLOCK_FACTOR = 5.0
+#: ... and no longer than the recording over this many blocks (enough blocks to resample).
+MIN_BLOCKS = 8
+#: Sokal's window: the autocorrelations are summed up to the first lag M >= WINDOW * tau(M).
+WINDOW = 5.0
+
+
+def correlation_length(residuals: np.ndarray) -> float:
+    """Integrated autocorrelation time of the residuals, in samples.
+
+    ``tau = 1 + 2 sum_(k=1..M) rho(k)`` with Sokal's automatic window, the first ``M`` with
+    ``M >= 5 tau(M)`` (Sokal 1997; the usual choice for Markov-chain output): 1 for white noise,
+    ``(1 + phi) / (1 - phi)`` for AR(1) noise ``e_k = phi e_(k-1) + w_k``; a slow drift,
+    whose autocorrelation stays positive over long lags, gives a long time where the lag at
+    which the autocorrelation falls below ``1/e`` would not. Computed with the FFT on the
+    mean-removed series.
+    """
+    r = np.asarray(residuals, dtype=float)
+    r = r - r.mean()
+    n = r.size
+    if n < 3 or not np.any(r):
+        return 1.0
+    spectrum = np.fft.rfft(r, 2 * n)
+    acf = np.fft.irfft(spectrum * np.conj(spectrum))[:n]
+    tau = 1.0 + 2.0 * np.cumsum(acf[1:] / acf[0])
+    window = np.flatnonzero(np.arange(1, n) >= WINDOW * tau)
+    return float(max(1.0, tau[window[0]] if window.size else tau[-1]))
+
+
+def block_length(residuals: np.ndarray) -> int:
+    """Block length of :func:`block_resample`: :data:`BLOCK_FACTOR` correlation times,
+    at least 1, at most ``K / MIN_BLOCKS``."""
+    K = int(np.asarray(residuals).size)
+    want = int(np.ceil(BLOCK_FACTOR * correlation_length(residuals)))
+    return int(max(1, min(want, K // MIN_BLOCKS)))
+
+
+def block_resample(K: int, block: int, gen: np.random.Generator) -> np.ndarray:
+    """Indices of one circular block-bootstrap resample of ``0..K-1`` (Politis and Romano
+    1992): ``ceil(K / block)`` blocks of consecutive indices from random starts, wrapping at
+    the end, cut to ``K``."""
+    starts = gen.integers(0, K, int(np.ceil(K / block)))
+    return ((starts[:, None] + np.arange(block)) % K).ravel()[:K]
+
+
+def student_t95(dof: float) -> float:
+    """Two-sided 95 % quantile of Student's t with ``dof`` degrees of freedom.
+
+    The Cornish-Fisher expansion in ``1 / dof`` about the normal quantile (Abramowitz and
+    Stegun 26.7.5, four terms): within 0.2 % of the exact value from 3 degrees of freedom
+    (11 % low at 1, 0.8 % at 2; the block bootstrap has at least 7), without importing
+    scipy.stats (0.7 s).
+    """
+    z = Z95
+    v = max(float(dof), 1.0)
+    g1 = (z**3 + z) / 4
+    g2 = (5 * z**5 + 16 * z**3 + 3 * z) / 96
+    g3 = (3 * z**7 + 19 * z**5 + 17 * z**3 - 15 * z) / 384
+    g4 = (79 * z**9 + 776 * z**7 + 1482 * z**5 - 1920 * z**3 - 945 * z) / 92160
+    return z + g1 / v + g2 / v**2 + g3 / v**3 + g4 / v**4

@@ -17,18 +17,36 @@ calibrated by nearly every full-model method, while a cap of half-angle 60 deg d
 them. Samples within a cap of half-angle theta leave an empty cap of radius ``180 - theta``
 (:func:`magbench.core.geometry.largest_gap`); :data:`MAX_GAP_DEG` (100, a cap of 80 deg) lies
 between the two, with room for the few-degree bias of a sphere-fit centre on partial data.
+
+*Fitness* (:func:`fitness`). Every calibration is PASS, WARN or FAIL, with its reasons, from
+stated thresholds (:class:`Gate`, the ``gate.*`` keys of ``calibrate``), as ArduPilot's
+calibrator checks its fit's residual: the held-out 95th-percentile field error, the largest
+uncovered cap, the number of distinct directions (occupied equal-area cells,
+:func:`magbench.core.geometry.direction_cells`), directions confined to a band about one plane
+(:func:`magbench.core.geometry.band_half_width`), and the fitted field strength against the
+samples' own radius and, when known, an expected value or range. The worst status wins.
 """
 
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 
 from magbench.core.geometry import coverage, largest_gap
 
-__all__ = ["MAX_GAP_DEG", "coverage_report", "field_error_pct", "heading_error_deg",
-           "magnitude_verdict", "turn_advice"]
+__all__ = [
+    "MAX_GAP_DEG",
+    "STATUSES",
+    "Gate",
+    "coverage_report",
+    "field_error_pct",
+    "fitness",
+    "heading_error_deg",
+    "magnitude_verdict",
+    "turn_advice",
+]
 
 MAX_GAP_DEG = 100.0
 
@@ -152,3 +170,120 @@ def coverage_report(directions: np.ndarray, *, max_gap_deg: float = MAX_GAP_DEG)
     return {"coverage": coverage(d), "largest_gap_deg": float(gap),
             "gap_centre": centre.tolist(), "rotate_about": axis.tolist(), "advice": advice,
             "warning": warning}
+
+
+#: The statuses, best first; FAIL writes no firmware file and exits 3.
+STATUSES = ("PASS", "WARN", "FAIL")
+
+
+@dataclass(frozen=True)
+class Gate:
+    """Thresholds of :func:`fitness` (the ``gate.*`` keys; each WARN below its FAIL).
+
+    Attributes
+    ----------
+    warn_error_pct, fail_error_pct : float
+        Held-out 95th-percentile field error (%) above which a result warns / fails:
+        ArduPilot's default fitness, 16 mGauss RMS on a ~500 mGauss field (3.2 % RMS, about
+        6 % at the 95th percentile of Gaussian errors), and its "relaxed" 32 mGauss (12 %).
+    warn_gap_deg, fail_gap_deg : float
+        Largest uncovered cap (deg): 100 (a cap of 80 deg, where the coverage sweep's full
+        models start to fail) and 135 (a cap of 45 deg, where they all do).
+    warn_directions, fail_directions : int
+        Distinct directions (occupied cells of about 10 deg): fewer than 10 cannot identify the
+        9 parameters of a full model and a check; 20 leave room for the 24 static shots of a
+        cave-survey calibration.
+    warn_band_deg : float
+        Directions within +- this of one plane (95 %) warn: the axis across it is extrapolated.
+    warn_field_pct, fail_field_pct : float
+        Fitted field strength farther than this (%) from the expected value (or outside the
+        expected range by this much) warns / fails; ``fail_field_pct`` also bounds the
+        distance from the samples' own sphere-fit radius (a fit that lost the data's scale).
+    """
+
+    warn_error_pct: float = 6.0
+    fail_error_pct: float = 12.0
+    warn_gap_deg: float = MAX_GAP_DEG
+    fail_gap_deg: float = 135.0
+    warn_directions: int = 20
+    fail_directions: int = 10
+    warn_band_deg: float = 30.0
+    warn_field_pct: float = 10.0
+    fail_field_pct: float = 25.0
+
+
+def _field_distance_pct(value: float, expected: float | tuple[float, float]) -> float:
+    """How far (%) ``value`` lies from ``expected`` (a value, or outside a range)."""
+    if isinstance(expected, tuple):
+        low, high = expected
+        if low <= value <= high:
+            return 0.0
+        return 100.0 * (low / value - 1.0 if value < low else value / high - 1.0)
+    return 100.0 * abs(value / expected - 1.0)
+
+
+def fitness(gate: Gate, *, p95_pct: float, held_out: bool, gap_deg: float, directions: int,
+            band_deg: float, field: float, radius: float,
+            expected_field: float | tuple[float, float] | None = None) -> dict:
+    """PASS, WARN or FAIL with the reasons (see the module notes).
+
+    Parameters
+    ----------
+    gate : Gate
+        The thresholds.
+    p95_pct : float
+        95th-percentile field error (%), held out when ``held_out``.
+    held_out : bool
+        False when no held-out error exists (a short recording): that alone warns.
+    gap_deg, directions, band_deg : float, int, float
+        Largest uncovered cap, distinct directions, band half-width about a plane.
+    field, radius : float
+        The fit's field strength ``|det T|^(1/3)`` and the samples' sphere-fit radius.
+    expected_field : float or (low, high), optional
+        The field strength expected in the recording's units.
+
+    Returns
+    -------
+    dict
+        ``status`` (``PASS``, ``WARN`` or ``FAIL``), ``reasons`` (one short phrase each, the
+        failing ones first) and ``thresholds`` (the gate).
+    """
+    fails, warns = [], []
+
+    def judge(value: float, warn: float, fail: float, text: str, above: bool = True) -> None:
+        bad_fail = value > fail if above else value < fail
+        bad_warn = value > warn if above else value < warn
+        if bad_fail:
+            fails.append(text.format(v=value, t=fail))
+        elif bad_warn:
+            warns.append(text.format(v=value, t=warn))
+
+    judge(p95_pct, gate.warn_error_pct, gate.fail_error_pct,
+          "field error {v:.1f} % (p95" + (", held out" if held_out else ", in sample")
+          + ") > {t:g} %")
+    judge(gap_deg, gate.warn_gap_deg, gate.fail_gap_deg,
+          "no direction within {v:.0f} deg of the gap centre (> {t:g} deg)")
+    judge(directions, gate.warn_directions, gate.fail_directions,
+          "{v:.0f} distinct directions (< {t:g})", above=False)
+    if band_deg < gate.warn_band_deg:
+        warns.append(f"directions within +-{band_deg:.0f} deg of one plane (< "
+                     f"{gate.warn_band_deg:g}): the axis across it is extrapolated")
+    if not held_out:
+        warns.append("no held-out score: the error is in sample")
+    if radius > 0:
+        off = _field_distance_pct(field, radius)
+        if off > gate.fail_field_pct:
+            fails.append(f"fitted field {field:.4g} is {off:.0f} % from the data's radius "
+                         f"{radius:.4g}")
+    if expected_field is not None:
+        judge(_field_distance_pct(field, expected_field), gate.warn_field_pct,
+              gate.fail_field_pct, f"field strength {field:.4g} is {{v:.0f}} % from the "
+              f"expected {_expected_text(expected_field)} (> {{t:g}} %)")
+    status = "FAIL" if fails else "WARN" if warns else "PASS"
+    return {"status": status, "reasons": fails + warns, "thresholds": dict(gate.__dict__)}
+
+
+def _expected_text(expected: float | tuple[float, float]) -> str:
+    if isinstance(expected, tuple):
+        return f"{expected[0]:.4g}-{expected[1]:.4g}"
+    return f"{expected:.4g}"

@@ -153,16 +153,16 @@ class _Child:
                 self.stop()
                 raise _DeathSignal(_Death(unit, method, _timeout_reason(limit)))
             try:
-                kind, index, payload = self.conn.recv()
+                event, index, payload = self.conn.recv()
             except (EOFError, OSError):
                 raise _DeathSignal(_Death(unit, method, self._exit_reason())) from None
-            if kind in ("unit", "called"):
-                unit = index if kind == "unit" else unit
+            if event in ("unit", "called"):
+                unit = index if event == "unit" else unit
                 method, deadline = None, None
-            elif kind == "call":
+            elif event == "call":
                 method, limit = index, payload
                 deadline = None if not limit else time.monotonic() + hard_limit(limit)
-            elif kind == "rows":
+            elif event == "rows":
                 remaining -= 1
                 method, deadline = None, None
                 yield index, payload

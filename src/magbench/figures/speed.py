@@ -9,7 +9,12 @@ import pandas as pd
 
 from magbench.figures.style import method_style, new_figure, save_figure
 
-__all__ = ["plot_scaling"]
+__all__ = ["plot_scale", "plot_scaling"]
+
+#: ``scale.csv`` columns drawn by :func:`plot_scale`: (column, label) per panel.
+SCALE_TIMES = (("run_s", "sweep (trials, merge)"), ("summarize_s", "summary.csv"),
+               ("intervals_s", "bootstrap intervals"))
+SCALE_MEMORY = (("peak_rss_mb", "main process"), ("worker_peak_rss_mb", "largest worker"))
 
 
 def plot_scaling(calls: pd.DataFrame, path: Path) -> Path:
@@ -27,4 +32,25 @@ def plot_scaling(calls: pd.DataFrame, path: Path) -> Path:
            title="Cost of one calibration call (median, bars: quartiles)")
     ax.grid(True, which="both", alpha=0.3)
     ax.legend(loc="center left", bbox_to_anchor=(1.01, 0.5), fontsize=8)
+    return save_figure(fig, path)
+
+
+def plot_scale(scale: pd.DataFrame, path: Path) -> Path:
+    """Log-log wall time per phase and peak resident memory against the trials of one sweep
+    point (``bench/scale.csv``), each with a slope-1 guide through its first point."""
+    fig = new_figure(10, 4.2)
+    trials = scale["trials"].to_numpy(float)
+    span = np.array([trials.min(), trials.max()])
+    for ax, columns, ylabel, title in zip(
+            fig.subplots(1, 2), (SCALE_TIMES, SCALE_MEMORY), ("wall time (s)", "peak RSS (MB)"),
+            ("(a) time per phase", "(b) peak resident memory"), strict=True):
+        for column, label in columns:
+            ax.plot(trials, scale[column], marker="o", label=label)
+        first = scale[columns[0][0]].iloc[int(np.argmin(trials))]
+        ax.plot(span, first * span / span[0], color="0.6", linestyle=":",
+                label="slope 1 (linear in trials)")
+        ax.set(xscale="log", yscale="log", xlabel="trials (datasets x "
+               f"{int(scale['methods'].iloc[0])} methods)", ylabel=ylabel, title=title)
+        ax.grid(True, which="both", alpha=0.3)
+        ax.legend(fontsize=8)
     return save_figure(fig, path)

@@ -14,6 +14,7 @@ from magbench.core.files import write_text_atomic
 from magbench.report.advice import advice_section
 from magbench.report.baseline import baseline_section
 from magbench.report.claims import claims_section
+from magbench.report.efficiency import efficiency_section
 from magbench.report.format import render
 from magbench.report.speed import bench_report_section
 from magbench.report.sweeps import SWEEP_SECTIONS, sweep_section
@@ -32,10 +33,11 @@ def header_section(results_dir: Path) -> str:
 
 
 #: The review's sections, in report order: title, advice, Table 2, Figures 2-5 and
-#: coverage, the claims.
+#: coverage, large K, the claims.
 REVIEW_SECTIONS: tuple[Section, ...] = (
     header_section, advice_section, baseline_section,
-    *(partial(sweep_section, sweep=s) for s in SWEEP_SECTIONS), claims_section)
+    *(partial(sweep_section, sweep=s) for s in SWEEP_SECTIONS), efficiency_section,
+    claims_section)
 def build_report(results_dir: Path | str, sections: Sequence[Section] = ()) -> str:
     """The Markdown of ``results/report.md``, from the CSV files under ``results_dir``:
     :data:`REVIEW_SECTIONS`, then ``sections`` (the study kinds' own parts, in the registry's

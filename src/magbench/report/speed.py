@@ -10,6 +10,8 @@ import pandas as pd
 
 from magbench.methods.registry import method_label
 from magbench.report.format import format_number, render
+from magbench.report.peer_accuracy import peer_accuracy_lines
+from magbench.report.scale import scale_lines
 
 __all__ = ["bench_report_section"]
 
@@ -17,17 +19,24 @@ __all__ = ["bench_report_section"]
 def bench_report_section(results_dir: Path | str) -> str:
     """Markdown for results/report.md from ``<results_dir>/bench/*.csv`` (empty if absent)."""
     folder = Path(results_dir) / "bench"
-    if not (folder / "calls.csv").exists():
+    if (folder / "calls.csv").exists():
+        lines = _calls_lines(pd.read_csv(folder / "calls.csv"))
+    elif (folder / "scale.csv").exists():
+        lines = ["## Speed (benchmark)"]
+    else:
         return ""
-    lines = _calls_lines(pd.read_csv(folder / "calls.csv"))
     if (folder / "first_calls.csv").exists():
         lines += _first_call_lines(pd.read_csv(folder / "first_calls.csv"))
     if (folder / "peers.csv").exists():
         lines += _peer_lines(pd.read_csv(folder / "peers.csv"))
+    if (folder / "peer_accuracy_summary.csv").exists():
+        lines += peer_accuracy_lines(pd.read_csv(folder / "peer_accuracy_summary.csv"))
     if (folder / "calibrate.csv").exists():
         lines += calibrate_lines(pd.read_csv(folder / "calibrate.csv"))
     if (folder / "parallel.csv").exists():
         lines += _parallel_lines(pd.read_csv(folder / "parallel.csv"))
+    if (folder / "scale.csv").exists():
+        lines += scale_lines(pd.read_csv(folder / "scale.csv"))
     return "\n".join(lines) + "\n"
 
 

@@ -18,6 +18,7 @@ import pandas as pd
 from magbench.core.geometry import check_geometry
 from magbench.core.model import Calibration, as_samples
 from magbench.core.uncertainty import Intervals
+from magbench.core.verdict import Gate
 from magbench.methods.registry import get_method, methods
 from magbench.sources.recordings import Recording
 from magbench.studies.calibration import (
@@ -101,23 +102,19 @@ class AutoCalibration:
 
 
 def _status(result: CalibrationResult) -> tuple[str, str]:
-    """The study's own status when it gives one, else FAIL without a choice, WARN with a
-    warning, PASS."""
-    status = getattr(result, "status", None)
-    if status:
-        return str(status), str(getattr(result, "reason", "") or "")
-    if result.chosen is None:
+    """The study's fitness (PASS, WARN or FAIL and its first reason); FAIL without a choice."""
+    if result.chosen is None or result.fitness is None:
         return "FAIL", "no method produced a calibration that can be written"
-    if result.warnings:
-        return "WARN", str(result.warnings[0])
-    return "PASS", ""
+    reasons = result.fitness["reasons"]
+    return str(result.fitness["status"]), str(reasons[0]) if reasons else ""
 
 
 def calibrate_auto(samples: object, *, time: object = None, angular_rate: object = None,
                    candidates: str | Sequence[str] = "auto", preprocess: str = "centre",
                    options: dict | None = None, seed: int = 2021,
                    max_samples: int | None = DEFAULT_MAX_SAMPLES, bootstrap: int = 0,
-                   call_timeout_s: float | None = None) -> AutoCalibration:
+                   call_timeout_s: float | None = None, gate: Gate | None = None,
+                   expected_field: float | None = None) -> AutoCalibration:
     """Calibrate samples with ``calibrate``'s automatic choice (module notes).
 
     Parameters
@@ -132,9 +129,15 @@ def calibrate_auto(samples: object, *, time: object = None, angular_rate: object
     preprocess, options, seed, call_timeout_s
         As the keys of ``calibrate`` (``options``: method -> keyword options).
     max_samples : int or None
-        Longer recordings are thinned to every ``s``-th sample, as ``calibrate`` does.
+        After thinning by direction, longer recordings are strided to about this many
+        samples, as ``calibrate`` does.
     bootstrap : int
-        Refits on resampled samples that check the intervals (0: none).
+        Block-bootstrap refits that widen the intervals where needed (0: none).
+    gate : Gate, optional
+        PASS / WARN / FAIL thresholds (:class:`magbench.core.verdict.Gate`, the defaults of
+        ``calibrate``'s ``gate.*`` keys).
+    expected_field : float, optional
+        The field strength expected, in the samples' unit.
 
     Returns
     -------
@@ -155,12 +158,12 @@ def calibrate_auto(samples: object, *, time: object = None, angular_rate: object
         raise ValueError(f"time must have shape ({y.shape[0]},) and angular_rate "
                          f"({y.shape[0]}, 3), like the samples")
     check_geometry(y, min_coverage=MIN_COVERAGE, what="the samples")
-    rec = Recording("samples", y, t, gyro if t is not None else None,
-                    n_rows=y.shape[0]).thinned(max_samples)
+    rec = Recording("samples", y, t, gyro if t is not None else None, n_rows=y.shape[0])
     first, second = candidate_rounds(rec.has_gyro, candidates)
     result = calibrate_recording(rec, first, preprocess=preprocess, options=options or {},
                                  seed=seed, call_timeout_s=call_timeout_s, bootstrap=0,
-                                 second_round=second)
+                                 second_round=second, max_samples=max_samples, gate=gate,
+                                 expected_field=expected_field)
     result.bootstrap = bootstrap_check(result, bootstrap, preprocess=preprocess,
                                        options=options or {}, seed=seed)
     status, reason = _status(result)

@@ -206,14 +206,16 @@ def _fit_row(rec: Recording, part: str, fit: Recording,
 def evaluate_recording(rec: Recording, algorithms: Sequence[str], preprocess: Sequence[str],
                        *, options: dict | None = None, seed: int = 0,
                        partner: Recording | None = None, call_timeout_s: float | None = None,
-                       coverage_ratio: float = 0.5, sphere_factor: float = 2.0) -> list[dict]:
-    """All rows of one (already thinned) recording: methods x preprocessing x fits."""
+                       coverage_ratio: float = 0.5, sphere_factor: float = 2.0,
+                       splits: Sequence[tuple[str, Recording, list]] | None = None
+                       ) -> list[dict]:
+    """All rows of one (already thinned) recording: methods x preprocessing x fits.
+
+    ``splits`` replaces the fit sets (all samples and the two halves in time): a list of
+    ``(fit_on, fit recording, [(test_on, test recording or None), ...])``.
+    """
     options = options or {}
-    first, second = rec.halves()
-    fits = [("all", rec, [("partner:" + partner.name, partner)] if partner is not None else
-             [("", None)]),
-            ("first_half", first, [("second_half", second)]),
-            ("second_half", second, [("first_half", first)])]
+    fits = list(splits) if splits is not None else _halves_splits(rec, partner)
     spheres = [_sphere_baseline(fit, tests) for _, fit, tests in fits]
     rows = []
     for how in preprocess:
@@ -223,6 +225,15 @@ def evaluate_recording(rec: Recording, algorithms: Sequence[str], preprocess: Se
                                  dict(options.get(method) or {}), seed, call_timeout_s,
                                  coverage_ratio, sphere_factor, sphere)
     return rows
+
+
+def _halves_splits(rec: Recording, partner: Recording | None) -> list[tuple]:
+    """All samples (tested on the partner, if any) and each half in time tested on the other."""
+    first, second = rec.halves()
+    return [("all", rec, [("partner:" + partner.name, partner)] if partner is not None else
+             [("", None)]),
+            ("first_half", first, [("second_half", second)]),
+            ("second_half", second, [("first_half", first)])]
 
 
 @dataclass(frozen=True)

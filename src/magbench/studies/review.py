@@ -36,7 +36,7 @@ from magbench.studies.times import split_times, with_times
 __all__ = ["POINT_COLUMNS", "ROW_COLUMNS", "SUMMARY_COLUMNS", "TIME_COLUMNS", "TRUTH_COLUMNS",
            "OptionAxis", "ReviewStudy", "coverage_label", "efficiency_intervals",
            "method_options", "point_with", "points_for", "read_trials", "summarize_review",
-           "trial_rows", "with_coverage_column"]
+           "trial_rows", "with_coverage_column", "write_efficiency"]
 
 POINT_COLUMNS = ["K", "sigma", "beta", "gamma", "cap_deg", "band_deg"]
 TRUTH_COLUMNS = [f"h_true_{i}" for i in range(3)] + [f"T_true_{i}{j}" for i in range(3)
@@ -245,7 +245,8 @@ def efficiency_intervals(trials: pd.DataFrame, by: Sequence[str], sweep: str) ->
     and ``eff_hi``.
     """
     rows = []
-    for key, g in trials.groupby(list(by), sort=False):
+    # dropna=False: an option axis's default run has an empty value and is a group of its own.
+    for key, g in trials.groupby(list(by), sort=False, dropna=False):
         key = key if isinstance(key, tuple) else (key,)
         ok = g[g["meaningful"].astype(bool)]
         stream = [f"{c}={v}" for c, v in zip(by, key, strict=True)]
@@ -257,6 +258,19 @@ def efficiency_intervals(trials: pd.DataFrame, by: Sequence[str], sweep: str) ->
                      "eff_lo": low, "eff_hi": high})
     return pd.DataFrame(rows, columns=[*by, "n", "n_meaningful", "efficiency", "eff_lo",
                                        "eff_hi"])
+
+
+def write_efficiency(out_dir: Path | str, sweep: str, extra: Sequence[str] = ()) -> Path:
+    """Write ``<out_dir>/efficiency.csv``: :func:`efficiency_intervals` per point and method
+    (and value of the ``extra`` columns, such as an option axis's), from the ``meaningful``,
+    ``crb`` and ``sq_err`` columns of ``trials.csv`` (read in chunks, the other columns never
+    held)."""
+    out_dir = Path(out_dir)
+    by = [*POINT_COLUMNS, *extra, "algorithm"]
+    trials = read_csv_columns(out_dir / "trials.csv", [*by, "meaningful", "crb", "sq_err"])
+    path = out_dir / "efficiency.csv"
+    write_csv_atomic(efficiency_intervals(trials, by, sweep), path)
+    return path
 
 
 def coverage_label(cap_deg: float, band_deg: float) -> str:

@@ -78,14 +78,17 @@ def _option_axis(vary: str, values: list, algorithms: list[str]):
 
 
 def finish(study, out_dir: Path, common: dict) -> None:
-    """The timing pass for tau (after the trials, workers gone), summary.csv and the tables."""
+    """The timing pass for tau (after the trials, workers gone), summary.csv, the tables and
+    efficiency.csv (bound / MSE with its interval per point and method)."""
     from magbench.report.build import write_sweep_tables
+    from magbench.studies.review import write_efficiency
     from magbench.studies.timing import timing_is_current, write_timing
 
     if not timing_is_current(study, out_dir):
         write_timing(study, out_dir, progress=common["progress"])
     summary = study.summarize(out_dir)
     write_sweep_tables(study.name, summary, out_dir, delta=study.delta)
+    write_efficiency(out_dir, study.name, [] if study.axis is None else [study.axis.column])
 
 
 def figures(name: str, out_dir: Path) -> list[Path]:

@@ -1,0 +1,99 @@
+"""calibrate's choice, step by step, on hand-made candidate tables."""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from magbench.studies.choice import (
+    TIE_RTOL,
+    allowed,
+    choose,
+    eligibility,
+    find_tie,
+    gyro_rule,
+    pick,
+    rank,
+)
+
+T_COLUMNS = {f"T_{i}{j}": float(i == j) for i in range(3) for j in range(3)}
+
+
+def table(rows):
+    """Candidates as fold_summary gives them: (name, mean held-out J_r, worst fold, n_iter)."""
+    return pd.DataFrame([{"algorithm": a, "J_r_out": m, "J_r_worst": w, "n_iter": it,
+                          "meaningful": True, "ok": True, "error": "", "coverage": 1.0,
+                          "coverage_sphere": 1.0, "J_r_sphere_in": 1.0, "J_r_in": m,
+                          **T_COLUMNS, **{f"h_{i}": 0.0 for i in range(3)}}
+                         for a, m, w, it in rows])
+
+
+def run(rows, gap=20.0, refuse=None):
+    return choose(table(rows), {}, gap, refuse=refuse)
+
+
+def test_a_simpler_model_wins_only_when_it_ties_on_mean_and_worst_fold():
+    tie = run([("fang", 1.0, 2.0, 0), ("sphere", 1.0 + TIE_RTOL / 2, 2.0, 0)])
+    assert tie.chosen["algorithm"] == "sphere" and tie.tie == ["fang", "sphere"]
+    worse_worst = run([("fang", 1.0, 2.0, 0), ("sphere", 1.0, 2.5, 0)])
+    assert worse_worst.chosen["algorithm"] == "fang" and worse_worst.tie == ["fang"]
+    worse_mean = run([("fang", 1.0, 2.0, 0), ("sphere", 1.2, 2.0, 0)])
+    assert worse_mean.chosen["algorithm"] == "fang"
+
+
+def test_the_sphere_wins_when_it_is_better_out_of_sample():
+    # a band: the full models extrapolate badly, the sphere fit holds
+    out = run([("fang", 3.0, 6.0, 0), ("ellipsoid", 3.2, 7.0, 0), ("sphere", 1.0, 1.5, 0)])
+    assert out.chosen["algorithm"] == "sphere"
+    assert out.ranked["algorithm"].tolist()[0] == "sphere"
+
+
+def test_on_a_cap_the_sphere_competes_with_the_cap_robust_full_models():
+    out = run([("ellipsoid", 0.5, 0.6, 0), ("fang", 1.0, 1.2, 0), ("sphere", 0.9, 1.0, 0)],
+              gap=120.0)
+    assert not out.ranked.set_index("algorithm").loc["ellipsoid", "eligible"]
+    assert out.chosen["algorithm"] == "sphere"
+    assert allowed("magical", 120.0) and not allowed("fang", 150.0)
+
+
+@pytest.mark.parametrize(("gyro", "chosen"), [((0.5, 0.5), "sar_ls"), ((0.98, 1.0), "fang")])
+def test_a_gyro_aided_fit_must_beat_the_best_magnetometer_fit(gyro, chosen):
+    out = run([("fang", 1.0, 1.0, 0), ("sar_ls", *gyro, 0)])
+    assert out.chosen["algorithm"] == chosen
+    if chosen == "fang":
+        assert "must beat the best magnetometer-only fit (fang)" in \
+            out.ranked.set_index("algorithm").loc["sar_ls", "note"]
+
+
+def test_each_step_alone():
+    t = eligibility(__import__("magbench.studies.choice", fromlist=["annotate"]).annotate(
+        table([("fang", 1.0, 1.0, 0), ("magical", np.nan, np.nan, 30)]), {}), 20.0)
+    assert t.set_index("algorithm").loc["magical", "note"].startswith("no out-of-sample")
+    ranked = rank(gyro_rule(t))
+    assert ranked["rank"].tolist()[0] == 1 and pd.isna(ranked["rank"].tolist()[1])
+    tied = find_tie(ranked)
+    assert tied["tie"].tolist() == [True, False]
+    out, chosen = pick(tied, refuse=lambda r: "no")
+    assert chosen is None and out["note"].iloc[0] == "refused: no"
+
+
+def test_an_extra_score_joins_the_tie():
+    t = table([("fang", 1.0, 1.0, 0), ("sphere", 1.0, 1.0, 0)]).assign(direction=[0.1, 0.5])
+    plain = choose(t, {}, 20.0)
+    extra = choose(t, {}, 20.0, scores=("J_r_out", "J_r_worst", "direction"))
+    assert plain.chosen["algorithm"] == "sphere" and extra.chosen["algorithm"] == "fang"
+
+
+def test_a_refused_fit_passes_the_choice_to_the_next_of_the_tie():
+    out = run([("fang", 1.0, 1.0, 0), ("ellipsoid", 1.0, 1.0, 0)],
+              refuse=lambda r: "test refusal" if r["algorithm"] == "fang" else "")
+    assert out.chosen["algorithm"] == "ellipsoid"
+    assert out.ranked.set_index("algorithm").loc["fang", "note"] == "refused: test refusal"
+
+
+def test_the_choice_does_not_depend_on_fit_times():
+    rows = [("fang", 1.0, 1.0, 0), ("ellipsoid", 1.01, 1.0, 0), ("twostep", 1.0, 1.0, 3)]
+    chosen = {choose(table(rows).assign(time_s=times), {}, 20.0).chosen["algorithm"]
+              for times in ([1e-3, 2e-3, 3e-3], [3e-3, 2e-3, 1e-3])}
+    assert chosen == {"fang"}            # closed form first, then the better held out
