@@ -25,13 +25,16 @@ from __future__ import annotations
 
 import datetime as dt
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
+import pandas as pd
 
 from magbench.core.direction import direction_score, mean_direction, world_field
 from magbench.core.gauge import safe_gauge
 from magbench.core.geomagnetic import UNITS_NT, ExpectedField, Site, expected_field, infer_unit
+from magbench.core.geometry import sphere_fit
+from magbench.core.lag import attitude_rate, magnetometer_lag, shift
 from magbench.core.model import Calibration, CalibrationFailed
 from magbench.core.quaternions import quat_to_matrix
 from magbench.methods.algorithms._alignment_common import (
@@ -43,9 +46,12 @@ from magbench.methods.algorithms._alignment_common import (
     unit_rows,
 )
 from magbench.methods.api import calibrate
+from magbench.sources.recordings import Recording
+from magbench.studies.holdout import estimate, fold_indices
 
-__all__ = ["PRIMARY", "DirectionReport", "Inertial", "direction_consistency",
-           "direction_report", "direction_vetoes", "field_check", "fit_alignment",
+__all__ = ["PRIMARY", "DirectionReport", "DirectionVeto", "Inertial", "align_chosen",
+           "direction_consistency", "direction_report", "direction_vetoes", "field_check",
+           "fit_alignment", "fold_direction", "inertial_of", "lag_corrected", "longest_run",
            "primary_direction"]
 
 
@@ -318,3 +324,119 @@ def direction_report(candidates: dict[str, Calibration], y: np.ndarray, inertial
     metric = next((label for label, _ in primary.values() if label), "")
     vetoes = direction_vetoes({n: v for n, (_, v) in primary.items()}, tol_deg)
     return DirectionReport(aligned, scores, metric, vetoes, source, failures)
+
+
+#: Recording columns of the inertial streams beside ``t`` and the gyro.
+ATTITUDE_COLUMNS = ["qw", "qx", "qy", "qz"]
+ACCEL_COLUMNS = ["ax", "ay", "az"]
+#: Longest run of consecutive rows the joint gyro+accelerometer fit is given (its cost grows
+#: with the rows; a minute at 50 Hz fixes the rotation well).
+MAX_JOINT_ROWS = 3000
+
+
+def inertial_of(rec: Recording) -> Inertial:
+    """The inertial streams of a recording: its times and gyro, and the attitude
+    (``qw..qz``) and accelerometer (``ax..az``) columns it holds in ``extra``."""
+    extra = rec.extra
+
+    def columns(names: list[str]) -> np.ndarray | None:
+        if extra is None or not all(c in extra for c in names):
+            return None
+        return extra[names].to_numpy(float)
+
+    attitude = columns(ATTITUDE_COLUMNS)
+    if attitude is not None:
+        norm = np.linalg.norm(attitude, axis=1, keepdims=True)
+        attitude = attitude / np.where(norm > 0, norm, np.nan)
+    return Inertial(rec.t, rec.gyro, columns(ACCEL_COLUMNS), attitude)
+
+
+def fold_direction(trials: pd.DataFrame, work: Recording, name: str,
+                   inertial: Inertial) -> float:
+    """Held-out heading RMS (deg) of ``name`` over the folds of ``trials``: each fold's fit is
+    aligned by the attitude on its training rows and scored on its test rows, against the
+    training rows' world direction; NaN unless every fold's fit is usable."""
+    rows = trials[(trials["algorithm"] == name) & (trials["fit_on"] != "all")]
+    if len(rows) < 2 or not rows["usable"].astype(bool).all():
+        return math.nan
+    squares = []
+    for f, test in enumerate(fold_indices(work.K, len(rows))):
+        T, h = estimate(rows[rows["fit_on"] == f"fold{f}"].iloc[0])
+        train = np.setdiff1d(np.arange(work.K), test)
+        try:
+            aligned, _ = fit_alignment(Calibration(T, h), work.y[train], inertial.rows(train))
+        except (CalibrationFailed, ValueError, np.linalg.LinAlgError):
+            return math.nan
+        reference = world_reference(aligned, work.y[train], inertial.attitude[train])
+        score = direction_consistency(aligned, work.y[test], inertial.rows(test),
+                                      reference=reference)
+        squares.append(score["heading_rms"] ** 2)
+    return float(np.sqrt(np.mean(squares)))
+
+
+class DirectionVeto:
+    """The ``extra`` score of :func:`magbench.studies.calibration.calibrate_recording`: with
+    a reference attitude, every candidate's held-out heading RMS over the same folds as the
+    magnitude score; a candidate more than ``tol_deg`` worse than the best is scored NaN, so it
+    is not eligible (a fit that improves magnitude but worsens direction is not chosen), the
+    others 1 (they tie). ``scores`` and ``vetoes`` keep the last call's numbers to print."""
+
+    column = "direction_ok"
+
+    def __init__(self, tol_deg: float = 1.0):
+        self.tol_deg = tol_deg
+        self.scores: dict[str, float] = {}
+        self.vetoes: dict[str, str] = {}
+
+    def __call__(self, summary: pd.DataFrame, trials: pd.DataFrame,
+                 work: Recording) -> tuple[str, list[float]]:
+        names = [str(n) for n in summary["algorithm"]]
+        inertial = inertial_of(work)
+        if inertial.source != "attitude":
+            return self.column, [1.0] * len(names)
+        attitude_only = Inertial(attitude=inertial.attitude)
+        self.scores = {n: fold_direction(trials, work, n, attitude_only) for n in names}
+        self.vetoes = direction_vetoes(self.scores, self.tol_deg)
+        return self.column, [math.nan if n in self.vetoes else 1.0 for n in names]
+
+
+def longest_run(keep: np.ndarray, limit: int) -> np.ndarray:
+    """Indices of the longest run of consecutive ``True`` rows, at most ``limit`` of them."""
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], keep.astype(int), [0]])))
+    starts, stops = edges[::2], edges[1::2]
+    if not starts.size:
+        return np.arange(0)
+    k = int(np.argmax(stops - starts))
+    return np.arange(starts[k], min(stops[k], starts[k] + limit))
+
+
+def align_chosen(cal: Calibration, rec: Recording, keep: np.ndarray,
+                 **map_options: object) -> tuple[Calibration, str]:
+    """The chosen calibration made heading-true on the recording's kept rows (every kept row
+    for an attitude or accelerometer; the longest run of consecutive kept rows, up to
+    :data:`MAX_JOINT_ROWS`, for the gyro+accelerometer fit, whose gyro chain needs them)."""
+    inertial = inertial_of(rec)
+    rows = np.flatnonzero(keep)
+    if inertial.source == "gyro+accelerometer":
+        rows = longest_run(keep, MAX_JOINT_ROWS)
+        map_options = {"sigma_acc": 0.2, "sigma_gyro": 0.05, **map_options}
+    return fit_alignment(cal, rec.y[rows], inertial.rows(rows), **map_options)
+
+
+def lag_corrected(rec: Recording, max_lag_s: float = 0.1) -> tuple[Recording, float]:
+    """The recording with its magnetometer moved onto the inertial streams' times, and the
+    lag removed (s; positive: the magnetometer reads late), measured against the attitude's
+    rate (or the gyro's) by :func:`magbench.core.lag.magnetometer_lag` on the field centred by
+    a sphere fit. Unchanged (lag 0) without times and a rate stream, or when no lag is found; rows
+    the shift leaves without a value are dropped."""
+    inertial = inertial_of(rec)
+    if rec.t is None or (inertial.attitude is None and rec.gyro is None):
+        return rec, 0.0
+    rate = attitude_rate(rec.t, inertial.attitude) if inertial.attitude is not None \
+        else rec.gyro
+    lag, _ = magnetometer_lag(rec.t, rec.y - sphere_fit(rec.y)[0], rate, max_lag_s)
+    if not np.isfinite(lag) or lag == 0.0:
+        return rec, 0.0
+    y = shift(rec.t, rec.y, lag)
+    keep = np.isfinite(y).all(axis=1)
+    return replace(rec, y=y).rows(np.flatnonzero(keep)), float(lag)
