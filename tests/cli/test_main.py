@@ -120,7 +120,7 @@ def test_a_bad_option_axis_stops_with_one_line_and_status_2(vary, message, tmp_p
     assert not (tmp_path / "p0").exists()
 
 
-# A process entry point: main() reads sys.argv and ends the process itself (end_process).
+# A process entry point: main() reads sys.argv; the interpreter's own exit follows.
 _ENTRY = """
 import atexit, sys, threading, time
 atexit.register(lambda: print("atexit ran", flush=True))
@@ -143,58 +143,3 @@ def test_a_process_ends_with_its_output_and_exit_functions(case):
     assert lines[0].startswith("magbench ") and "atexit ran" in lines
     # another thread alive: the normal exit waits for it before the exit functions
     assert ("thread finished" in lines) == (case == "thread")
-
-
-def test_end_process_returns_while_another_thread_runs():
-    import gc
-    import threading
-
-    from magbench.cli.main import end_process
-
-    stop = threading.Event()
-    other = threading.Thread(target=stop.wait)
-    other.start()
-    try:
-        assert end_process(0) is None     # still here: the process was not ended
-    finally:
-        gc.unfreeze()                     # end_process froze the test process's objects
-        stop.set()
-        other.join()
-
-
-# A command run by a process entry point: how the cyclic collector stands while it runs.
-_COLLECTOR = """
-import gc, importlib, sys
-entry = importlib.import_module("magbench.cli.main")
-def command(cfg):
-    print(gc.isenabled(), gc.get_freeze_count(), flush=True)
-    return 0
-entry.COMMANDS["methods"] = (command, *entry.COMMANDS["methods"][1:])
-sys.argv = ["magbench", "methods"]
-raise SystemExit(entry.main())
-"""
-
-
-def test_a_process_collects_again_once_its_configuration_is_composed():
-    import sys
-
-    done = subprocess.run([sys.executable, "-c", _COLLECTOR], capture_output=True, text=True,
-                          timeout=60)
-    assert done.returncode == 0, done.stderr
-    enabled, frozen = done.stdout.split()
-    # the start-up's objects (NumPy, pandas, Hydra) are set aside; collection runs again
-    assert enabled == "True" and int(frozen) > 50_000
-
-
-def test_a_host_keeps_its_collector_as_it_is(monkeypatch):
-    import gc
-    import importlib
-
-    entry = importlib.import_module("magbench.cli.main")
-    seen = []
-    monkeypatch.setitem(entry.COMMANDS, "methods", (
-        lambda cfg: seen.append((gc.isenabled(), gc.get_freeze_count())) or 0,
-        *entry.COMMANDS["methods"][1:]))
-    frozen = gc.get_freeze_count()
-    assert entry.main(["methods"]) == 0
-    assert seen == [(True, frozen)] and gc.isenabled()

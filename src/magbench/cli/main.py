@@ -7,8 +7,6 @@ needs no ``+``).
 
 from __future__ import annotations
 
-import atexit
-import gc
 import os
 import re
 import signal
@@ -26,7 +24,7 @@ if TYPE_CHECKING:
 
     from magbench.cli.picture import PictureWorker
 
-__all__ = ["COMMANDS", "INTERRUPTED", "end_process", "main"]
+__all__ = ["COMMANDS", "INTERRUPTED", "main"]
 
 #: The one line a Ctrl-C prints, whenever it comes.
 INTERRUPTED = "magbench: interrupted; finished chunks are kept and a rerun completes the rest"
@@ -254,22 +252,13 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     Called as a process's entry point (``argv`` None: the arguments are ``sys.argv``), it makes
     the process settings first (:func:`~magbench.cli.process.configure_process`: one BLAS
-    thread, glibc's malloc thresholds), starts up without cyclic garbage collection, and ends
-    the process as soon as the command is done (:func:`end_process`). Called with ``argv``
-    (tests, a host program), it changes none of these and returns the exit status.
+    thread, glibc's malloc thresholds). Called with ``argv`` (tests, a host program), it
+    changes none of them. Returns the exit status.
     """
     if argv is None:
         configure_process()       # BLAS threads and malloc, before NumPy is imported
-    start_up = argv is None and gc.isenabled()
-    if start_up:
-        # The imports and Hydra's compose make a few hundred thousand objects that live until
-        # the end; the cyclic collector would walk them again and again, a tenth of the
-        # start-up (0.04 s of calibrate). Collection resumes without them once the
-        # configuration is composed (_resume_collection). Only in a process of its own: a
-        # host (or a test) keeps its collector as it is.
-        gc.disable()
     try:
-        code = _main(argv, start_up)
+        code = _main(argv)
     except BrokenPipeError:
         # The reader went away (``magbench methods | head``): not an error worth a traceback.
         # Point stdout at /dev/null so the interpreter's final flush cannot raise again.
@@ -278,34 +267,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt:       # a Ctrl-C before or after the command's own handling
         print(INTERRUPTED, file=sys.stderr)
         code = 130
-    if argv is None:
-        end_process(code)
     return code
-
-
-def end_process(code: int) -> None:
-    """End this process with ``code`` without the interpreter's clean-up, if it is safe.
-
-    The interpreter's exit tears down every module and collects their objects once more:
-    0.1 s after ``calibrate`` (pandas, Hydra, NumPy), a tenth of the command. Nothing in it is
-    needed once the command is done: every file magbench writes is closed (atomic writes), so
-    this flushes stdout and stderr, runs the ``atexit`` functions (logging's flush, a host's
-    own) and leaves with ``os._exit``. With another thread alive (a Dask client, a process
-    pool's manager) it returns instead, so that the normal exit waits for that thread.
-    """
-    if threading.active_count() > 1:
-        gc.freeze()       # still spare the final collection of the objects made so far
-        return
-    for stream in (sys.stdout, sys.stderr):
-        try:
-            stream.flush()
-        except (OSError, ValueError):    # a closed pipe or stream: nothing left to deliver
-            pass
-    run_exit_functions = getattr(atexit, "_run_exitfuncs", None)
-    if run_exit_functions is None:       # not CPython: let the interpreter exit normally
-        return
-    run_exit_functions()
-    os._exit(code)
 
 
 def _start_picture() -> PictureWorker | None:
@@ -314,7 +276,7 @@ def _start_picture() -> PictureWorker | None:
     return PictureWorker.start()
 
 
-def _main(argv: Sequence[str] | None, start_up: bool = False) -> int:
+def _main(argv: Sequence[str] | None) -> int:
     args = list(sys.argv[1:] if argv is None else argv)
     if args and args[0] in ("--version", "-V", "version"):
         from magbench import __version__
@@ -338,14 +300,13 @@ def _main(argv: Sequence[str] | None, start_up: bool = False) -> int:
     # configuration and fits; closed (stopped, if it was never given a picture) at the end.
     picture = _start_picture() if command == "calibrate" else None
     try:
-        return _dispatch(command, args, picture, start_up)
+        return _dispatch(command, args, picture)
     finally:
         if picture is not None:
             picture.close()
 
 
-def _dispatch(command: str, args: list[str], picture: PictureWorker | None,
-              start_up: bool = False) -> int:
+def _dispatch(command: str, args: list[str], picture: PictureWorker | None) -> int:
     from magbench.cli.config import UsageError, compose_config
     from magbench.engine.isolation import WorkerDied
     from magbench.engine.sweep import FolderBusy, ResultsExist, TooLarge
@@ -353,10 +314,8 @@ def _dispatch(command: str, args: list[str], picture: PictureWorker | None,
     previous = signal.signal(signal.SIGTERM, _terminate) if _main_thread() else None
     try:
         if command == "reproduce":
-            _resume_collection(start_up)
             return _reproduce(_plain_keys(args))
         cfg = compose_config(_plain_keys(args))
-        _resume_collection(start_up)
         if picture is not None:
             return _calibrate(cfg, picture)
         return COMMANDS[command][0](cfg)
@@ -382,14 +341,6 @@ def _dispatch(command: str, args: list[str], picture: PictureWorker | None,
     finally:
         if previous is not None:
             signal.signal(signal.SIGTERM, previous)
-
-
-def _resume_collection(start_up: bool) -> None:
-    """End :func:`main`'s start-up: the objects made so far are set aside for good
-    (``gc.freeze``) and the cyclic collector runs again, on what the command makes."""
-    if start_up:
-        gc.freeze()
-        gc.enable()
 
 
 class Terminated(KeyboardInterrupt):

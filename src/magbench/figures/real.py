@@ -176,7 +176,9 @@ def figure6_recordings(per_method: pd.DataFrame, per_recording: pd.DataFrame) ->
     image = None
     for ax, how, letter in zip(axes, hows, "abcdef", strict=False):
         g = per_recording[per_recording["preprocess"] == how]
-        ratio = np.log10(g["J_r_in"] / g["J_r_sphere_in"]).where(g["meaningful"].astype(bool))
+        with np.errstate(divide="ignore"):       # a degenerate J_r of 0: masked, not meaningful
+            ratio = np.log10(g["J_r_in"] / g["J_r_sphere_in"]).where(
+                g["meaningful"].astype(bool))
         table = (g.assign(ratio=ratio).pivot(index="dataset", columns="algorithm",
                                              values="ratio")
                  .reindex(columns=order).reindex(index=datasets))
