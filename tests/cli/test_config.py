@@ -161,3 +161,25 @@ def test_a_plugin_with_a_syntax_error_is_one_line(methods_key, tmp_path, monkeyp
     assert main(args) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "failed to import: SyntaxError" in err[0], err
+
+
+def test_calibrates_site_keys_are_parsed_or_refused_in_one_line():
+    import datetime as dt
+
+    from omegaconf import OmegaConf
+
+    from magbench.cli.config import UsageError, check_site
+    from magbench.core.geomagnetic import Site
+
+    def cfg(**keys):
+        return OmegaConf.create({"location": None, "date": None, **keys})
+
+    assert check_site(cfg()) == (None, None)
+    site, date = check_site(cfg(location="52.51,13.33,40", date="2021-07-08"))
+    assert site == Site(52.51, 13.33, 40.0) and date == dt.date(2021, 7, 8)
+    assert check_site(cfg(location=[52.5, 13.3]))[1] == dt.date.today()
+    for bad, message in [({"location": "52.5"}, "lat,lon"),
+                         ({"location": "52.5,13.3", "date": "July"}, "ISO date"),
+                         ({"date": "2021-07-08"}, "give both or neither")]:
+        with pytest.raises(UsageError, match=message):
+            check_site(cfg(**bad))

@@ -58,9 +58,10 @@ def test_methods_prints_the_registry():
         spec = get_method(name)
         assert name in rows, name
         assert spec.label in rows[name] and spec.family in rows[name]
-        # angular_rate and time are the gyro methods' data, not tuning options.
-        for option in set(spec.option_names()) - {"angular_rate", "time"}:
+        # angular_rate, time and acceleration are the inertial data, not tuning options.
+        for option in set(spec.option_names()) - {"angular_rate", "time", "acceleration"}:
             assert option in rows[name], (name, option)
+        assert ("needs an accelerometer" in rows[name]) == spec.needs_accel
 
 
 def test_version_and_a_closed_pipe():

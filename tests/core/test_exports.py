@@ -62,7 +62,7 @@ def test_json_round_trip_gives_the_safe_calibration():
     (lambda d: d.pop("A"), "lacks 'A'"),
     (lambda d: d.update(b=[1, 2]), r"b must be finite numbers of shape \(3,\)"),
     (lambda d: d.update(A=(-np.array(d["A"])).tolist()), "not symmetric positive definite"),
-    (lambda d: d.update(version=2), "schema version 2"),
+    (lambda d: d.update(version=3), "schema version 3"),
     (lambda d: d.update(format="other"), "format 'other'"),
 ])
 def test_from_json_dict_names_what_is_wrong(change, message):
@@ -287,3 +287,28 @@ def test_firmware_files_say_each_reason_once():
     assert "field strength 4" in refused["ardupilot.param"]      # about 45 mGauss
     written, refused = firmware_files(sensor(), MGAUSS, comment="v")
     assert set(written) == {"ardupilot.param", "px4.params"}
+
+
+def test_heading_true_file_says_so_and_reads_back():
+    from scipy.spatial.transform import Rotation
+
+    from magbench.core.exports import GAUGE_HEADING_TRUE
+
+    R = Rotation.from_rotvec([0.02, -0.03, 0.05]).as_matrix()
+    T = np.array([[1.1, 0.05, 0.0], [0.0, 0.9, 0.02], [0.0, 0.0, 1.05]])
+    cal = Calibration(T, np.array([0.1, -0.2, 0.3]), alignment=R)
+    data = json.loads(json.dumps(to_json_dict(cal)))
+    assert data["gauge"] == GAUGE_HEADING_TRUE and data["version"] == 2
+    A = np.array(data["A"])
+    np.testing.assert_allclose(A, R @ np.array(data["S"]), atol=1e-14)
+    assert not np.allclose(A, A.T)                    # not the symmetric gauge
+    back = from_json_dict(data)
+    assert back.gauge == "heading-true"
+    np.testing.assert_allclose(back.correction()[0], A, atol=1e-12)
+    y = np.array([[0.5, 1.0, -0.3]])
+    np.testing.assert_allclose((y - data["b"]) @ A.T, (y - cal.h) @ cal.correction()[0].T,
+                               atol=1e-12)
+    assert "Heading-true" in c_header(cal)
+    bad = dict(data, R=np.diag([1.0, 1.0, -1.0]).tolist())
+    with pytest.raises(ValueError, match="proper rotation"):
+        from_json_dict(bad)

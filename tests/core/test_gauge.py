@@ -128,3 +128,38 @@ def test_to_dict_from_dict_round_trip_through_json_is_exact():
 def test_from_dict_names_what_is_missing():
     with pytest.raises(ValueError, match="lacks h"):
         Calibration.from_dict({"T": np.eye(3).tolist()})
+
+
+# --- The heading-true gauge: A = R S with the alignment R known ------------------------------
+
+def small_rotation(rng: np.random.Generator, deg: float = 3.0) -> np.ndarray:
+    axis = rng.standard_normal(3)
+    return Rotation.from_rotvec(np.deg2rad(deg) * axis / np.linalg.norm(axis)).as_matrix()
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_heading_true_correction_is_R_times_the_symmetric_one(seed):
+    rng = np.random.default_rng(seed)
+    T, h = distorted(rng)
+    R = small_rotation(rng)
+    sym = safe_gauge(T, h)
+    aligned = safe_gauge(T, h, R)
+    assert sym.label == "symmetric" and aligned.label == "heading-true"
+    np.testing.assert_allclose(aligned.A, R @ sym.A, rtol=0, atol=1e-14)
+    cal = Calibration(T, h, alignment=R)
+    assert cal.gauge == "heading-true" and Calibration(T, h).gauge == "symmetric"
+    A, _ = cal.correction()
+    np.testing.assert_allclose(A, R @ sym.A, rtol=0, atol=1e-14)
+    # safe() keeps the alignment (it is defined relative to the symmetric gauge).
+    np.testing.assert_allclose(cal.safe().correction()[0], A, rtol=0, atol=1e-13)
+    back = Calibration.from_dict(json.loads(json.dumps(cal.to_dict())))
+    np.testing.assert_array_equal(back.alignment, cal.alignment)
+
+
+def test_an_alignment_must_be_a_proper_rotation():
+    with pytest.raises(ValueError, match="proper rotation"):
+        Calibration(np.eye(3), np.zeros(3), alignment=MIRROR)
+    with pytest.raises(ValueError, match="proper rotation"):
+        Calibration(np.eye(3), np.zeros(3), alignment=1.1 * np.eye(3))
+    with pytest.raises(ValueError, match="3x3"):
+        Calibration(np.eye(3), np.zeros(3), alignment=np.eye(2))

@@ -118,7 +118,7 @@ def rotated_dataset(K: int = 400, seed: int = 3):
     return fibonacci_sphere(K) @ (R @ S).T + h + noise
 
 
-MAG_ONLY = [m for m in magbench.methods() if not magbench.get_method(m).needs_gyro]
+MAG_ONLY = [m for m in magbench.methods() if magbench.get_method(m).magnetometer_only]
 
 
 @pytest.mark.parametrize("name", MAG_ONLY)

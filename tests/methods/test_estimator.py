@@ -106,6 +106,8 @@ def test_unknown_parameter_option_and_gyro_method_are_refused(nominal):
         MagCalibrator(method="magical", options={"foo": 1}).fit(nominal.y)
     with pytest.raises(ValueError, match="needs gyroscope data"):
         MagCalibrator(method="sar_ls").fit(nominal.y)
+    with pytest.raises(ValueError, match="needs accelerometer data"):
+        MagCalibrator(method="dip_align").fit(nominal.y)
     with pytest.raises(ValueError, match="unknown method"):
         MagCalibrator(method="nope").fit(nominal.y)
 

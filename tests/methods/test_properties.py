@@ -15,7 +15,7 @@ from magbench.engine.trial import time_limit
 from magbench.sources.synthetic import Point, make_dataset
 from tests.methods.algorithms.test_contract import SCALE_RTOL
 
-METHODS = [m for m in magbench.methods() if not magbench.get_method(m).needs_gyro]
+METHODS = [m for m in magbench.methods() if magbench.get_method(m).magnetometer_only]
 PROPERTY = settings(max_examples=15, deadline=None,
                     suppress_health_check=[HealthCheck.too_slow, HealthCheck.filter_too_much])
 #: A hang guard, not a speed test: a call on tiny input taking this long is stuck.

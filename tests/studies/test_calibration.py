@@ -138,7 +138,7 @@ def check_gauge(T: np.ndarray, h: np.ndarray, y: np.ndarray) -> None:
     np.testing.assert_allclose(np.linalg.norm((y - g.b) @ g.A.T, axis=1), own, rtol=1e-9)
 
 
-MAG_ONLY = [m for m in methods() if not get_method(m).needs_gyro
+MAG_ONLY = [m for m in methods() if get_method(m).magnetometer_only
             and get_method(m).option_names() != ["attitude"]]
 
 

@@ -53,9 +53,11 @@ from magbench.cli.config import (
     check_number,
     check_options,
     check_out_calibration,
+    check_site,
     check_units,
     writable_folder,
 )
+from magbench.cli.direction import direction_lines, mark_vetoes
 from magbench.cli.picture import PictureWorker, draw_picture
 from magbench.core.exports import (
     FIRMWARE_FILES,
@@ -73,6 +75,7 @@ from magbench.methods.api import calibrate as magbench_calibrate
 from magbench.methods.registry import get_method, methods
 from magbench.sources.logs import is_log, log_units
 from magbench.sources.recordings import Recording, read_samples
+from magbench.studies.alignment import DirectionVeto, inertial_of, lag_corrected
 from magbench.studies.auto import candidate_rounds
 from magbench.studies.calibration import (
     CalibrationResult,
@@ -252,10 +255,11 @@ def detail_lines(result: CalibrationResult, payload: dict, n_file: int) -> list[
         shown = ", ".join(names[:4]) + (f" and {len(names) - 4} more" if len(names) > 4 else "")
         lines.append(f"not fitted: {shown} (candidates=all fits every method)")
     lines += _interval_lines(payload)
+    gauge = ("then turned to the IMU's axes: A = R S, heading-true" if payload.get("direction")
+             else "A symmetric positive definite")
     lines.append(f"field strength {_field_text(payload)}; a "
                  f"{g['rotation_deg']:.1f} deg rotation"
-                 f"{' and a mirror image' if g['mirrored'] else ''} removed (A symmetric "
-                 "positive definite)")
+                 f"{' and a mirror image' if g['mirrored'] else ''} removed ({gauge})")
     return lines
 
 
@@ -357,6 +361,7 @@ def run_calibrate(cfg: DictConfig, picture: PictureWorker | None = None) -> int:
     expected = check_field_strength(cfg, units)
     instance = check_instance(cfg)
     compensate = check_compensate(cfg)
+    site = check_site(cfg)
     out = Path(str(cfg.out)) if cfg.get("out") else default_out(path)
     check_out_calibration(out, cfg.get("overwrite"))
     name = cfg.get("method")
@@ -387,10 +392,13 @@ def run_calibrate(cfg: DictConfig, picture: PictureWorker | None = None) -> int:
         reason = applicability(str(name), rec)
         if reason:
             raise UsageError(reason.removeprefix("skipped: "))
+    rec, lag = lag_corrected(rec) if inertial_of(rec).source != "none" else (rec, 0.0)
+    veto = DirectionVeto()
     result = calibrate_recording(rec, candidates, preprocess=preprocess, options=options,
                                  seed=common["seed"], call_timeout_s=common["call_timeout_s"],
                                  bootstrap=0, second_round=second, max_samples=max_samples,
-                                 gate=gate, expected_field=expected)
+                                 gate=gate, expected_field=expected, extra=veto)
+    mark_vetoes(result.ranked, veto)
     if result.chosen is None:
         print(_table(result.ranked))
         raise UsageError("no method produced a calibration that can be written ("
@@ -419,9 +427,10 @@ def run_calibrate(cfg: DictConfig, picture: PictureWorker | None = None) -> int:
     result.bootstrap = payload["bootstrap"] = bootstrap_check(
         result, n_boot, preprocess=preprocess, options=options, seed=common["seed"])
     T, h = estimate(result.chosen)
+    cal, direction = direction_lines(result, Calibration(T, h), payload, veto, site, lag)
     write_text_atomic(json.dumps(payload, indent=2) + "\n", out / "calibration.json")
-    written, notes = _write_exports(Calibration(T, h), payload, out)
-    notes = [line for line in (varying, mounting) if line] + notes
+    written, notes = _write_exports(cal, payload, out)
+    notes = [line for line in (varying, mounting, *direction) if line] + notes
     write_csv_atomic(result.ranked, out / "ranking.csv")
     problem = picture.wait() if sent else ""
     if problem:
@@ -475,7 +484,7 @@ def _add_time_varying(result: CalibrationResult, payload: dict, wanted: list[str
     if not names:
         return "", None
     spec = get_method(payload["method"])
-    name = payload["method"] if spec.model == "full" and not spec.needs_gyro else "fang"
+    name = payload["method"] if spec.model == "full" and spec.magnetometer_only else "fang"
     opts = options.get(name) or {}
 
     def static_fit(samples: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -10,6 +10,7 @@ the same checks for its keys.
 from __future__ import annotations
 
 import dataclasses
+import datetime as dt
 import difflib
 import math
 import os
@@ -21,6 +22,7 @@ from typing import TYPE_CHECKING
 
 from omegaconf import DictConfig, OmegaConf
 
+from magbench.core.geomagnetic import Site, parse_date, parse_location
 from magbench.core.units import Units, parse_field, parse_units
 from magbench.engine.plugins import load_plugins
 from magbench.methods.registry import get_method, methods
@@ -43,6 +45,7 @@ __all__ = [
     "check_out_calibration",
     "check_override_keys",
     "check_scale",
+    "check_site",
     "check_trials",
     "check_units",
     "compose_config",
@@ -266,12 +269,14 @@ def selected_algorithms(cfg: DictConfig, include_gyro: bool = False) -> list[str
     """The method names of ``algorithms=`` ('all' or a list), checked against the registry.
 
     'all' means every magnetometer-only method, plus the gyro-aided ones with
-    ``include_gyro`` (for data that have angular rate: the gyro sweep, real recordings).
+    ``include_gyro`` (for data that have angular rate: the gyro sweep, real recordings); the
+    alignment methods, which need an accelerometer, only when named.
     """
     known = methods()
     chosen = plain(cfg.algorithms)
     if chosen == "all":
-        return [m for m in known if include_gyro or not get_method(m).needs_gyro]
+        return [m for m in known if get_method(m).magnetometer_only
+                or (include_gyro and not get_method(m).needs_accel)]
     chosen = [chosen] if isinstance(chosen, str) else list(chosen or [])
     unknown = [a for a in chosen if a not in known]
     if unknown or not chosen:
@@ -550,3 +555,26 @@ def check_out_calibration(out: Path, overwrite: object) -> None:
     if (Path(out).expanduser() / "calibration.json").exists():
         raise UsageError(f"out={out} already holds a calibration (calibration.json); pass "
                          "overwrite=true to replace it, or choose another out=")
+
+
+def check_site(cfg: DictConfig) -> tuple[Site | None, dt.date | None]:
+    """``location=lat,lon[,alt]`` and ``date=`` (calibrate's geomagnetic check), parsed.
+
+    ``date`` without ``location`` is refused (it has nothing to check); ``location`` without
+    ``date`` means today.
+
+    Raises
+    ------
+    UsageError
+        A malformed location or date, one line naming the expected form.
+    """
+    location, date = plain(cfg.get("location")), plain(cfg.get("date"))
+    if location is None:
+        if date is not None:
+            raise UsageError("date= is used with location=lat,lon[,alt]; give both or neither")
+        return None, None
+    try:
+        return parse_location(location), parse_date(date if date is not None else
+                                                     dt.date.today())
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None

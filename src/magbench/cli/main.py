@@ -173,8 +173,9 @@ def methods_table() -> str:
         params = inspect.signature(spec.fit).parameters
         opts = ", ".join(f"{o}={params[o].default!r}" if params[o].default is not
                          inspect.Parameter.empty else o for o in spec.option_names()
-                         if o not in ("angular_rate", "time"))
+                         if o not in ("angular_rate", "time", "acceleration"))
         ref = f" [Table 2: {spec.paper_key}]" if spec.paper_key else ""
+        ref += " [needs an accelerometer; heading-true]" if spec.needs_accel else ""
         lines.append(f"{name:<{wn}}{spec.label:<{wl}}{spec.family:<9}"
                      f"{'yes' if spec.needs_gyro else 'no':<6}{spec.min_samples:<7}"
                      f"{opts or '-'}{ref}")

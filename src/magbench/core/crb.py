@@ -38,8 +38,11 @@ from functools import cache
 
 import numpy as np
 
-__all__ = ["CRB", "MODEL_PARAMETERS", "crb_covariance", "crb_mse", "efficient_expected_J",
-           "fisher_information", "gauge_basis", "model_basis", "parameter_covariance"]
+from magbench.core.rotations import skew
+
+__all__ = ["CRB", "MODEL_PARAMETERS", "alignment_covariance", "alignment_rotation",
+           "crb_covariance", "crb_mse", "efficient_expected_J", "fisher_information",
+           "gauge_basis", "model_basis", "parameter_covariance", "rotation_covariance"]
 
 #: Free parameters of each model of ``y = T m + h`` (``T`` modulo a rotation for ``full``):
 #: the columns of :func:`model_basis`.
@@ -203,3 +206,77 @@ def efficient_expected_J(T_true: np.ndarray, m: np.ndarray, sigma: float) -> flo
     w, V = np.linalg.eigh(C)
     z = _standard_draws() @ (V * np.sqrt(np.clip(w, 0.0, None))).T
     return float(np.mean(np.linalg.norm(z[:, :9], axis=1) + np.linalg.norm(z[:, 9:], axis=1)))
+
+
+def alignment_rotation(M: np.ndarray) -> np.ndarray:
+    """The alignment ``R = M^-1 (M M^T)^(1/2)`` of a magnetometer ``y = M m_imu + h`` whose
+    field ``m_imu`` is in the IMU's axes: ``m_imu = R A (y - h)``, ``A = (M M^T)^(-1/2)``."""
+    U, s, _ = np.linalg.svd(M)
+    return np.linalg.solve(M, (U * s) @ U.T)
+
+
+def alignment_covariance(M: np.ndarray, m_w: np.ndarray, g_w: np.ndarray, Q: np.ndarray,
+                         sigma_m: float, sigma_a: float) -> np.ndarray:
+    """Cramer-Rao bound on the alignment rotation, from static magnetometer and accelerometer.
+
+    Model: ``y_k = M Q_k^T m_w + h + e_k``, ``a_k = Q_k^T g_w + n_k`` with ``e ~ N(0,
+    sigma_m^2 I)``, ``n ~ N(0, sigma_a^2 I)``, unknown ``M`` (9), ``h`` (3), the field's
+    inclination (1; ``m_w`` turns in the plane of ``g_w`` and ``m_w``) and each attitude
+    ``Q_k`` (3 nuisance parameters per sample, eliminated by the Schur complement of its
+    block, as the directions are in :func:`fisher_information`). The bound on the rotation
+    vector of ``R_hat R^T`` follows from the bound on ``M`` through the Jacobian of
+    :func:`alignment_rotation` (central differences).
+
+    Parameters
+    ----------
+    M : ndarray, shape (3, 3)
+        The magnetometer matrix in the IMU's axes (``T R^T`` for a method's ``T``, ``R``).
+    m_w, g_w : ndarray, shape (3,)
+        Field and specific force in world axes (their norms set the units of the noise).
+    Q : ndarray, shape (K, 3, 3)
+        Attitudes, IMU to world.
+    sigma_m, sigma_a : float
+        Noise standard deviations of the magnetometer and accelerometer samples.
+
+    Returns
+    -------
+    ndarray, shape (3, 3)
+        Covariance bound of the rotation error vector (radians); its trace bounds the mean
+        squared rotation angle.
+    """
+    e = np.cross(np.cross(g_w, m_w), m_w)            # d m_w / d inclination, in their plane
+    e *= np.linalg.norm(m_w) / np.linalg.norm(e)
+    v, u = np.einsum("kji,j->ki", Q, m_w), np.einsum("kji,j->ki", Q, g_w)
+    dv = np.einsum("kji,j->ki", Q, e)
+    K = Q.shape[0]
+    Jt = np.zeros((K, 6, 13))
+    Jt[:, :3, :9] = np.einsum("ij,kl->kijl", np.eye(3), v).reshape(K, 3, 9)
+    Jt[:, :3, 9:12] = np.eye(3)
+    Jt[:, :3, 12] = dv @ M.T
+    Jd = np.concatenate([M @ skew(v), skew(u)], axis=1)
+    w = np.array([1 / sigma_m**2] * 3 + [1 / sigma_a**2] * 3)
+    A = np.einsum("kai,a,kaj->kij", Jt, w, Jt)
+    B = np.einsum("kai,a,kaj->kij", Jt, w, Jd)
+    C = np.einsum("kai,a,kaj->kij", Jd, w, Jd)
+    info = (A - B @ np.linalg.solve(C, np.swapaxes(B, 1, 2))).sum(axis=0)
+    return rotation_covariance(M, np.linalg.inv(info)[:9, :9])
+
+
+def rotation_covariance(M: np.ndarray, cov_M: np.ndarray) -> np.ndarray:
+    """Covariance of the rotation vector of :func:`alignment_rotation` given the covariance
+    ``cov_M`` (9x9, row-major) of ``M``: ``G cov_M G^T`` with ``G`` its Jacobian (central
+    differences)."""
+    R0 = alignment_rotation(M)
+    G = np.zeros((3, 9))
+    for j in range(9):
+        d = np.zeros(9)
+        d[j] = 1e-6
+        plus = alignment_rotation(M + d.reshape(3, 3)) @ R0.T
+        minus = alignment_rotation(M - d.reshape(3, 3)) @ R0.T
+        G[:, j] = (_rotvec(plus) - _rotvec(minus)) / 2e-6
+    return G @ cov_M @ G.T
+
+
+def _rotvec(R: np.ndarray) -> np.ndarray:
+    """Rotation vector of a rotation near the identity (first order is enough here)."""
+    return 0.5 * np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])

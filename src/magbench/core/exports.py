@@ -23,6 +23,12 @@ key            meaning
 ``columns``    optional: the three input columns the calibration was fitted on
 =============  ============================================================================
 
+*Heading-true files* (version 2, written only for a calibration with a known alignment to the
+inertial sensors): ``gauge`` is :data:`GAUGE_HEADING_TRUE`, ``A = R S`` with ``S`` symmetric
+positive definite and ``R`` the rotation to the IMU's axes, and two more keys, ``R`` (3x3) and
+``S`` (3x3); ``T = A^-1``. A reader of version 1 refuses them rather than mistaking ``A``.
+The firmware parameter files stay symmetric (their matrices are), whatever the gauge.
+
 Other keys (the method, its verdict, ...) may be added by the writer and are ignored on reading.
 
 *C header* (:func:`c_header`): ``static const float NAME_A[3][3]``, ``NAME_b[3]`` and a
@@ -93,18 +99,30 @@ from collections.abc import Callable
 
 import numpy as np
 
-from magbench.core.gauge import safe_gauge, symmetric_T
+from magbench.core.gauge import (
+    GAUGE_TEXT,
+    HEADING_TRUE,
+    SYMMETRIC,
+    check_rotation,
+    rotation_angle_deg,
+    safe_gauge,
+    symmetric_T,
+)
 from magbench.core.model import Calibration
 from magbench.core.units import UNKNOWN, Units
 
-__all__ = ["ARDUPILOT_LIMITS", "FIRMWARE_FILES", "FORMAT", "GAUGE", "PX4_MAX_OFFSET_GAUSS",
-           "SCHEMA_VERSION", "ardupilot_param_file", "ardupilot_params", "betaflight_cli",
-           "c_header", "field_strength", "firmware_files", "from_json_dict", "inav_cli",
-           "px4_param_file", "px4_params", "to_json_dict"]
+__all__ = ["ARDUPILOT_LIMITS", "FIRMWARE_FILES", "FORMAT", "GAUGE", "GAUGE_HEADING_TRUE",
+           "PX4_MAX_OFFSET_GAUSS", "SCHEMA_VERSION", "ardupilot_param_file",
+           "ardupilot_params", "betaflight_cli", "c_header", "field_strength",
+           "firmware_files", "from_json_dict", "inav_cli", "px4_param_file", "px4_params",
+           "to_json_dict"]
 
 FORMAT = "magbench-calibration"
-SCHEMA_VERSION = 1
-GAUGE = "m = A (y - b), A symmetric positive definite"
+SCHEMA_VERSION = 2
+#: The version of a symmetric-gauge file (unchanged since the first schema).
+SYMMETRIC_VERSION = 1
+GAUGE = GAUGE_TEXT[SYMMETRIC]
+GAUGE_HEADING_TRUE = GAUGE_TEXT[HEADING_TRUE]
 #: What ArduPilot's calibrator accepts (see the module notes for the source of each).
 ARDUPILOT_LIMITS = {"field_mgauss": (150.0, 950.0), "offset_mgauss": 1800.0,
                     "diagonal": (0.2, 5.0), "off_diagonal": 1.0}
@@ -123,7 +141,7 @@ def to_json_dict(cal: Calibration, *, units: Units | str = UNKNOWN,
     Parameters
     ----------
     cal : Calibration
-        Any gauge; it is written in the safe one.
+        Any gauge; it is written in the safe one, heading-true when ``cal`` has an alignment.
     units : Units or str
         What the raw samples (and ``b``) are measured in (a :class:`Units` adds ``unit``).
     columns : list of str, optional
@@ -134,12 +152,18 @@ def to_json_dict(cal: Calibration, *, units: Units | str = UNKNOWN,
     ValueError
         If ``T`` is singular or not finite (such a calibration is never written).
     """
-    gauge = safe_gauge(cal.T, cal.h)
+    gauge = safe_gauge(cal.T, cal.h, cal.alignment)
+    heading_true = gauge.label == HEADING_TRUE
     shown = units.describe() if isinstance(units, Units) else units
-    out = {"format": FORMAT, "version": SCHEMA_VERSION, "gauge": GAUGE,
-           "units": f"y and b: {shown}; m: units of the field magnitude (|m| = 1)",
+    out = {"format": FORMAT, "version": SCHEMA_VERSION if heading_true else SYMMETRIC_VERSION,
+           "gauge": GAUGE_TEXT[gauge.label],
+           "units": f"y and b: {shown}; m: units of the field magnitude (|m| = 1)"
+                    + ("; m in the IMU's axes" if heading_true else ""),
            "A": gauge.A.tolist(), "b": gauge.b.tolist(),
            "T": symmetric_T(cal.T).tolist(), "h": gauge.b.tolist()}
+    if heading_true:
+        out |= {"R": cal.alignment.tolist(), "S": safe_gauge(cal.T, cal.h).A.tolist(),
+                "T": np.linalg.inv(gauge.A).tolist()}
     if isinstance(units, Units):
         out["unit"] = units.to_dict()
     if columns is not None:
@@ -180,12 +204,26 @@ def from_json_dict(data: object) -> Calibration:
                          f"up to {SCHEMA_VERSION}")
     A = _matrix(data, "A", (3, 3))
     b = _matrix(data, "b", (3,))
+    if data.get("gauge") == GAUGE_HEADING_TRUE:
+        return _heading_true(data, A, b)
     scale = float(np.abs(A).max())
     if not np.allclose(A, A.T, rtol=0, atol=1e-9 * scale) or \
             np.linalg.eigvalsh(0.5 * (A + A.T)).min() <= 0:
         raise ValueError(f"calibration file: A is not symmetric positive definite ('{GAUGE}'); "
                          "it was not written by magbench's safe gauge")
     return Calibration(np.linalg.inv(0.5 * (A + A.T)), b)
+
+
+def _heading_true(data: dict, A: np.ndarray, b: np.ndarray) -> Calibration:
+    """The calibration of a heading-true file: ``A = R S``, ``R`` a rotation, ``S`` SPD."""
+    R = check_rotation(_matrix(data, "R", (3, 3)), "calibration file: R")
+    S = R.T @ A
+    scale = float(np.abs(S).max())
+    if not np.allclose(S, S.T, rtol=0, atol=1e-9 * scale) or \
+            np.linalg.eigvalsh(0.5 * (S + S.T)).min() <= 0:
+        raise ValueError(f"calibration file: R^T A is not symmetric positive definite "
+                         f"('{GAUGE_HEADING_TRUE}')")
+    return Calibration(np.linalg.inv(0.5 * (S + S.T)), b, alignment=R)
 
 
 def _c_float(value: float) -> str:
@@ -205,7 +243,7 @@ def c_header(cal: Calibration, name: str = "mag_cal", *, verdict: str = "",
     Parameters
     ----------
     cal : Calibration
-        Any gauge; written in the safe one.
+        Any gauge; written in the safe one (heading-true when ``cal`` has an alignment).
     name : str
         A C identifier prefixing the arrays, the function and the include guard.
     verdict : str
@@ -220,12 +258,15 @@ def c_header(cal: Calibration, name: str = "mag_cal", *, verdict: str = "",
     """
     if not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]*", name):
         raise ValueError(f"name must be a C identifier (letters, digits, _), got {name!r}")
-    gauge = safe_gauge(cal.T, cal.h)
+    gauge = safe_gauge(cal.T, cal.h, cal.alignment)
     rows = ",\n    ".join("{" + _c_floats(r) + "}" for r in gauge.A)
-    comment = [f"magbench calibration: {GAUGE}.",
+    comment = [f"magbench calibration: {GAUGE_TEXT[gauge.label]}.",
                f"y and b in {units.describe()}; m: field in units of its magnitude.",
                f"Rotation removed from the method's own correction: {gauge.rotation_deg:.1f} deg"
                + (" (it was a mirror image)" if gauge.mirrored else "") + "."]
+    if cal.alignment is not None:
+        comment.append("Heading-true: m is in the IMU's axes; the alignment rotation R is "
+                       f"{rotation_angle_deg(cal.alignment):.2f} deg.")
     if verdict:
         comment.append(f"Verdict: {' '.join(verdict.split())}")
     guard = f"{name.upper()}_H"

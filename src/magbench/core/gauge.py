@@ -16,6 +16,12 @@ orthogonal ``R = V U^T``, the corrected field ``A (y - b) = R^T T^-1 (y - h)`` h
 norms of the method's own ``T^-1 (y - h)`` (eq. 82): only ``R`` (the rotation, and the mirror
 image when ``det R = -1``) is removed. ``A^-1 = U S U^T`` is the symmetric ``T`` of the same
 gauge (the right polar factor of ``T`` taken off).
+
+*Heading-true gauge.* When inertial data fix the rotation between the magnetometer and the
+inertial sensors (an alignment ``R``, det +1, from the symmetric gauge to the IMU axes), the
+written correction is ``A_aligned = R A`` instead: ``m = R A (y - b)`` is the field in the IMU's
+axes, so a compass built on the IMU's attitude reads true headings. Its norms are those of the
+symmetric gauge; ``A_aligned`` is not symmetric, and the gauge's label says which is written.
 """
 
 from __future__ import annotations
@@ -25,10 +31,20 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["Gauge", "removed_rotation", "rotation_angle_deg", "safe_gauge", "symmetric_T"]
+__all__ = ["GAUGE_TEXT", "HEADING_TRUE", "SYMMETRIC", "Gauge", "check_rotation",
+           "removed_rotation", "rotation_angle_deg", "safe_gauge", "symmetric_T"]
 
 #: Condition number of T above which it is treated as singular (matches Calibration.is_finite).
 MAX_CONDITION = 1e12
+#: The two gauges a written correction can be in.
+SYMMETRIC = "symmetric"
+HEADING_TRUE = "heading-true"
+#: What each gauge means, in the words written beside the correction.
+GAUGE_TEXT = {
+    SYMMETRIC: "m = A (y - b), A symmetric positive definite",
+    HEADING_TRUE: "m = A (y - b), A = R S with S symmetric positive definite and R the rotation "
+                  "to the IMU's axes (heading-true)",
+}
 
 
 @dataclass(frozen=True)
@@ -46,12 +62,27 @@ class Gauge:
         of the rotation part of the rotoinversion ``R = -R_p``).
     mirrored : bool
         True when ``det T < 0``: the method's own correction was a mirror image.
+    label : str
+        ``"symmetric"``, or ``"heading-true"`` when ``A`` is ``R`` times the symmetric one.
     """
 
     A: np.ndarray
     b: np.ndarray
     rotation_deg: float
     mirrored: bool
+    label: str = SYMMETRIC
+
+
+def check_rotation(R: object, name: str = "R", tol: float = 1e-6) -> np.ndarray:
+    """``R`` as a float ``(3, 3)`` proper rotation (``R^T R = I``, det +1), or ``ValueError``."""
+    R = np.array(R, dtype=float)
+    if R.shape != (3, 3) or not np.all(np.isfinite(R)):
+        raise ValueError(f"{name} must be a finite 3x3 rotation matrix, got shape {R.shape}")
+    err = float(np.abs(R.T @ R - np.eye(3)).max())
+    if err > tol or np.linalg.det(R) <= 0:
+        raise ValueError(f"{name} must be a proper rotation (R^T R = I, det R = +1); max |R^T R "
+                         f"- I| = {err:.3g}, det R = {np.linalg.det(R):.6g}")
+    return R
 
 
 def _checked_svd(T: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -102,7 +133,7 @@ def rotation_angle_deg(R: np.ndarray) -> float:
     return math.degrees(math.acos(min(1.0, max(-1.0, cos))))
 
 
-def safe_gauge(T: np.ndarray, h: np.ndarray) -> Gauge:
+def safe_gauge(T: np.ndarray, h: np.ndarray, alignment: np.ndarray | None = None) -> Gauge:
     """The correction ``m = A (y - b)`` with ``A = (T T^T)^(-1/2)`` and ``b = h``.
 
     Parameters
@@ -111,12 +142,16 @@ def safe_gauge(T: np.ndarray, h: np.ndarray) -> Gauge:
         The model matrix of ``y = T m + h`` (review eq. 2), in any gauge.
     h : array_like, shape (3,)
         The offset.
+    alignment : array_like of shape (3, 3), optional
+        The rotation ``R`` from the symmetric gauge to the inertial sensors' axes; with it the
+        correction is heading-true, ``A = R (T T^T)^(-1/2)``.
 
     Returns
     -------
     Gauge
-        ``A`` symmetric positive definite, ``b = h``, the angle of the removed rotation and
-        whether ``T`` was a mirror image.
+        ``A`` symmetric positive definite (or ``R`` times it), ``b = h``, the angle of the
+        rotation removed from the method's own ``T^-1``, whether ``T`` was a mirror image, and
+        the gauge's label.
 
     Raises
     ------
@@ -129,5 +164,8 @@ def safe_gauge(T: np.ndarray, h: np.ndarray) -> Gauge:
     U, s, Vt = _checked_svd(T)
     A = _symmetrised((U / s) @ U.T)
     R = Vt.T @ U.T
-    return Gauge(A=A, b=h.copy(), rotation_deg=rotation_angle_deg(R),
-                 mirrored=bool(np.linalg.det(np.asarray(T, dtype=float)) < 0))
+    mirrored = bool(np.linalg.det(np.asarray(T, dtype=float)) < 0)
+    if alignment is not None:
+        return Gauge(A=check_rotation(alignment, "alignment") @ A, b=h.copy(),
+                     rotation_deg=rotation_angle_deg(R), mirrored=mirrored, label=HEADING_TRUE)
+    return Gauge(A=A, b=h.copy(), rotation_deg=rotation_angle_deg(R), mirrored=mirrored)

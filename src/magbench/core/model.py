@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from magbench.core.gauge import safe_gauge, symmetric_T
+from magbench.core.gauge import HEADING_TRUE, SYMMETRIC, check_rotation, safe_gauge, symmetric_T
 
 __all__ = ["Calibration", "CalibrationFailed", "as_samples", "check_magnitude"]
 
@@ -52,6 +52,10 @@ class Calibration:
         Human-readable note on how the method ended.
     gyro_bias : ndarray of shape (3,) or None
         Gyroscope bias in rad/s for the methods that estimate one, otherwise None.
+    alignment : ndarray of shape (3, 3) or None
+        The rotation ``R`` (det +1) from the magnetometer's symmetric gauge to the inertial
+        sensors' axes, for the methods that inertial data let fix it: the field in IMU axes is
+        ``R A (y - h)`` with ``A = (T T^T)^(-1/2)``. None when the rotation is unknown.
     """
 
     T: np.ndarray
@@ -60,6 +64,7 @@ class Calibration:
     converged: bool = True
     message: str = ""
     gyro_bias: np.ndarray | None = field(default=None)
+    alignment: np.ndarray | None = field(default=None)
 
     def __post_init__(self) -> None:
         T = np.array(self.T, dtype=float)
@@ -75,6 +80,16 @@ class Calibration:
         object.__setattr__(self, "converged", bool(self.converged))
         if self.gyro_bias is not None:
             object.__setattr__(self, "gyro_bias", np.array(self.gyro_bias, dtype=float))
+        if self.alignment is not None:
+            R = check_rotation(self.alignment, "alignment")
+            R.setflags(write=False)
+            object.__setattr__(self, "alignment", R)
+
+    @property
+    def gauge(self) -> str:
+        """``"heading-true"`` when an alignment to the inertial axes is known, else
+        ``"symmetric"`` (the rotation is unknown and removed)."""
+        return SYMMETRIC if self.alignment is None else HEADING_TRUE
 
     @property
     def is_finite(self) -> bool:
@@ -112,17 +127,20 @@ class Calibration:
         return m[0] if single else m
 
     def correction(self) -> tuple[np.ndarray, np.ndarray]:
-        """The firmware form ``m = A (y - b)`` in the safe gauge (:mod:`magbench.core.gauge`).
+        """The firmware form ``m = A (y - b)`` in the calibration's gauge
+        (:mod:`magbench.core.gauge`).
 
         Returns
         -------
         A : ndarray, shape (3, 3)
-            ``(T T^T)^(-1/2)``, symmetric positive definite.
+            ``(T T^T)^(-1/2)``, symmetric positive definite, in the symmetric gauge; ``R (T
+            T^T)^(-1/2)`` with the alignment ``R`` in the heading-true gauge, so that ``m`` is
+            the field in the inertial sensors' axes.
         b : ndarray, shape (3,)
             ``h``.
 
-        ``||A (y - b)|| = ||T^-1 (y - h)||`` for every sample; only the rotation (and mirror
-        image) that the model cannot determine is removed.
+        ``||A (y - b)|| = ||T^-1 (y - h)||`` for every sample; in the symmetric gauge the
+        rotation (and mirror image) that the model cannot determine is removed.
 
         Raises
         ------
@@ -130,7 +148,7 @@ class Calibration:
             If ``T`` is not finite or is singular: no correction is ever written for it.
         """
         try:
-            gauge = safe_gauge(self.T, self.h)
+            gauge = safe_gauge(self.T, self.h, self.alignment)
         except ValueError as exc:
             raise CalibrationFailed(str(exc)) from None
         return gauge.A, gauge.b
@@ -138,7 +156,8 @@ class Calibration:
     def safe(self) -> Calibration:
         """The same calibration in the safe gauge: ``T' = (T T^T)^(1/2)`` (symmetric), ``h``.
 
-        ``safe().apply(y)`` equals ``A (y - b)`` of :meth:`correction`.
+        ``safe().apply(y)`` equals ``A (y - b)`` of the symmetric gauge; an alignment is kept
+        (it is defined relative to that gauge), so :meth:`correction` is unchanged.
 
         Raises
         ------
@@ -150,18 +169,19 @@ class Calibration:
         except ValueError as exc:
             raise CalibrationFailed(str(exc)) from None
         return Calibration(T, self.h, self.n_iter, self.converged, self.message,
-                           self.gyro_bias)
+                           self.gyro_bias, self.alignment)
 
     def to_dict(self) -> dict:
         """A JSON-ready dict (plain lists and numbers); :meth:`from_dict` reads it back exactly."""
         return {"T": self.T.tolist(), "h": self.h.tolist(), "n_iter": self.n_iter,
                 "converged": self.converged, "message": self.message,
-                "gyro_bias": None if self.gyro_bias is None else self.gyro_bias.tolist()}
+                "gyro_bias": None if self.gyro_bias is None else self.gyro_bias.tolist(),
+                "alignment": None if self.alignment is None else self.alignment.tolist()}
 
     @classmethod
     def from_dict(cls, data: dict) -> Calibration:
-        """The :class:`Calibration` of a :meth:`to_dict` dict (``gyro_bias`` and the bookkeeping
-        keys are optional).
+        """The :class:`Calibration` of a :meth:`to_dict` dict (``gyro_bias``, ``alignment`` and
+        the bookkeeping keys are optional).
 
         Raises
         ------
@@ -174,7 +194,7 @@ class Calibration:
                              "(3x3), h (3) and optionally n_iter, converged, message, gyro_bias")
         return cls(np.array(data["T"], dtype=float), np.array(data["h"], dtype=float),
                    int(data.get("n_iter", 0)), bool(data.get("converged", True)),
-                   str(data.get("message", "")), data.get("gyro_bias"))
+                   str(data.get("message", "")), data.get("gyro_bias"), data.get("alignment"))
 
 
 def as_samples(samples: object, *, min_samples: int = 1, name: str = "samples") -> np.ndarray:

@@ -96,7 +96,8 @@ def _check_geometry(y: np.ndarray, min_samples: int, centred: np.ndarray) -> Non
 
 
 def calibrate(samples: object, method: str, *, angular_rate: object = None,
-              time: object = None, raw: bool = False, **options: object) -> Calibration:
+              time: object = None, acceleration: object = None, raw: bool = False,
+              **options: object) -> Calibration:
     """Estimate ``T`` and ``h`` of ``y = T m + h + eps`` from magnetometer samples.
 
     Parameters
@@ -109,6 +110,9 @@ def calibrate(samples: object, method: str, *, angular_rate: object = None,
     angular_rate, time : array_like, optional
         Gyroscope samples ``(K, 3)`` in rad/s and their timestamps ``(K,)`` in seconds, for the
         gyro-aided methods; other methods ignore them.
+    acceleration : array_like, optional
+        Accelerometer samples ``(K, 3)`` (specific force in the IMU's axes, any unit), for the
+        alignment methods; other methods ignore them.
     raw : bool
         Return the method's own ``T`` (any rotation or mirror image it carries) instead of the
         safe gauge (module notes). The benchmark's rows use it.
@@ -119,7 +123,8 @@ def calibrate(samples: object, method: str, *, angular_rate: object = None,
     -------
     Calibration
         Finite ``T`` (invertible) and ``h``, with the method's iteration count and message;
-        ``T`` symmetric positive definite unless ``raw``.
+        ``T`` symmetric positive definite unless ``raw``; an alignment method also gives the
+        rotation to the IMU (``alignment``, relative to the symmetric gauge).
 
     Raises
     ------
@@ -153,6 +158,11 @@ def calibrate(samples: object, method: str, *, angular_rate: object = None,
             raise ValueError(f"method {method!r} needs angular_rate (K, 3) in rad/s and "
                              "time (K,) in seconds")
         extra = {"angular_rate": angular_rate, "time": time}
+    if spec.needs_accel:
+        if acceleration is None:
+            raise ValueError(f"method {method!r} needs acceleration (K, 3), the accelerometer's "
+                             "samples in the IMU's axes")
+        extra["acceleration"] = acceleration
     try:
         with np.errstate(all="ignore"):
             cal = spec.fit(y, **extra, **options)
@@ -171,7 +181,7 @@ def calibrate(samples: object, method: str, *, angular_rate: object = None,
                        f"({message or 'no message'})")
     T = cal.T * scale
     return Calibration(T if raw else symmetric_T(T), cal.h * scale, cal.n_iter, converged,
-                       message, cal.gyro_bias)
+                       message, cal.gyro_bias, cal.alignment)
 
 
 def _residual_against_trivial(y: np.ndarray, cal: Calibration, model: str, mean: np.ndarray,

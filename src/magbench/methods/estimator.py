@@ -114,8 +114,9 @@ class MagCalibrator:
             The method could not produce a finite, invertible estimate.
         """
         spec = get_method(self.method)
-        if spec.needs_gyro:
-            raise ValueError(f"method {self.method!r} needs gyroscope data; MagCalibrator "
+        if not spec.magnetometer_only:
+            needs = "gyroscope" if spec.needs_gyro else "accelerometer"
+            raise ValueError(f"method {self.method!r} needs {needs} data; MagCalibrator "
                              "fits magnetometer samples only (use magbench.methods.calibrate)")
         options = dict(self.options or {})
         if spec.randomized:

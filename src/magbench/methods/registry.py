@@ -40,6 +40,12 @@ class Method:
     needs_gyro: bool = False
     paper_key: str | None = None
     model: str = "full"
+    needs_accel: bool = False
+
+    @property
+    def magnetometer_only(self) -> bool:
+        """True if the method fits magnetometer samples alone (no gyro, no accelerometer)."""
+        return not (self.needs_gyro or self.needs_accel)
 
     def prepare(self) -> None:
         """Load what the method's first call would load, so that a timed call does not pay
@@ -66,7 +72,7 @@ _REGISTRY: dict[str, Method] = {}
 
 def register(name: str, *, label: str, min_samples: int, family: str = "review",
              randomized: bool = False, needs_gyro: bool = False,
-             paper_key: str | None = None, model: str = "full",
+             paper_key: str | None = None, model: str = "full", needs_accel: bool = False,
              ) -> Callable[[Callable[..., Calibration]], Callable[..., Calibration]]:
     """Register ``fit`` under ``name`` (decorator).
 
@@ -97,6 +103,9 @@ def register(name: str, *, label: str, min_samples: int, family: str = "review",
         hard iron and one scale per axis), ``"sphere"`` (``T = r I``, hard iron and one scale)
         or ``"bias"`` (``T = I``, hard iron only). The contract tests check
         recovery on data the method's model can represent.
+    needs_accel : bool
+        True if ``fit`` needs ``acceleration`` (specific force in the IMU's axes, ``(K, 3)``,
+        any unit): the alignment methods, which return the rotation to the IMU beside T and h.
     """
     if model not in MODEL_PARAMETERS:
         raise ValueError(f"model must be one of {', '.join(MODEL_PARAMETERS)}, got {model!r}")
@@ -105,7 +114,7 @@ def register(name: str, *, label: str, min_samples: int, family: str = "review",
         if name in _REGISTRY:
             raise ValueError(f"method {name!r} is registered twice")
         _REGISTRY[name] = Method(name, fit, label, min_samples, family, randomized,
-                                 needs_gyro, paper_key, model)
+                                 needs_gyro, paper_key, model, needs_accel)
         return fit
 
     return decorator

@@ -42,14 +42,16 @@ def candidate_rounds(has_gyro: bool, chosen: str | Sequence[str] = "auto"
     :func:`~magbench.studies.calibration.calibrate_recording`).
 
     ``auto``: every registered method except the review's printed variants (benchmark rows,
-    never a user's fit) and, without gyro data, the gyro-aided ones, in two rounds
+    never a user's fit), the alignment methods (they need an accelerometer) and, without gyro
+    data, the gyro-aided ones, in two rounds
     (:data:`~magbench.studies.calibration.FIRST_ROUND` first); ``all``: the same in one round;
     a list: those methods, in one round.
     """
     if not isinstance(chosen, str):
         return list(chosen), []
     every = [m for m in methods() if get_method(m).family != "variant"
-             and (has_gyro or not get_method(m).needs_gyro)]
+             and (get_method(m).magnetometer_only
+                  or (has_gyro and not get_method(m).needs_accel))]
     if chosen == "all":
         return every, []
     return ([m for m in every if m in FIRST_ROUND],

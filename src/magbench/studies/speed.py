@@ -288,7 +288,7 @@ def bench_peers(sizes: Sequence[int] = (300, 10000), datasets: int = 20, repeats
     rows = []
     registered = set(methods())
     candidates = [m for m in methods() if get_method(m).family != "variant"
-                  and not get_method(m).needs_gyro]
+                  and get_method(m).magnetometer_only]
     for K in sizes:
         data = _datasets(K, datasets if K <= 1000 else large_datasets, seed)
         stride = math.ceil(K / DEFAULT_MAX_SAMPLES)                  # calibrate's thinning
@@ -438,7 +438,7 @@ def run_bench(results_dir: Path | str, names: Sequence[str] | None = None,
     ``calibrate.csv`` and ``parallel.csv`` under ``<results_dir>/bench``."""
     folder = Path(results_dir) / "bench"
     folder.mkdir(parents=True, exist_ok=True)
-    names = list(names or [m for m in methods() if not get_method(m).needs_gyro])
+    names = list(names or [m for m in methods() if get_method(m).magnetometer_only])
     threads = blas_threads()
     if threads != "1" and progress:
         # BLAS threads wake up for every call above a size threshold, which looks like

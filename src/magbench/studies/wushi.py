@@ -219,7 +219,7 @@ class WuShiStudy(Study):
     def method_names(self) -> list[str]:
         """ML, NM, then every other selected method that needs no gyroscope."""
         chosen = list(self.algorithms) or methods()
-        rest = [n for n in chosen if n not in (ML, NM) and not get_method(n).needs_gyro]
+        rest = [n for n in chosen if n not in (ML, NM) and get_method(n).magnetometer_only]
         return [ML, NM] + rest
 
 

@@ -20,7 +20,7 @@ from magbench.sources.synthetic import Point, make_dataset
 from tests.conftest import dataset
 
 #: Magnetometer-only methods; gyro-aided ones have their own contract (they need motion).
-METHODS = [m for m in magbench.methods() if not magbench.get_method(m).needs_gyro]
+METHODS = [m for m in magbench.methods() if magbench.get_method(m).magnetometer_only]
 
 #: Noise-free recovery bound on J (74) per method; 1e-6 (issue 3) unless stated here.
 RECOVERY_BOUND: dict[str, float] = {
@@ -180,10 +180,11 @@ IDENTIFIABLE = {"full": 9, "diagonal": 6, "sphere": 4, "bias": 3}
 def method_data(name: str, K: int | None = None, scale: float = 1.0,
                 sigma: float = 0.005, seed: int = 5) -> tuple[np.ndarray, dict, tuple]:
     """Samples (times ``scale``), the keyword inputs a method needs beside them, and the
-    truth ``(T, h)`` (times ``scale``): a manoeuvre with a gyro for the gyro-aided methods, a
+    truth ``(T, h)`` (times ``scale``): a manoeuvre with a gyro (and accelerometer) for the
+    gyro-aided (and alignment) methods, a
     dataset of Algorithm 8 otherwise, distorted only as the method's model can represent."""
     spec = magbench.get_method(name)
-    if not spec.needs_gyro:
+    if spec.magnetometer_only:
         d = make_dataset(np.random.default_rng(seed), model_point(name, Point(
             K=K or 300, sigma=sigma)))
         return d.y * scale, {}, (d.T * scale, d.h * scale)
@@ -195,7 +196,9 @@ def method_data(name: str, K: int | None = None, scale: float = 1.0,
     traj = simulate(rng, rate_hz=25.0, duration_s=12.0, T=T[spec.model],
                     h=np.array([0.03, -0.02, 0.04]), mag_noise=sigma)
     n = slice(None) if K is None else slice(0, K * 6, 6)     # K samples spread over the run
-    extra = {"angular_rate": traj.angular_rate[n], "time": traj.t[n]}
+    extra = {"angular_rate": traj.angular_rate[n], "time": traj.t[n]} if spec.needs_gyro else {}
+    if spec.needs_accel:
+        extra["acceleration"] = traj.acceleration[n]
     if "attitude" in spec.option_names():
         extra.update(attitude=traj.R[n], reference_field=traj.m0)
     return traj.y[n] * scale, extra, (traj.T * scale, traj.h * scale)
@@ -231,7 +234,7 @@ def hard_data(name: str, case: str, sigma: float, seed: int):
     spec = magbench.get_method(name)
     if case == "fewest":
         return method_data(name, K=spec.min_samples, sigma=sigma, seed=seed)
-    if case == "noisy" or spec.needs_gyro:
+    if case == "noisy" or not spec.magnetometer_only:
         return method_data(name, K=max(spec.min_samples, 30), sigma=sigma, seed=seed)
     zone = {"cap": {"cap_deg": 30.0}, "band": {"band_deg": 5.0}}[case]
     point = model_point(name, Point(K=max(spec.min_samples, 30), sigma=sigma))

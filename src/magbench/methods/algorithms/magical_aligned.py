@@ -1,0 +1,94 @@
+"""MAG.I.C.AL. with its alignment step (Papafotis and Sotiriadis, "MAG.I.C.AL.-A Unified
+Methodology for Magnetic and Inertial Sensors Calibration and Alignment", IEEE Sensors J.
+19(18), 2019): the review's MAG.I.C.AL. (Algorithm 7, eqs. 58-65) is its magnetometer part.
+
+The methodology calibrates the accelerometer with the same least-squares iteration as the
+magnetometer (the static specific force has constant norm, as the field has), then aligns the
+two sensors by the constant angle between the calibrated gravity and field directions, with
+``R`` constrained to be a rotation. Here: both sensors by Algorithm 7 (the accelerometer on
+its static rows, in its symmetric gauge, since the accelerometer's axes are the IMU's), the
+linear dip solution as the start (``_alignment_common.dip_rotation``) and Gauss-Newton over
+the rotation itself (``refine_dip_rotation``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from magbench.core.model import Calibration, CalibrationFailed
+from magbench.methods.algorithms._alignment_common import (
+    check_acceleration,
+    check_spread,
+    dip_rotation,
+    refine_dip_rotation,
+    static_rows,
+    symmetric_directions,
+    unit_rows,
+)
+from magbench.methods.algorithms.magical import iterate
+from magbench.methods.registry import register
+
+
+def gravity_directions(a: np.ndarray, max_iter: int, tol: float, rtol: float) -> np.ndarray:
+    """Unit gravity directions of static accelerometer rows calibrated by Algorithm 7
+    (symmetric gauge), or ``CalibrationFailed`` when too few or too alike to fit."""
+    scale = float(np.median(np.sqrt(np.einsum("ij,ij->i", a, a))))
+    if a.shape[0] < 10:
+        raise CalibrationFailed(f"MAG.I.C.AL. alignment: {a.shape[0]} static accelerometer rows "
+                                "are too few to calibrate it (10 needed); pass "
+                                "calibrate_accelerometer=False to use it as given")
+    centred = a / scale - np.mean(a / scale, axis=0)
+    if np.linalg.svd(centred, compute_uv=False)[-1] <= 1e-3 * np.sqrt(a.shape[0]):
+        raise CalibrationFailed("MAG.I.C.AL. alignment: the static accelerometer rows do not "
+                                "span an ellipsoid (too few distinct rests); pass "
+                                "calibrate_accelerometer=False to use it as given")
+    T, h, *_ = iterate(np.ascontiguousarray(a / scale), int(max_iter), float(tol),
+                       float(rtol), np.inf)
+    return symmetric_directions(a / scale, T, h)[1]
+
+
+@register("magical_aligned", label="MAG.I.C.AL. aligned", min_samples=10, family="extra",
+          needs_accel=True)
+def fit(samples: np.ndarray, *, acceleration: np.ndarray, static_tol: float = 0.05,
+        min_spread: float = 0.02,
+        calibrate_accelerometer: bool = True, max_iter: int = 2000, tol: float = 1e-24,
+        rtol: float = 1e-12) -> Calibration:
+    """Calibrate the magnetometer (and accelerometer) and align them, MAG.I.C.AL.'s way.
+
+    Parameters
+    ----------
+    samples : ndarray, shape (K, 3)
+        Magnetometer samples.
+    acceleration : ndarray, shape (K, 3)
+        Accelerometer samples (specific force, IMU axes, any unit) at the same instants.
+    static_tol : float
+        Rows whose specific-force norm is within this fraction of the median are static.
+    min_spread : float
+        Smallest middle eigenvalue of the covariance of the static gravity directions
+        (``_alignment_common.check_spread``); below it the rotation is refused.
+    calibrate_accelerometer : bool
+        True (the methodology): calibrate the accelerometer on the static rows first; False:
+        take it as calibrated (a recording with few distinct rests cannot fit it).
+    max_iter, tol, rtol
+        Algorithm 7's stopping rule for both sensors (see ``magical.fit``).
+
+    Returns
+    -------
+    Calibration
+        ``T`` in the symmetric gauge, ``h`` and the alignment ``R`` (heading-true gauge).
+    """
+    a = check_acceleration(samples, acceleration)
+    T, h, n_iter, converged, _ = iterate(np.ascontiguousarray(samples, dtype=np.float64),
+                                         int(max_iter), float(tol), float(rtol), np.inf)
+    T_s, m = symmetric_directions(samples, T, h)
+    rows = static_rows(a, static_tol)
+    check_spread(unit_rows(a[rows]), min_spread)
+    g = (gravity_directions(a[rows], max_iter, tol, rtol) if calibrate_accelerometer
+         else unit_rows(a[rows]))
+    R0, _ = dip_rotation(m[rows], g)
+    R, c, steps = refine_dip_rotation(m[rows], g, R0)
+    dip = np.degrees(np.arcsin(np.clip(-c, -1.0, 1.0)))
+    return Calibration(T_s, h, n_iter, converged,
+                       f"MAG.I.C.AL. fit in {n_iter} iterations; rotation-constrained "
+                       f"alignment on {rows.size} static rows in {steps} steps, inclination "
+                       f"{dip:.2f} deg", alignment=R)

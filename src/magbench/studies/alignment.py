@@ -1,0 +1,442 @@
+"""Direction for ``calibrate``: the alignment of a chosen calibration to the inertial sensors,
+its held-out direction consistency, the direction veto and the geomagnetic check.
+
+A calibration chosen on field magnitude (:mod:`magbench.studies.calibration`) fixes ``T`` only up
+to a rotation; its symmetric gauge gives field directions ``A (y - h)``. With inertial columns
+the rotation ``R`` to the IMU's axes is fitted here (:func:`fit_alignment`), from the strongest
+source the recording holds:
+
+* ``attitude`` (a reference orientation, sensor -> world): the rotation and the world field
+  direction that best explain ``R A (y_k - h) = Q_k^T m_w`` (Wahba's problem, alternated with
+  the mean world direction);
+* ``gyro`` and ``accelerometer``: the joint MAP of ``mag_imu_map`` (orientation trajectory
+  unknown), whose field in IMU axes is matched by a rotation (Procrustes);
+* ``accelerometer`` alone, at several rests: the dip constraint of ``dip_align``.
+
+:func:`direction_consistency` scores any calibration on held-out rows by
+:func:`magbench.core.direction.direction_score` (heading and inclination errors and field
+spread with an attitude, gyro consistency, dip spread at rest); :func:`direction_vetoes` names
+the candidates whose direction is worse than the best by more than a tolerance, so that a fit
+that improves magnitude but worsens direction is not chosen; :func:`field_check` sets a fit
+beside the geomagnetic model at the user's site.
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+import math
+from dataclasses import dataclass, replace
+
+import numpy as np
+import pandas as pd
+
+from magbench.core.direction import direction_score, mean_direction, world_field
+from magbench.core.gauge import safe_gauge
+from magbench.core.geomagnetic import UNITS_NT, ExpectedField, Site, expected_field, infer_unit
+from magbench.core.geometry import sphere_fit
+from magbench.core.lag import attitude_rate, magnetometer_lag, shift
+from magbench.core.model import Calibration, CalibrationFailed
+from magbench.core.quaternions import quat_to_matrix
+from magbench.methods.algorithms._alignment_common import (
+    check_spread,
+    dip_rotation,
+    nearest_rotation,
+    refine_dip_rotation,
+    static_rows,
+    unit_rows,
+)
+from magbench.methods.api import calibrate
+from magbench.sources.recordings import Recording
+from magbench.studies.holdout import estimate, fold_indices
+
+__all__ = ["PRIMARY", "DirectionReport", "DirectionVeto", "Inertial", "align_chosen",
+           "direction_consistency", "direction_report", "direction_vetoes", "field_check",
+           "fit_alignment", "fold_direction", "inertial_of", "lag_corrected", "longest_run",
+           "primary_direction"]
+
+
+@dataclass(frozen=True)
+class Inertial:
+    """Inertial streams beside the magnetometer samples, on the same rows (any may be None).
+
+    ``t`` in s, ``gyro`` in rad/s and ``acceleration`` (specific force) in the IMU's axes,
+    ``attitude`` unit quaternions scalar first, sensor -> world (NaN rows allowed).
+    """
+
+    t: np.ndarray | None = None
+    gyro: np.ndarray | None = None
+    acceleration: np.ndarray | None = None
+    attitude: np.ndarray | None = None
+
+    def rows(self, index: slice | np.ndarray) -> Inertial:
+        """The streams restricted to some rows."""
+        return Inertial(*(None if v is None else v[index]
+                          for v in (self.t, self.gyro, self.acceleration, self.attitude)))
+
+    @property
+    def source(self) -> str:
+        """What :func:`fit_alignment` will use: ``attitude``, ``gyro+accelerometer``,
+        ``accelerometer`` or ``none``."""
+        if self.attitude is not None and np.isfinite(self.attitude).all(axis=1).sum() >= 10:
+            return "attitude"
+        if self.gyro is not None and self.t is not None and self.acceleration is not None:
+            return "gyro+accelerometer"
+        return "accelerometer" if self.acceleration is not None else "none"
+
+
+def symmetric_field(cal: Calibration, y: np.ndarray) -> np.ndarray:
+    """``A (y - h)``: the calibrated field in the symmetric gauge (what an alignment turns)."""
+    return (y - cal.h) @ safe_gauge(cal.T, cal.h).A.T
+
+
+def wahba_alignment(m: np.ndarray, attitude: np.ndarray, n_iter: int = 10) -> np.ndarray:
+    """The rotation ``R`` with ``R m_k`` nearest ``Q_k^T m_w`` for the best world direction
+    ``m_w``: alternate the mean world direction and Wahba's solution (SVD)."""
+    ok = np.isfinite(attitude).all(axis=1)
+    Q, u = quat_to_matrix(attitude[ok]), unit_rows(m[ok])
+    R = np.eye(3)
+    for _ in range(n_iter):
+        m_w = mean_direction(np.einsum("kij,kj->ki", Q, u @ R.T))
+        R = nearest_rotation(np.einsum("kji,j->ki", Q, m_w).T @ u)
+    return R
+
+
+def fit_alignment(cal: Calibration, y: np.ndarray, inertial: Inertial,
+                  **map_options: object) -> tuple[Calibration, str]:
+    """The chosen calibration with its rotation to the IMU, and what fixed it.
+
+    Parameters
+    ----------
+    cal : Calibration
+        The calibration chosen on magnitude (any gauge).
+    y : ndarray, shape (K, 3)
+        The magnetometer samples it was fitted on.
+    inertial : Inertial
+        The streams on the same rows.
+    **map_options
+        Options of ``mag_imu_map`` (noise levels) for the gyro+accelerometer source.
+
+    Returns
+    -------
+    Calibration
+        ``cal`` in the symmetric gauge with ``alignment`` set (heading-true).
+    str
+        The source: ``attitude``, ``gyro+accelerometer`` or ``accelerometer``.
+
+    Raises
+    ------
+    CalibrationFailed
+        No inertial stream, or one that cannot fix the rotation (rests too alike).
+    """
+    safe = cal.safe()
+    m = symmetric_field(safe, y)
+    source = inertial.source
+    if source == "attitude":
+        R = wahba_alignment(m, inertial.attitude)
+    elif source == "gyro+accelerometer":
+        joint = calibrate(y, "mag_imu_map", angular_rate=inertial.gyro, time=inertial.t,
+                          acceleration=inertial.acceleration, **map_options)
+        if not joint.converged:
+            raise CalibrationFailed(f"alignment: the joint gyro and accelerometer fit did not "
+                                    f"converge ({joint.message}); the rotation is unknown")
+        A, b = joint.correction()                        # heading-true: the IMU's axes
+        R = nearest_rotation(unit_rows((y - b) @ A.T).T @ unit_rows(m))
+    elif source == "accelerometer":
+        rows = static_rows(inertial.acceleration, 0.05)
+        up = unit_rows(inertial.acceleration[rows])
+        check_spread(up, 0.02)
+        R, _, _ = refine_dip_rotation(unit_rows(m[rows]), up,
+                                      dip_rotation(unit_rows(m[rows]), up)[0])
+    else:
+        raise CalibrationFailed("alignment: no accelerometer, gyro or attitude columns; the "
+                                "rotation to the IMU is unknown (symmetric gauge)")
+    return Calibration(safe.T, safe.h, cal.n_iter, cal.converged, cal.message, cal.gyro_bias,
+                       R), source
+
+
+def direction_consistency(cal: Calibration, y: np.ndarray, inertial: Inertial, *,
+                          reference: np.ndarray | None = None) -> dict[str, float]:
+    """Direction metrics of ``cal`` on (held-out) rows, in degrees.
+
+    The field is ``cal``'s correction in its own gauge (heading-true when it has an alignment,
+    which the gyro consistency and dip spread need). With an attitude and no ``reference``
+    the world field direction is its own mean on these rows (the heading error is then a
+    spread about the mean heading); pass the fit rows' mean for a true held-out error.
+
+    Returns
+    -------
+    dict
+        :func:`magbench.core.direction.direction_score`'s keys.
+    """
+    A, b = cal.correction()
+    field = (y - b) @ A.T
+    if inertial.attitude is not None and reference is None:
+        ok = np.isfinite(inertial.attitude).all(axis=1)
+        reference = mean_direction(world_field(field[ok], inertial.attitude[ok]))
+    return direction_score(field, attitude=inertial.attitude, reference=reference,
+                           t=inertial.t, angular_rate=inertial.gyro,
+                           acceleration=inertial.acceleration)
+
+
+def world_reference(cal: Calibration, y: np.ndarray, attitude: np.ndarray) -> np.ndarray:
+    """The mean world-frame field direction of ``cal`` on the fit rows (the held-out rows'
+    heading error is measured against it)."""
+    A, b = cal.correction()
+    ok = np.isfinite(attitude).all(axis=1)
+    return mean_direction(world_field((y[ok] - b) @ A.T, attitude[ok]))
+
+
+def direction_vetoes(direction_deg: dict[str, float], tol_deg: float = 1.0) -> dict[str, str]:
+    """Candidates whose held-out direction error exceeds the best one's by more than
+    ``tol_deg``, each with the reason (a candidate with a NaN score is not vetoed).
+
+    Parameters
+    ----------
+    direction_deg : dict
+        Candidate name -> its held-out direction error (e.g. heading RMS or gyro RMS), deg.
+    tol_deg : float
+        What the direction may lose to the best before a candidate is set aside.
+    """
+    finite = {k: v for k, v in direction_deg.items() if math.isfinite(v)}
+    if not finite:
+        return {}
+    best_name = min(finite, key=finite.get)
+    best = finite[best_name]
+    return {k: f"held-out direction error {v:.2f} deg, {v - best:.2f} deg worse than "
+               f"{best_name}'s {best:.2f} deg"
+            for k, v in finite.items() if v > best + tol_deg}
+
+
+def field_check(strength: float, inclination_deg: float | None, site: Site, date: dt.date,
+                *, strength_tol: float = 0.1, inclination_tol_deg: float = 3.0) -> dict:
+    """A fit's field strength (recorded units) and inclination beside the geomagnetic model.
+
+    Returns
+    -------
+    dict
+        ``expected`` (:class:`ExpectedField`), ``unit`` (the unit in which the strength
+        matches the model within 25 %, or None for raw counts), ``strength_ratio`` (measured
+        over expected, in that unit; NaN without one), ``inclination_error_deg`` (NaN without
+        an inclination) and ``ok`` with ``reasons`` for what is off.
+    """
+    expected: ExpectedField = expected_field(site, date)
+    unit = infer_unit(strength, expected.strength_nT)
+    ratio = strength * UNITS_NT[unit] / expected.strength_nT if unit else math.nan
+    incl_err = (inclination_deg - expected.inclination_deg if inclination_deg is not None
+                else math.nan)
+    reasons = []
+    if unit is None:
+        reasons.append(f"field strength {strength:.4g} matches the model's "
+                       f"{expected.strength_nT:.0f} nT in no unit (raw counts?)")
+    elif abs(ratio - 1.0) > strength_tol:
+        reasons.append(f"field strength {ratio:.2f} times the model's "
+                       f"{expected.strength_nT / UNITS_NT[unit]:.4g} {unit}")
+    if abs(incl_err) > inclination_tol_deg:
+        reasons.append(f"inclination {inclination_deg:.1f} deg against the model's "
+                       f"{expected.inclination_deg:.1f} deg")
+    return {"expected": expected, "unit": unit, "strength_ratio": ratio,
+            "inclination_error_deg": incl_err, "ok": not reasons, "reasons": reasons}
+
+
+#: The held-out direction metric that rules the veto, strongest first: heading error against
+#: an attitude, consistency with the gyro, spread of the dip angle at rest.
+PRIMARY = (("heading_rms", "held-out heading RMS"), ("gyro_rms", "gyro consistency RMS"),
+           ("dip_spread", "dip-angle spread at rest"))
+
+
+def primary_direction(score: dict[str, float]) -> tuple[str, float]:
+    """The first metric of :data:`PRIMARY` that ``score`` holds (finite), as (label, deg);
+    ``("", nan)`` when none."""
+    for key, label in PRIMARY:
+        value = score.get(key, math.nan)
+        if math.isfinite(value):
+            return label, float(value)
+    return "", math.nan
+
+
+@dataclass(frozen=True)
+class DirectionReport:
+    """What ``calibrate`` prints and writes about direction.
+
+    Attributes
+    ----------
+    aligned : dict
+        Candidate name -> its calibration made heading-true on the fit rows (candidates whose
+        alignment failed are left out).
+    scores : dict
+        Candidate name -> :func:`direction_consistency` on the held-out rows.
+    metric : str
+        The label of the metric that rules the veto (:func:`primary_direction`).
+    vetoes : dict
+        Candidate name -> why it is set aside (:func:`direction_vetoes`).
+    source : str
+        What fixed the alignment (``attitude``, ``gyro+accelerometer``, ``accelerometer``).
+    failures : dict
+        Candidate name -> why its alignment failed.
+    """
+
+    aligned: dict
+    scores: dict
+    metric: str
+    vetoes: dict
+    source: str
+    failures: dict
+
+    def line(self, name: str) -> str:
+        """One line on ``name``'s direction, for the printed report."""
+        if name in self.failures:
+            return f"{name}: direction not measured ({self.failures[name]})"
+        label, value = primary_direction(self.scores[name])
+        veto = f"; set aside: {self.vetoes[name]}" if name in self.vetoes else ""
+        return f"{name}: {label} {value:.2f} deg (alignment from {self.source}){veto}"
+
+
+def direction_report(candidates: dict[str, Calibration], y: np.ndarray, inertial: Inertial,
+                     fit: np.ndarray, test: np.ndarray, *, tol_deg: float = 1.0,
+                     **map_options: object) -> DirectionReport:
+    """Align every candidate on the fit rows, score it on the held-out rows, veto.
+
+    Parameters
+    ----------
+    candidates : dict
+        Name -> calibration chosen on magnitude (fitted on ``fit`` rows).
+    y : ndarray, shape (K, 3)
+        All magnetometer samples; ``inertial`` on the same rows.
+    fit, test : ndarray of int
+        Row indices of the fit and held-out parts (the gyro+accelerometer source needs
+        ``fit`` to be consecutive rows).
+    tol_deg : float
+        See :func:`direction_vetoes`.
+    """
+    aligned, scores, failures, source = {}, {}, {}, inertial.source
+    for name, cal in candidates.items():
+        try:
+            aligned[name], source = fit_alignment(cal, y[fit], inertial.rows(fit),
+                                                  **map_options)
+        except CalibrationFailed as exc:
+            failures[name] = str(exc)
+            continue
+        reference = (world_reference(aligned[name], y[fit], inertial.attitude[fit])
+                     if source == "attitude" else None)
+        scores[name] = direction_consistency(aligned[name], y[test], inertial.rows(test),
+                                             reference=reference)
+    primary = {n: primary_direction(s) for n, s in scores.items()}
+    metric = next((label for label, _ in primary.values() if label), "")
+    vetoes = direction_vetoes({n: v for n, (_, v) in primary.items()}, tol_deg)
+    return DirectionReport(aligned, scores, metric, vetoes, source, failures)
+
+
+#: Recording columns of the inertial streams beside ``t`` and the gyro.
+ATTITUDE_COLUMNS = ["qw", "qx", "qy", "qz"]
+ACCEL_COLUMNS = ["ax", "ay", "az"]
+#: Longest run of consecutive rows the joint gyro+accelerometer fit is given (its cost grows
+#: with the rows; a minute at 50 Hz fixes the rotation well).
+MAX_JOINT_ROWS = 3000
+
+
+def inertial_of(rec: Recording) -> Inertial:
+    """The inertial streams of a recording: its times and gyro, and the attitude
+    (``qw..qz``) and accelerometer (``ax..az``) columns it holds in ``extra``."""
+    extra = rec.extra
+
+    def columns(names: list[str]) -> np.ndarray | None:
+        if extra is None or not all(c in extra for c in names):
+            return None
+        return extra[names].to_numpy(float)
+
+    attitude = columns(ATTITUDE_COLUMNS)
+    if attitude is not None:
+        norm = np.linalg.norm(attitude, axis=1, keepdims=True)
+        attitude = attitude / np.where(norm > 0, norm, np.nan)
+    return Inertial(rec.t, rec.gyro, columns(ACCEL_COLUMNS), attitude)
+
+
+def fold_direction(trials: pd.DataFrame, work: Recording, name: str,
+                   inertial: Inertial) -> float:
+    """Held-out heading RMS (deg) of ``name`` over the folds of ``trials``: each fold's fit is
+    aligned by the attitude on its training rows and scored on its test rows, against the
+    training rows' world direction; NaN unless every fold's fit is usable."""
+    rows = trials[(trials["algorithm"] == name) & (trials["fit_on"] != "all")]
+    if len(rows) < 2 or not rows["usable"].astype(bool).all():
+        return math.nan
+    squares = []
+    for f, test in enumerate(fold_indices(work.K, len(rows))):
+        T, h = estimate(rows[rows["fit_on"] == f"fold{f}"].iloc[0])
+        train = np.setdiff1d(np.arange(work.K), test)
+        try:
+            aligned, _ = fit_alignment(Calibration(T, h), work.y[train], inertial.rows(train))
+        except (CalibrationFailed, ValueError, np.linalg.LinAlgError):
+            return math.nan
+        reference = world_reference(aligned, work.y[train], inertial.attitude[train])
+        score = direction_consistency(aligned, work.y[test], inertial.rows(test),
+                                      reference=reference)
+        squares.append(score["heading_rms"] ** 2)
+    return float(np.sqrt(np.mean(squares)))
+
+
+class DirectionVeto:
+    """The ``extra`` score of :func:`magbench.studies.calibration.calibrate_recording`: with
+    a reference attitude, every candidate's held-out heading RMS over the same folds as the
+    magnitude score; a candidate more than ``tol_deg`` worse than the best is scored NaN, so it
+    is not eligible (a fit that improves magnitude but worsens direction is not chosen), the
+    others 1 (they tie). ``scores`` and ``vetoes`` keep the last call's numbers to print."""
+
+    column = "direction_ok"
+
+    def __init__(self, tol_deg: float = 1.0):
+        self.tol_deg = tol_deg
+        self.scores: dict[str, float] = {}
+        self.vetoes: dict[str, str] = {}
+
+    def __call__(self, summary: pd.DataFrame, trials: pd.DataFrame,
+                 work: Recording) -> tuple[str, list[float]]:
+        names = [str(n) for n in summary["algorithm"]]
+        inertial = inertial_of(work)
+        if inertial.source != "attitude":
+            return self.column, [1.0] * len(names)
+        attitude_only = Inertial(attitude=inertial.attitude)
+        self.scores = {n: fold_direction(trials, work, n, attitude_only) for n in names}
+        self.vetoes = direction_vetoes(self.scores, self.tol_deg)
+        return self.column, [math.nan if n in self.vetoes else 1.0 for n in names]
+
+
+def longest_run(keep: np.ndarray, limit: int) -> np.ndarray:
+    """Indices of the longest run of consecutive ``True`` rows, at most ``limit`` of them."""
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], keep.astype(int), [0]])))
+    starts, stops = edges[::2], edges[1::2]
+    if not starts.size:
+        return np.arange(0)
+    k = int(np.argmax(stops - starts))
+    return np.arange(starts[k], min(stops[k], starts[k] + limit))
+
+
+def align_chosen(cal: Calibration, rec: Recording, keep: np.ndarray,
+                 **map_options: object) -> tuple[Calibration, str]:
+    """The chosen calibration made heading-true on the recording's kept rows (every kept row
+    for an attitude or accelerometer; the longest run of consecutive kept rows, up to
+    :data:`MAX_JOINT_ROWS`, for the gyro+accelerometer fit, whose gyro chain needs them)."""
+    inertial = inertial_of(rec)
+    rows = np.flatnonzero(keep)
+    if inertial.source == "gyro+accelerometer":
+        rows = longest_run(keep, MAX_JOINT_ROWS)
+        map_options = {"sigma_acc": 0.2, "sigma_gyro": 0.05, **map_options}
+    return fit_alignment(cal, rec.y[rows], inertial.rows(rows), **map_options)
+
+
+def lag_corrected(rec: Recording, max_lag_s: float = 0.1) -> tuple[Recording, float]:
+    """The recording with its magnetometer moved onto the inertial streams' times, and the
+    lag removed (s; positive: the magnetometer reads late), measured against the attitude's
+    rate (or the gyro's) by :func:`magbench.core.lag.magnetometer_lag` on the field centred by
+    a sphere fit. Unchanged (lag 0) without times and a rate stream, or when no lag is found; rows
+    the shift leaves without a value are dropped."""
+    inertial = inertial_of(rec)
+    if rec.t is None or (inertial.attitude is None and rec.gyro is None):
+        return rec, 0.0
+    rate = attitude_rate(rec.t, inertial.attitude) if inertial.attitude is not None \
+        else rec.gyro
+    lag, _ = magnetometer_lag(rec.t, rec.y - sphere_fit(rec.y)[0], rate, max_lag_s)
+    if not np.isfinite(lag) or lag == 0.0:
+        return rec, 0.0
+    y = shift(rec.t, rec.y, lag)
+    keep = np.isfinite(y).all(axis=1)
+    return replace(rec, y=y).rows(np.flatnonzero(keep)), float(lag)
