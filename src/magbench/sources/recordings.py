@@ -558,28 +558,8 @@ def read_samples(path: Path | str, columns: Sequence[object] | None = None, *,
         raise ValueError(f"file {path} is a folder; expected a CSV of magnetometer samples")
     if not path.is_file():
         raise ValueError(f"file {path} not found; expected a CSV of magnetometer samples")
-    compression = _compression(path)
-    sniffed = _sniff(path, compression)
-    sep, has_header = sniffed["sep"], sniffed["has_header"]
-    layout = {"sep": r"\s+" if sep == " " else sep, "header": 0 if has_header else None,
-              "compression": compression, "skip_blank_lines": True,
-              "decimal": sniffed["decimal"]}
-    where = _Where(path, compression, sniffed)
-    header = None
-    if has_header:
-        first = _read_csv(path, nrows=0, dtype=str, keep_default_na=False, **layout)
-        header = [str(c).strip() for c in first.columns]
-    n_cols = sniffed["n_cols"]
-    mag = _select(columns, header, n_cols, "columns", MAG_COLUMNS)
-    if mag is None:
-        if n_cols == 3:
-            mag = [0, 1, 2]
-        else:
-            shown = ", ".join(header) if header else f"{n_cols} unnamed columns"
-            raise ValueError(f"cannot tell which columns hold the magnetometer axes: no mx, my, "
-                             f"mz header and {n_cols} columns ({shown}); choose them with "
-                             "columns=[name,name,name] or columns=[0,1,2]")
-    names = [header[i] if header else f"column {i}" for i in mag]
+    layout, where, header, n_cols = _open_csv(path)
+    mag, names = _magnetometer_columns(columns, header, n_cols)
     t_pos = header.index("t") if header is not None and "t" in header else None
     gyro_pos = _select(None, header, n_cols, "gyro columns", GYRO_COLUMNS)
     wanted = {**dict(zip(mag, names, strict=True)),
@@ -599,30 +579,17 @@ def read_samples(path: Path | str, columns: Sequence[object] | None = None, *,
     order = [sorted(wanted).index(i) for i in mag]
     # The usual three-column file is its own sample array: no copy of 10 million rows.
     y = table if order == list(range(table.shape[1])) else table[:, order]
-    used = ~np.isnan(y).any(axis=1)
-    t = gyro = None
+    t = None
     if t_pos is not None:
         t = values[t_pos]
         if t_pos in failed:
             t = _times(path, layout, t_pos, where, keep, gyro_pos is not None)
         if t is not None and np.isnan(t).all():
             t = None
-    if gyro_pos is not None and t is not None:
-        gyro = np.column_stack([values[i] for i in gyro_pos])
-        used &= ~np.isnan(gyro).any(axis=1) & ~np.isnan(t)
-    n_dropped = int((~used).sum())
-    if not n_dropped:
-        used = slice(None)          # a view, not a copy of every sample
-    if n_dropped:
-        warnings.warn(f"{path.name}: dropped {n_dropped} of {len(y)} rows with missing or "
-                      "NaN values in the columns used", UserWarning, stacklevel=2)
-    y = y[used]
-    if not np.isfinite(y).all():
-        raise ValueError(f"{path.name} contains infinite values; expected finite numbers")
-    check_magnitude(y, f"the samples of {path.name}")
-    if y.shape[0] < min_samples:
-        raise ValueError(f"{path.name} has {y.shape[0]} usable samples; at least {min_samples} "
-                         "are needed (the method's number of unknowns)")
+    gyro = (np.column_stack([values[i] for i in gyro_pos])
+            if gyro_pos is not None and t is not None else None)
+    used = _usable_rows(path, y, t, gyro)
+    y = _checked_samples(path, y[used], min_samples)
     rec = Recording(path.parent.name if path.name == "data.csv" else path.stem, y,
                     None if t is None else t[used], None if gyro is None else gyro[used],
                     n_rows=int(y.shape[0]), columns=tuple(names), instance=chosen,
@@ -632,6 +599,62 @@ def read_samples(path: Path | str, columns: Sequence[object] | None = None, *,
         check_geometry(rec.y[::stride], min_coverage=min_coverage,
                        min_thickness=min_thickness, what=path.name)
     return rec
+
+
+def _open_csv(path: Path) -> tuple[dict, _Where, list[str] | None, int]:
+    """How to read ``path`` (pandas' layout arguments), where its lines are, its header (or
+    None) and its number of columns."""
+    compression = _compression(path)
+    sniffed = _sniff(path, compression)
+    sep, has_header = sniffed["sep"], sniffed["has_header"]
+    layout = {"sep": r"\s+" if sep == " " else sep, "header": 0 if has_header else None,
+              "compression": compression, "skip_blank_lines": True,
+              "decimal": sniffed["decimal"]}
+    header = None
+    if has_header:
+        first = _read_csv(path, nrows=0, dtype=str, keep_default_na=False, **layout)
+        header = [str(c).strip() for c in first.columns]
+    return layout, _Where(path, compression, sniffed), header, sniffed["n_cols"]
+
+
+def _magnetometer_columns(columns: Sequence[object] | None, header: list[str] | None,
+                          n_cols: int) -> tuple[list[int], list[str]]:
+    """The positions and names of the three magnetometer columns."""
+    mag = _select(columns, header, n_cols, "columns", MAG_COLUMNS)
+    if mag is None:
+        if n_cols != 3:
+            shown = ", ".join(header) if header else f"{n_cols} unnamed columns"
+            raise ValueError(f"cannot tell which columns hold the magnetometer axes: no mx, my, "
+                             f"mz header and {n_cols} columns ({shown}); choose them with "
+                             "columns=[name,name,name] or columns=[0,1,2]")
+        mag = [0, 1, 2]
+    return mag, [header[i] if header else f"column {i}" for i in mag]
+
+
+def _usable_rows(path: Path, y: np.ndarray, t: np.ndarray | None,
+                 gyro: np.ndarray | None) -> np.ndarray | slice:
+    """The rows with every used value present (a warning says how many are dropped); a slice
+    of all rows when none is, so the samples stay a view."""
+    used = ~np.isnan(y).any(axis=1)
+    if gyro is not None:
+        used &= ~np.isnan(gyro).any(axis=1) & ~np.isnan(t)
+    n_dropped = int((~used).sum())
+    if not n_dropped:
+        return slice(None)
+    warnings.warn(f"{path.name}: dropped {n_dropped} of {len(y)} rows with missing or "
+                  "NaN values in the columns used", UserWarning, stacklevel=3)
+    return used
+
+
+def _checked_samples(path: Path, y: np.ndarray, min_samples: int) -> np.ndarray:
+    """``y`` if its values are finite, of a magnitude a fit can square, and enough."""
+    if not np.isfinite(y).all():
+        raise ValueError(f"{path.name} contains infinite values; expected finite numbers")
+    check_magnitude(y, f"the samples of {path.name}")
+    if y.shape[0] < min_samples:
+        raise ValueError(f"{path.name} has {y.shape[0]} usable samples; at least {min_samples} "
+                         "are needed (the method's number of unknowns)")
+    return y
 
 
 def _same(a: str, b: str) -> bool:
