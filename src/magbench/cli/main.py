@@ -92,7 +92,8 @@ COMMANDS: dict[str, tuple[Callable[..., int], str, str, tuple[str, ...]]] = {
                   "python -m magbench calibrate file=data.csv",
                   ("file", "method", "candidates", "columns", "out", "preprocess",
                    "max_samples", "compensate", "bootstrap", "seed", "units", "field_strength",
-                   "instance", "overwrite", "options", "call_timeout_s", "plugins")),
+                   "location", "date", "gate", "instance", "overwrite", "options",
+                   "call_timeout_s", "plugins")),
     "apply": (_apply, "correct a recording with a saved calibration.json (m = A (y - b))",
               "python -m magbench apply calibration=cal/calibration.json file=flight.csv "
               "out=flight-corrected.csv", ("calibration", "file", "columns", "instance", "out",
@@ -116,14 +117,21 @@ COMMANDS: dict[str, tuple[Callable[..., int], str, str, tuple[str, ...]]] = {
 
 
 def _key_help() -> dict[str, tuple[str, str]]:
-    """``key -> (default, meaning)`` from the comments of ``conf/config.yaml``."""
+    """``key -> (default, meaning)`` from the comments of ``conf/config.yaml``; the keys of a
+    section (``gate:``) as ``gate.<key>``."""
     from magbench.cli.config import config_dir
 
-    out = {}
+    out, section = {}, None
     for line in (config_dir() / "config.yaml").read_text().splitlines():
-        match = re.match(r"^([A-Za-z_]+):\s*([^#]*?)\s*(?:#\s*(.*))?$", line)
-        if match and match.group(1) not in ("defaults",):
-            out[match.group(1)] = (match.group(2), match.group(3) or "")
+        match = re.match(r"^( *)([A-Za-z_]+):\s*([^#]*?)\s*(?:#\s*(.*))?$", line)
+        if not match or match.group(2) == "defaults":
+            continue
+        indent, key, default, meaning = match.groups()
+        if not indent:
+            section = key if not default else None
+            out[key] = (default, meaning or "")
+        elif section is not None:
+            out[f"{section}.{key}"] = (default, meaning or "")
     return out
 
 
@@ -214,7 +222,9 @@ def command_help(command: str) -> str:
                 "the nominal point of eq. (80), e.g. nominal.K=150"
         if key == "options":
             default, meaning = "{}", "a method's option, e.g. options.magical.max_iter=100"
-        lines.append(f"  {key:<18} {default:<22} {meaning}")
+        lines.append(f"  {key:<21} {default:<22} {meaning}")
+        lines += [f"  {sub:<21} {d:<22} {m}" for sub, (d, m) in known.items()
+                  if sub.startswith(f"{key}.") and key not in ("nominal", "options")]
     if "sweep" in keys:
         lines += ["", "sweeps:"] + [f"  {n:<10} {w}" for n, w in sweep_kinds()]
     if command == "run":

@@ -37,6 +37,9 @@ METHOD_STYLE: dict[str, tuple[str, str]] = {
     "magyc_ls": ("#77AADD", "^"), "magyc_nls": ("#BBCC33", "D"), "magyc_bfg": ("#FFAABB", "v"),
     "magyc_ifg": ("#99DDFF", "P"), "magfactor3": ("#AAAA00", "X"),
     "diagonal": ("#44BB99", "8"), "als": ("#6699CC", ">"),
+    # the magnetometer-to-IMU alignment methods (earth tones)
+    "dip_align": ("#774411", "d"), "magical_aligned": ("#555599", "X"),
+    "mag_imu_map": ("#AA7744", "H"),
 }
 #: Line style and width by family: the review's methods solid and heavier.
 FAMILY_LINE = {"review": ("-", 1.8), "extra": ("--", 1.2), "variant": ("-.", 1.2),

@@ -27,8 +27,6 @@ rotation ``G^-1 (G G^T)^(1/2)`` and the gyro bias is returned.
 from __future__ import annotations
 
 import numpy as np
-from scipy import sparse
-from scipy.sparse.linalg import spsolve
 
 from magbench.core.crb import alignment_rotation
 from magbench.core.model import Calibration, CalibrationFailed
@@ -108,8 +106,10 @@ def residuals(Q, p, y, a, w_mid, dt, g_w, weights):
     return r, (v, u, phi, C, r_g)
 
 
-def jacobian(Q, p, parts, dt, weights) -> sparse.csr_matrix:
+def jacobian(Q, p, parts, dt, weights) -> object:
     """Sparse Jacobian of :func:`residuals` in ``(d_0, ..., d_{K-1}, p)``."""
+    from scipy import sparse  # imported when fitting: registering stays light
+
     K = Q.shape[0]
     G, theta = p[:9].reshape(3, 3), p[12]
     v, u, phi, C, r_g = parts
@@ -211,6 +211,9 @@ def fit(samples: np.ndarray, *, angular_rate: np.ndarray, time: np.ndarray,
 
 def _solve(Q, p, y, a, w_mid, dt, g_w, weights, max_iter, xtol):
     """Levenberg-Marquardt on the joint problem; returns ``Q, p, iterations, converged``."""
+    from scipy import sparse
+    from scipy.sparse.linalg import spsolve
+
     K = Q.shape[0]
     r, parts = residuals(Q, p, y, a, w_mid, dt, g_w, weights)
     cost, lam = float(r @ r), 1e-6
