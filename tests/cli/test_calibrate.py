@@ -581,3 +581,43 @@ def test_bad_gate_keys_exit_2_in_one_line(arg, message, tmp_path, capsys):
     assert calibrate(f"file={path}", arg, f"out={tmp_path / 'o'}") == 2
     err = capsys.readouterr().err
     assert err.startswith("magbench: error: ") and message in err and err.count("\n") == 1
+
+
+def test_a_confident_mounting_rotation_is_written_to_both_autopilots(tmp_path, capsys):
+    from tests.studies.test_flight import simulated_ulog
+
+    log = simulated_ulog(tmp_path / "flight.ulg", 6, seed=4, seconds=30.0)
+    out = tmp_path / "cal"
+    assert calibrate(f"file={log}", f"out={out}", "bootstrap=0") == 0
+    found = json.loads((out / "calibration.json").read_text())["mounting_rotation"]
+    assert found["id"] == 6 and found["confidence"] > 2                # ROTATION_YAW_270
+    assert "\nCOMPASS_ORIENT 6\n" in (out / "ardupilot.param").read_text()
+    assert "1\t1\tCAL_MAG0_ROT\t6\t6\n" in (out / "px4.params").read_text()
+    # The same samples with the attitude frozen: the rotation is refused and neither is set.
+    from magbench.sources.recordings import read_samples
+
+    rec = read_samples(log)
+    frame = pd.DataFrame(rec.y, columns=["mx", "my", "mz"])
+    frame.insert(0, "t", rec.t)
+    for c in ("qw", "qx", "qy", "qz"):
+        frame[c] = rec.extra[c].iloc[0]
+    frame.to_csv(tmp_path / "frozen.csv", index=False)
+    out = tmp_path / "frozen"
+    assert calibrate(f"file={tmp_path / 'frozen.csv'}", f"out={out}", "bootstrap=0",
+                     "units=gauss") == 0
+    found = json.loads((out / "calibration.json").read_text())["mounting_rotation"]
+    assert found["id"] is None and found["reason"]
+    assert "ORIENT" not in (out / "ardupilot.param").read_text()
+    assert "_ROT" not in (out / "px4.params").read_text()
+
+
+def test_an_ardupilot_logs_rotation_is_relative_so_it_is_not_written():
+    from magbench.cli.calibrate import _export_rotation
+
+    found = {"id": 6, "name": "ROTATION_YAW_270"}
+    assert _export_rotation({"file": "a.ulg", "mounting_rotation": found}) == (6, "")
+    assert _export_rotation({"file": "a.csv", "mounting_rotation": found}) == (6, "")
+    rotation, line = _export_rotation({"file": "a.BIN", "mounting_rotation": found})
+    assert rotation is None and "ROTATION_YAW_270 is on top of the current setting" in line
+    assert _export_rotation({"file": "a.csv", "mounting_rotation": {"id": None}}) == (None, "")
+    assert _export_rotation({"file": "a.csv"}) == (None, "")

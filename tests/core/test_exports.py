@@ -312,3 +312,32 @@ def test_heading_true_file_says_so_and_reads_back():
     bad = dict(data, R=np.diag([1.0, 1.0, -1.0]).tolist())
     with pytest.raises(ValueError, match="proper rotation"):
         from_json_dict(bad)
+
+
+@pytest.mark.parametrize(("rotation", "instance", "name"), [(6, 0, "COMPASS_ORIENT"),
+                                                            (8, 1, "COMPASS_ORIENT2"),
+                                                            (38, 2, "COMPASS_ORIENT3")])
+def test_ardupilot_with_a_rotation_corrects_in_the_vehicle_axes(rotation, instance, name):
+    from magbench.core.mounting import rotation_matrix
+
+    cal = sensor()
+    p = parse_params(ardupilot_param_file(ardupilot_params(cal, MGAUSS, instance=instance,
+                                                           rotation=rotation)))
+    assert p[name] == rotation
+    Mr = rotation_matrix(rotation)
+    y = raw_samples(cal)
+    # ArduPilot turns the raw sample by COMPASS_ORIENT, then corrects it.
+    corrected = ardupilot_correct(p, y @ Mr.T, "" if instance == 0 else str(instance + 1))
+    np.testing.assert_allclose(corrected / field_strength(cal), cal.safe().apply(y) @ Mr.T,
+                               **FLOAT32)
+    with pytest.raises(ValueError, match=r"COMPASS_ORIENT, 0 to 43\), got 44"):
+        ardupilot_params(cal, MGAUSS, rotation=44)
+
+
+def test_firmware_files_write_the_rotation_in_both_and_none_without_one():
+    written, _ = firmware_files(sensor(), MGAUSS, rotation=6)
+    assert "\nCOMPASS_ORIENT 6\n" in written["ardupilot.param"]
+    assert "ROTATION_YAW_270" in written["ardupilot.param"]
+    assert "1\t1\tCAL_MAG0_ROT\t6\t6" in written["px4.params"]
+    plain, _ = firmware_files(sensor(), MGAUSS)
+    assert "ORIENT" not in plain["ardupilot.param"] and "_ROT" not in plain["px4.params"]

@@ -9,10 +9,10 @@ import pytest
 from magbench.core.geomagnetic import (
     Site,
     expected_field,
-    infer_unit,
     parse_date,
     parse_location,
 )
+from magbench.core.units import infer_units
 
 #: NOAA's published WMM2020 test values (README-WMM-COEFS.txt of the WMM2020 release, "a set
 #: of test values"): date, height above the WGS-84 ellipsoid (km), latitude, longitude,
@@ -52,7 +52,8 @@ def test_the_unit_of_a_recording_follows_from_its_field_strength():
     # Berlin, where BROAD was recorded: the recordings' |h| is 44 uT.
     expected = expected_field(parse_location("52.51,13.33"), dt.date(2021, 1, 1))
     assert 48_000 < expected.strength_nT < 51_000 and 67 < expected.inclination_deg < 69
-    assert infer_unit(44.2, expected.strength_nT) == "uT"
-    assert infer_unit(0.49, expected.strength_nT) == "Gauss"
-    assert infer_unit(493.0, expected.strength_nT) == "mGauss"
-    assert infer_unit(1370.0, expected.strength_nT) is None          # raw counts
+    assert expected.strength_gauss == pytest.approx(expected.strength_nT * 1e-5)
+    assert infer_units(44.2, expected.strength_gauss).name == "uT"
+    assert infer_units(0.49, expected.strength_gauss).name == "gauss"
+    assert infer_units(493.0, expected.strength_gauss).name == "mGauss"
+    assert not infer_units(1370.0, expected.strength_gauss).known    # raw counts

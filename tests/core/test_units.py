@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from magbench.core.units import parse_field, parse_units
+from magbench.core.units import UNKNOWN, infer_units, parse_field, parse_units
 
 
 @pytest.mark.parametrize(("text", "name", "gauss"), [
@@ -55,3 +55,15 @@ def test_units_survive_the_json_round_trip(text):
 
     units = parse_units(text)
     assert Units.from_dict(units.to_dict()) == units
+
+
+def test_the_unit_is_the_one_whose_strength_matches_the_expected_field():
+    # 0.5 gauss expected: each unit's number, within 25 %, and nothing for counts or zero.
+    assert infer_units(50.0, 0.5) == parse_units("uT")
+    assert infer_units(0.55, 0.5) == parse_units("gauss")
+    assert infer_units(4.1e4, 0.5) == parse_units("nT")
+    assert infer_units(480.0, 0.5).name == "mGauss"
+    assert infer_units(5e-5, 0.5).name == "T"
+    assert infer_units(70.0, 0.5) is UNKNOWN                # 40 % off every unit
+    assert infer_units(0.0, 0.5) is UNKNOWN
+    assert infer_units(50.0, 0.5, tol=0.01).known and not infer_units(51.0, 0.5, tol=0.01).known

@@ -509,18 +509,22 @@ def _add_time_varying(result: CalibrationResult, payload: dict, wanted: list[str
 
 def _write_exports(cal: Calibration, payload: dict, out: Path) -> tuple[list[str], list[str]]:
     """calibration.h always; each firmware file of :func:`magbench.core.exports.firmware_files`
-    that can be written (one line says why not the others, each reason once; a stale one from
-    an earlier run in ``out`` is removed). Returns the names written and that line, if any."""
+    (with the mounting rotation as COMPASS_ORIENT and CAL_MAGn_ROT when it was detected with
+    confidence, none when refused) that can be written (one line says why not the others, each
+    reason once; a stale one from an earlier run in ``out`` is removed). Returns the names
+    written and that line, if any."""
     f = payload["verdict"]["field_error_pct"]
     verdict = (f"{payload['label']}: field magnitude error {f['p95']:.2f} % (95th percentile), "
                f"{f['max']:.2f} % (max), "
                f"{'held out' if payload['verdict']['held_out'] else 'in sample'}; "
                f"from {Path(payload['file']).name}")
     units = Units.from_dict(payload.get("unit"))
+    rotation, why_not = _export_rotation(payload)
     write_text_atomic(c_header(cal, "mag_cal", verdict=verdict, units=units),
                       out / "calibration.h")
     written, refused = firmware_files(cal, units, instance=payload.get("instance_index") or 0,
-                                      device_id=payload.get("device_id"), comment=verdict)
+                                      device_id=payload.get("device_id"),
+                                      rotation=rotation, comment=verdict)
     for file, text in written.items():
         write_text_atomic(text, out / file)
     for stale in set(FIRMWARE_FILES) - set(written):
@@ -528,7 +532,23 @@ def _write_exports(cal: Calibration, payload: dict, out: Path) -> tuple[list[str
     notes = ["not writing " + "; ".join(
         f"{', '.join(n for n, r in refused.items() if r == reason)} ({reason})"
         for reason in dict.fromkeys(refused.values()))] if refused else []
-    return ["calibration.h", *written], notes
+    return ["calibration.h", *written], notes + ([why_not] if why_not else [])
+
+
+#: ArduPilot logs: their ``MAG`` is after COMPASS_ORIENT (docs/flight_logs.md).
+ARDUPILOT_LOGS = (".bin", ".log")
+
+
+def _export_rotation(payload: dict) -> tuple[int | None, str]:
+    """The mounting rotation the firmware files set (COMPASS_ORIENT, CAL_MAGn_ROT): the
+    confident detection's id, else None. From an ArduPilot log the detection is relative to the
+    compass's current COMPASS_ORIENT, so nothing is set and a line says so."""
+    found = (payload.get("mounting_rotation") or {}).get("id")
+    if found is None or Path(payload["file"]).suffix.lower() not in ARDUPILOT_LOGS:
+        return found, ""
+    return None, (f"mounting rotation not written to the firmware files: an ArduPilot log's "
+                  f"MAG is already turned by COMPASS_ORIENT, so "
+                  f"{payload['mounting_rotation']['name']} is on top of the current setting")
 
 
 #: Samples drawn in the picture: enough to show the shape, few enough to draw fast.

@@ -55,12 +55,19 @@ AP_Compass_config.h; the parameter's documented @Range is 0 to 1.3). COMPASS_OFS
 milligauss (@Units mGauss) and *added*. So ``OFS = -b`` and ``s M = F A`` in milligauss; we
 write ``s = 1`` and ``M = F A`` (``det M = 1``). The second and third compass have their own
 sets, COMPASS_OFS2_X ... COMPASS_SCALE2 and COMPASS_OFS3_X ... (``instance`` 1 and 2, as the
-``I`` field of the MAG log message numbers them). The export is refused (``ValueError`` naming
-the value) outside the limits ArduPilot's calibrator accepts (``CompassCalibrator::fit_acceptable``
-in CompassCalibrator.cpp): field strength in (150, 950) mGauss (FIELD_RADIUS_MIN/MAX), offsets
-below 1800 mGauss (AP_COMPASS_OFFSETS_MAX_DEFAULT, the default of COMPASS_OFFS_MAX), diagonals in
-(0.2, 5) and off-diagonals below 1 in magnitude. File: ``NAME VALUE`` lines (``param load``
-of MAVProxy, Mission Planner's "Load from file").
+``I`` field of the MAG log message numbers them). With a mounting rotation ``M_r``
+(:mod:`magbench.core.mounting`, ``v_body = M_r v_sensor``) the file also sets COMPASS_ORIENT
+(COMPASS_ORIENT2, COMPASS_ORIENT3), documented in AP_Compass.cpp's parameter table as "the
+orientation of the first external compass relative to the vehicle frame", ignored unless the
+compass is external (COMPASS_EXTERNAL; an internal compass follows AHRS_ORIENT). ArduPilot turns
+the raw sample by it before correcting (``AP_Compass_Backend::rotate_field``, then
+``correct_field``), so the offsets and matrix are then written in the vehicle's axes:
+``OFS = -M_r b`` and ``M = M_r F A M_r^T`` (still symmetric). The export is refused
+(``ValueError`` naming the value) outside the limits ArduPilot's calibrator accepts
+(``CompassCalibrator::fit_acceptable`` in CompassCalibrator.cpp): field strength in (150, 950)
+mGauss (FIELD_RADIUS_MIN/MAX), offsets below 1800 mGauss (AP_COMPASS_OFFSETS_MAX_DEFAULT, the
+default of COMPASS_OFFS_MAX), diagonals in (0.2, 5) and off-diagonals below 1 in magnitude.
+File: ``NAME VALUE`` lines (``param load`` of MAVProxy, Mission Planner's "Load from file").
 
 *PX4* (:func:`px4_params`). ``calibration::Magnetometer::Correct`` (src/lib/sensor_calibration/
 Magnetometer.hpp) applies
@@ -109,6 +116,7 @@ from magbench.core.gauge import (
     symmetric_T,
 )
 from magbench.core.model import Calibration
+from magbench.core.mounting import ROTATIONS, rotation_matrix
 from magbench.core.units import UNKNOWN, Units
 
 __all__ = ["ARDUPILOT_LIMITS", "FIRMWARE_FILES", "FORMAT", "GAUGE", "GAUGE_HEADING_TRUE",
@@ -300,8 +308,10 @@ def _instance_suffix(instance: int, count: int, firmware: str) -> int:
     return int(instance)
 
 
-def ardupilot_params(cal: Calibration, units: Units, *, instance: int = 0) -> dict[str, float]:
-    """ArduPilot COMPASS_OFS*, COMPASS_DIA*, COMPASS_ODI* and COMPASS_SCALE* (module notes).
+def ardupilot_params(cal: Calibration, units: Units, *, instance: int = 0,
+                     rotation: int | None = None) -> dict[str, float]:
+    """ArduPilot COMPASS_OFS*, COMPASS_DIA*, COMPASS_ODI*, COMPASS_SCALE* and, with a
+    rotation, COMPASS_ORIENT* (module notes).
 
     Parameters
     ----------
@@ -312,32 +322,50 @@ def ardupilot_params(cal: Calibration, units: Units, *, instance: int = 0) -> di
     instance : int
         The compass, 0 to 2 as the MAG log's ``I`` numbers them (names ``COMPASS_OFS_X``,
         ``COMPASS_OFS2_X``, ``COMPASS_OFS3_X``).
+    rotation : int, optional
+        The compass's mounting, an id of ArduPilot's ``enum Rotation`` (COMPASS_ORIENT of an
+        external compass); the offsets and matrix are then in the vehicle's axes.
 
     Returns
     -------
     dict
         Parameter name -> value, in ArduPilot's convention
-        ``corrected = M (COMPASS_SCALE (raw + OFS))``, equal to ``F A (y - b)`` in mGauss.
+        ``corrected = M (COMPASS_SCALE (raw + OFS))``, equal to ``F A (y - b)`` in mGauss
+        (``M_r F A (y - b)`` with a rotation, raw turned by COMPASS_ORIENT first);
+        COMPASS_ORIENT* is an int.
 
     Raises
     ------
     ValueError
         An unknown unit, an instance ArduPilot has no parameters for, a value outside what
-        ArduPilot accepts (naming the value and the range), or a singular ``T``; one line each.
+        ArduPilot accepts (naming the value and the range), a rotation that is not an id
+        of its enum, or a singular ``T``; one line each.
     """
     k = 1000.0 * _needs_unit(units, "ArduPilot", "milligauss")   # mGauss per file unit
     n = _instance_suffix(instance, 3, "ArduPilot")
     gauge = safe_gauge(cal.T, cal.h)
     F = field_strength(cal)
-    M = F * gauge.A                       # dimensionless: F A in any unit
-    offsets = -k * gauge.b
+    Mr = np.eye(3) if rotation is None else rotation_matrix(_rotation_id(rotation))
+    M = Mr @ (F * gauge.A) @ Mr.T         # dimensionless: F A in any unit
+    offsets = -k * Mr @ gauge.b
     _check_ardupilot(k * F, offsets, M)
     s = "" if n == 0 else str(n + 1)
     out = {f"COMPASS_OFS{s}_{a}": float(v) for a, v in zip("XYZ", offsets, strict=True)}
     out |= {f"COMPASS_DIA{s}_{a}": float(M[i, i]) for i, a in enumerate("XYZ")}
     out |= {f"COMPASS_ODI{s}_{a}": float(M[i, j]) for a, (i, j) in zip("XYZ", _ODI, strict=True)}
     out[f"COMPASS_SCALE{s}"] = 1.0
+    if rotation is not None:
+        out[f"COMPASS_ORIENT{s}"] = int(rotation)
     return out
+
+
+def _rotation_id(rotation: object) -> int:
+    """A rotation id of the autopilots' enum (:data:`magbench.core.mounting.ROTATIONS`)."""
+    if isinstance(rotation, bool) or not isinstance(rotation, int | np.integer) or \
+            int(rotation) not in ROTATIONS:
+        raise ValueError(f"ArduPilot rotation must be an id of its Rotation enum "
+                         f"(COMPASS_ORIENT, 0 to {max(ROTATIONS)}), got {rotation!r}")
+    return int(rotation)
 
 
 def _check_ardupilot(field: float, offsets: np.ndarray, M: np.ndarray) -> None:
@@ -503,8 +531,8 @@ FIRMWARE_FILES = ("ardupilot.param", "px4.params", "inav.txt", "betaflight.txt")
 
 
 def firmware_files(cal: Calibration, units: Units, *, instance: int = 0,
-                   device_id: int | None = None, comment: str = ""
-                   ) -> tuple[dict[str, str], dict[str, str]]:
+                   device_id: int | None = None, rotation: int | None = None,
+                   comment: str = "") -> tuple[dict[str, str], dict[str, str]]:
     """Every firmware file the calibration can be written as, and why the others cannot.
 
     Parameters
@@ -517,6 +545,9 @@ def firmware_files(cal: Calibration, units: Units, *, instance: int = 0,
         The compass (ArduPilot's set 0-2, PX4's slot 0-3).
     device_id : int, optional
         PX4's CAL_MAGn_ID.
+    rotation : int, optional
+        The detected mounting (:mod:`magbench.core.mounting`): ArduPilot's COMPASS_ORIENT and
+        PX4's CAL_MAGn_ROT, both for an external compass; None writes neither.
     comment : str
         Lines put at the head of each file (e.g. the verdict).
 
@@ -533,14 +564,22 @@ def firmware_files(cal: Calibration, units: Units, *, instance: int = 0,
     physical = (f"unit {units.describe()}: pass units=uT, nT, gauss, mgauss or one count's "
                 "size, e.g. units=0.0625uT")
     raw = "they take the flight controller's raw counts: units=counts"
+    orient = rot = ""
+    if rotation is not None:
+        name = ROTATIONS[_rotation_id(rotation)][0]
+        orient = (f" after COMPASS_ORIENT = {name}, the detected mounting (used only for an "
+                  "external compass: COMPASS_EXTERNAL)")
+        rot = (f", then turned by CAL_MAGn_ROT = {name}, the detected mounting (external "
+               "compass; an internal one takes the board rotation)")
     makers = {
         "ardupilot.param": (units.known, physical, lambda: ardupilot_param_file(
-            ardupilot_params(cal, units, instance=instance),
+            ardupilot_params(cal, units, instance=instance, rotation=rotation),
             "magbench calibration for ArduPilot: corrected = M (COMPASS_SCALE (raw + OFS)), "
-            f"raw in milligauss\n{comment}")),
+            f"raw in milligauss{orient}\n{comment}")),
         "px4.params": (units.known, physical, lambda: px4_param_file(
-            px4_params(cal, units, instance=instance, device_id=device_id),
-            f"magbench calibration for PX4: corrected = S (raw - OFF), raw in gauss\n{comment}")),
+            px4_params(cal, units, instance=instance, device_id=device_id, rotation=rotation),
+            f"magbench calibration for PX4: corrected = S (raw - OFF), raw in gauss{rot}"
+            f"\n{comment}")),
         "inav.txt": (units.counts, raw, lambda: inav_cli(cal, units, comment)),
         "betaflight.txt": (units.counts, raw, lambda: betaflight_cli(cal, units, comment)),
     }

@@ -1,5 +1,6 @@
-"""The geomagnetic field expected at a site and date (IGRF via ``ppigrf``), and checks of a fit
-against it: field strength, inclination and the unit the samples are recorded in.
+"""The geomagnetic field expected at a site and date (IGRF via ``ppigrf``), what a fit's field
+strength and inclination are checked against (the unit a recording's strength matches is
+:func:`magbench.core.units.infer_units`'s).
 
 The International Geomagnetic Reference Field (Alken et al., Earth Planets Space 73:49, 2021,
 and its 14th generation) gives the main field ``(X, Y, Z)`` = north, east, down in nT at a
@@ -18,11 +19,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["UNITS_NT", "ExpectedField", "Site", "expected_field", "infer_unit", "parse_date",
-           "parse_location"]
+from magbench.core.units import GAUSS_PER
 
-#: nT per unit of the units a magnetometer recording is commonly stored in.
-UNITS_NT = {"nT": 1.0, "uT": 1e3, "mGauss": 1e2, "Gauss": 1e5, "T": 1e9}
+__all__ = ["ExpectedField", "Site", "expected_field", "parse_date", "parse_location"]
 
 
 @dataclass(frozen=True)
@@ -47,6 +46,10 @@ class ExpectedField:
     @property
     def strength_nT(self) -> float:
         return math.sqrt(self.north_nT**2 + self.east_nT**2 + self.down_nT**2)
+
+    @property
+    def strength_gauss(self) -> float:
+        return self.strength_nT * GAUSS_PER["nt"]
 
     @property
     def inclination_deg(self) -> float:
@@ -124,14 +127,3 @@ def expected_field(site: Site, date: dt.date) -> ExpectedField:
     version = getattr(ppigrf, "__version__", "")
     return ExpectedField(float(np.squeeze(north)), float(np.squeeze(east)),
                          -float(np.squeeze(up)), f"IGRF (ppigrf {version})".replace(" )", ")"))
-
-
-def infer_unit(strength: float, expected_nT: float, tol: float = 0.25) -> str | None:
-    """The unit (a key of :data:`UNITS_NT`) in which a measured field strength matches the
-    model's within ``tol`` (relative), or None (raw counts, or a disturbed site)."""
-    if not (strength > 0 and math.isfinite(strength)):
-        return None
-    for unit, nT in UNITS_NT.items():
-        if abs(strength * nT / expected_nT - 1.0) <= tol:
-            return unit
-    return None

@@ -19,7 +19,7 @@ import math
 import re
 from dataclasses import dataclass
 
-__all__ = ["GAUSS_PER", "UNKNOWN", "Units", "parse_field", "parse_units"]
+__all__ = ["GAUSS_PER", "UNKNOWN", "Units", "infer_units", "parse_field", "parse_units"]
 
 #: Gauss per unit (the canonical keys).
 GAUSS_PER = {"gauss": 1.0, "mgauss": 1e-3, "ut": 1e-2, "nt": 1e-5, "mt": 10.0, "t": 1e4}
@@ -162,3 +162,26 @@ def parse_field(value: object, units: Units) -> float | None:
                          f"{units.describe()}: give units= too (e.g. units=uT), or the field "
                          "in the file's own units")
     return number * GAUSS_PER[key] / units.gauss
+
+
+def infer_units(strength: float, expected_gauss: float, tol: float = 0.25) -> Units:
+    """The physical unit in which a measured field strength matches an expected one (e.g. the
+    geomagnetic model's at the site) within ``tol`` (relative); :data:`UNKNOWN` when none does
+    (raw counts, or a disturbed site).
+
+    Parameters
+    ----------
+    strength : float
+        The fit's field strength, in the file's units.
+    expected_gauss : float
+        The field expected there, gauss.
+    tol : float
+        Relative mismatch allowed (the units are at least ten times apart, so at most one
+        matches for ``tol`` < 0.8).
+    """
+    if not (math.isfinite(strength) and strength > 0 and expected_gauss > 0):
+        return UNKNOWN
+    for key, gauss in GAUSS_PER.items():
+        if abs(strength * gauss / expected_gauss - 1.0) <= tol:
+            return Units(_SHOWN[key], gauss)
+    return UNKNOWN

@@ -32,11 +32,12 @@ import pandas as pd
 
 from magbench.core.direction import direction_score, mean_direction, world_field
 from magbench.core.gauge import safe_gauge
-from magbench.core.geomagnetic import UNITS_NT, ExpectedField, Site, expected_field, infer_unit
+from magbench.core.geomagnetic import ExpectedField, Site, expected_field
 from magbench.core.geometry import sphere_fit
 from magbench.core.lag import attitude_rate, magnetometer_lag, shift
 from magbench.core.model import Calibration, CalibrationFailed
 from magbench.core.quaternions import quat_to_matrix
+from magbench.core.units import infer_units
 from magbench.methods.algorithms._alignment_common import (
     check_spread,
     dip_rotation,
@@ -220,21 +221,21 @@ def field_check(strength: float, inclination_deg: float | None, site: Site, date
         an inclination) and ``ok`` with ``reasons`` for what is off.
     """
     expected: ExpectedField = expected_field(site, date)
-    unit = infer_unit(strength, expected.strength_nT)
-    ratio = strength * UNITS_NT[unit] / expected.strength_nT if unit else math.nan
+    units = infer_units(strength, expected.strength_gauss)
+    ratio = strength * units.gauss / expected.strength_gauss if units.known else math.nan
     incl_err = (inclination_deg - expected.inclination_deg if inclination_deg is not None
                 else math.nan)
     reasons = []
-    if unit is None:
+    if not units.known:
         reasons.append(f"field strength {strength:.4g} matches the model's "
                        f"{expected.strength_nT:.0f} nT in no unit (raw counts?)")
     elif abs(ratio - 1.0) > strength_tol:
         reasons.append(f"field strength {ratio:.2f} times the model's "
-                       f"{expected.strength_nT / UNITS_NT[unit]:.4g} {unit}")
+                       f"{expected.strength_gauss / units.gauss:.4g} {units.name}")
     if abs(incl_err) > inclination_tol_deg:
         reasons.append(f"inclination {inclination_deg:.1f} deg against the model's "
                        f"{expected.inclination_deg:.1f} deg")
-    return {"expected": expected, "unit": unit, "strength_ratio": ratio,
+    return {"expected": expected, "unit": units.name or None, "strength_ratio": ratio,
             "inclination_error_deg": incl_err, "ok": not reasons, "reasons": reasons}
 
 

@@ -16,13 +16,17 @@ axis.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from magbench.core.model import Calibration, CalibrationFailed
 from magbench.core.rotations import rotation_exp
+from magbench.methods.algorithms.magical import iterate
 
-__all__ = ["check_acceleration", "check_spread", "dip_rotation", "nearest_rotation",
-           "refine_dip_rotation", "static_rows", "symmetric_directions", "unit_rows"]
+__all__ = ["StaticFit", "check_acceleration", "check_spread", "dip_rotation", "magical_at_rest",
+           "nearest_rotation", "refine_dip_rotation", "static_rows", "symmetric_directions",
+           "unit_rows"]
 
 
 def check_acceleration(samples: np.ndarray, acceleration: object) -> np.ndarray:
@@ -160,3 +164,34 @@ def refine_dip_rotation(m: np.ndarray, a: np.ndarray, R: np.ndarray, max_iter: i
             return R, c, it
     return R, c, max_iter
 
+
+
+@dataclass(frozen=True)
+class StaticFit:
+    """MAG.I.C.AL.'s magnetometer fit and the rests an alignment is solved on.
+
+    ``T`` (symmetric gauge), ``h``, ``n_iter`` and ``converged`` of the fit; ``rows`` the
+    static rows; ``m`` the unit field directions and ``a`` the specific force at them.
+    """
+
+    T: np.ndarray
+    h: np.ndarray
+    n_iter: int
+    converged: bool
+    rows: np.ndarray
+    m: np.ndarray
+    a: np.ndarray
+
+
+def magical_at_rest(samples: np.ndarray, acceleration: object, static_tol: float,
+                    min_spread: float, max_iter: int, tol: float, rtol: float) -> StaticFit:
+    """The first step of both MAG.I.C.AL.-based alignments: check the accelerometer, fit the
+    magnetometer by Algorithm 7 (eqs. 58-65), keep the static rows (:func:`static_rows`) and
+    refuse rests too alike (:func:`check_spread`)."""
+    a = check_acceleration(samples, acceleration)
+    T, h, n_iter, converged, _ = iterate(np.ascontiguousarray(samples, dtype=np.float64),
+                                         int(max_iter), float(tol), float(rtol), np.inf)
+    T_s, m = symmetric_directions(samples, T, h)
+    rows = static_rows(a, static_tol)
+    check_spread(unit_rows(a[rows]), min_spread)
+    return StaticFit(T_s, h, n_iter, converged, rows, m[rows], a[rows])

@@ -16,14 +16,10 @@ import numpy as np
 
 from magbench.core.model import Calibration
 from magbench.methods.algorithms._alignment_common import (
-    check_acceleration,
-    check_spread,
     dip_rotation,
-    static_rows,
-    symmetric_directions,
+    magical_at_rest,
     unit_rows,
 )
-from magbench.methods.algorithms.magical import iterate
 from magbench.methods.registry import register
 
 
@@ -55,14 +51,10 @@ def fit(samples: np.ndarray, *, acceleration: np.ndarray, static_tol: float = 0.
         ``T`` in the symmetric gauge, ``h``, and ``alignment`` ``R``: the field in the IMU's
         axes is ``R T^-1 (y - h)`` (heading-true gauge).
     """
-    a = check_acceleration(samples, acceleration)
-    T, h, n_iter, converged, _ = iterate(np.ascontiguousarray(samples, dtype=np.float64),
-                                         int(max_iter), float(tol), float(rtol), np.inf)
-    T_s, m = symmetric_directions(samples, T, h)
-    rows = static_rows(a, static_tol)
-    check_spread(unit_rows(a[rows]), min_spread)
-    R, c = dip_rotation(m[rows], unit_rows(a[rows]))
+    fit0 = magical_at_rest(samples, acceleration, static_tol, min_spread, max_iter, tol, rtol)
+    R, c = dip_rotation(fit0.m, unit_rows(fit0.a))
     dip = np.degrees(np.arcsin(np.clip(-c, -1.0, 1.0)))
-    return Calibration(T_s, h, n_iter, converged,
-                       f"MAG.I.C.AL. fit in {n_iter} iterations; alignment from {rows.size} "
+    return Calibration(fit0.T, fit0.h, fit0.n_iter, fit0.converged,
+                       f"MAG.I.C.AL. fit in {fit0.n_iter} iterations; alignment from "
+                       f"{fit0.rows.size} "
                        f"static rows, inclination {dip:.2f} deg", alignment=R)

@@ -17,11 +17,9 @@ import numpy as np
 
 from magbench.core.model import Calibration, CalibrationFailed
 from magbench.methods.algorithms._alignment_common import (
-    check_acceleration,
-    check_spread,
     dip_rotation,
+    magical_at_rest,
     refine_dip_rotation,
-    static_rows,
     symmetric_directions,
     unit_rows,
 )
@@ -77,18 +75,13 @@ def fit(samples: np.ndarray, *, acceleration: np.ndarray, static_tol: float = 0.
     Calibration
         ``T`` in the symmetric gauge, ``h`` and the alignment ``R`` (heading-true gauge).
     """
-    a = check_acceleration(samples, acceleration)
-    T, h, n_iter, converged, _ = iterate(np.ascontiguousarray(samples, dtype=np.float64),
-                                         int(max_iter), float(tol), float(rtol), np.inf)
-    T_s, m = symmetric_directions(samples, T, h)
-    rows = static_rows(a, static_tol)
-    check_spread(unit_rows(a[rows]), min_spread)
-    g = (gravity_directions(a[rows], max_iter, tol, rtol) if calibrate_accelerometer
-         else unit_rows(a[rows]))
-    R0, _ = dip_rotation(m[rows], g)
-    R, c, steps = refine_dip_rotation(m[rows], g, R0)
+    fit0 = magical_at_rest(samples, acceleration, static_tol, min_spread, max_iter, tol, rtol)
+    g = (gravity_directions(fit0.a, max_iter, tol, rtol) if calibrate_accelerometer
+         else unit_rows(fit0.a))
+    R0, _ = dip_rotation(fit0.m, g)
+    R, c, steps = refine_dip_rotation(fit0.m, g, R0)
     dip = np.degrees(np.arcsin(np.clip(-c, -1.0, 1.0)))
-    return Calibration(T_s, h, n_iter, converged,
-                       f"MAG.I.C.AL. fit in {n_iter} iterations; rotation-constrained "
-                       f"alignment on {rows.size} static rows in {steps} steps, inclination "
+    return Calibration(fit0.T, fit0.h, fit0.n_iter, fit0.converged,
+                       f"MAG.I.C.AL. fit in {fit0.n_iter} iterations; rotation-constrained "
+                       f"alignment on {fit0.rows.size} static rows in {steps} steps, inclination "
                        f"{dip:.2f} deg", alignment=R)
