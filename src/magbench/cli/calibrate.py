@@ -36,6 +36,7 @@ import sys
 import time
 import warnings
 from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -342,92 +343,48 @@ def run_calibrate(cfg: DictConfig, picture: PictureWorker | None = None) -> int:
     the picture is drawn here. The file is the same either way.
     """
     start = time.perf_counter()
-    common = check_common(cfg)
-    if not cfg.get("file"):
-        raise UsageError("calibrate needs file=PATH, a CSV of magnetometer samples (columns "
-                         "mx,my,mz, or choose them with columns=[...])")
-    path = Path(str(cfg.file))
-    preprocess = str(cfg.get("preprocess", "centre"))
-    if preprocess not in PREPROCESSING:
-        raise UsageError(f"preprocess must be one of {', '.join(PREPROCESSING)}, got "
-                         f"{preprocess!r}")
-    max_samples = check_integer(cfg.get("max_samples", DEFAULT_MAX_SAMPLES), "max_samples", 8)
-    n_boot = check_integer(cfg.get("bootstrap", 50), "bootstrap", 0, 10_000)
-    gate = check_gate(cfg)
-    columns = check_columns(cfg)
-    units = check_units(cfg)
-    if not units.known and not units.counts and is_log(path):
-        units = parse_units(log_units(path))    # a log's compass unit is the firmware's
-    expected = check_field_strength(cfg, units)
-    instance = check_instance(cfg)
-    compensate = check_compensate(cfg)
-    site = check_site(cfg)
-    out = Path(str(cfg.out)) if cfg.get("out") else default_out(path)
-    check_out_calibration(out, cfg.get("overwrite"))
-    name = cfg.get("method")
-    if name is not None and str(name) not in methods():
-        raise UsageError(f"unknown method {name!r}; expected one of: {', '.join(methods())}")
-    _check_candidates(cfg)
-    # Options are checked before the file is read, so a misspelt option is named as such.
-    check_options(cfg, [str(name)] if name is not None else methods())
-    need = get_method(str(name)).min_samples if name else min(
-        get_method(m).min_samples for m in methods())
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always")
-        try:
-            rec = read_samples(path, columns, min_samples=need, min_coverage=MIN_COVERAGE,
-                               instance=instance)
-        except ValueError as exc:
-            raise UsageError(str(exc)) from None
-    for w in caught:
-        print(f"magbench: warning: {w.message}", file=sys.stderr)
-    if compensate:
-        try:
-            check_regressors(rec, compensate)
-        except ValueError as exc:
-            raise UsageError(str(exc)) from None
+    run = _settings(cfg)
+    rec = _read(run)
     candidates, second = _candidates(cfg, rec.has_gyro)
     options = check_options(cfg, candidates + second)
-    if name is not None:
-        reason = applicability(str(name), rec)
+    if run.name is not None:
+        reason = applicability(run.name, rec)
         if reason:
             raise UsageError(reason.removeprefix("skipped: "))
     rec, lag = lag_corrected(rec) if inertial_of(rec).source != "none" else (rec, 0.0)
     veto = DirectionVeto()
-    result = calibrate_recording(rec, candidates, preprocess=preprocess, options=options,
-                                 seed=common["seed"], call_timeout_s=common["call_timeout_s"],
-                                 bootstrap=0, second_round=second, max_samples=max_samples,
-                                 gate=gate, expected_field=expected, extra=veto)
+    result = calibrate_recording(rec, candidates, preprocess=run.preprocess, options=options,
+                                 seed=run.common["seed"],
+                                 call_timeout_s=run.common["call_timeout_s"], bootstrap=0,
+                                 second_round=second, max_samples=run.max_samples,
+                                 gate=run.gate, expected_field=run.expected, extra=veto)
     mark_vetoes(result.ranked, veto)
     if result.chosen is None:
         print(_table(result.ranked))
         raise UsageError("no method produced a calibration that can be written ("
                          + ("no out-of-sample score: name one with method=NAME, or record "
-                            "longer" if not name else "see the table")
+                            "longer" if not run.name else "see the table")
                          + "); check that the sensor was turned through many orientations "
                          "in a steady field")
-    out = writable_folder(out, "out")
-    payload = calibration_json(result, file=str(path), columns=list(rec.columns),
-                               n_file=rec.K, preprocess=preprocess, units=units,
-                               expected_field=expected)
+    out = writable_folder(run.out, "out")
+    payload = calibration_json(result, file=str(run.path), columns=list(rec.columns),
+                               n_file=rec.K, preprocess=run.preprocess, units=run.units,
+                               expected_field=run.expected)
     payload |= _instance_keys(rec)
     if payload["status"] == "FAIL":
-        write_text_atomic(json.dumps(payload, indent=2) + "\n", out / "calibration.json")
-        for stale in {*FIRMWARE_FILES, "calibration.h", "ranking.csv", "calibration.png"}:
-            (out / stale).unlink(missing_ok=True)       # an earlier run's, now wrong
-        _report(result, payload, out, rec.K, ["calibration.json (the reasons; no correction)"],
-                start)
+        _write_fail(result, payload, out, rec.K, start)
         return 3
-    varying, corrected = _add_time_varying(result, payload, compensate, options)
+    varying, corrected = _add_time_varying(result, payload, run.compensate, options)
     mounting = _add_mounting(result, payload, corrected)
     job = {"path": out / "calibration.png", "dpi": PICTURE_DPI,
            "compress_level": PICTURE_COMPRESSION, "kwargs": _picture_arguments(result, payload)}
     sent = picture is not None and picture.send(job)
     # After the picture is handed over, so that its drawing and the refits overlap.
     result.bootstrap = payload["bootstrap"] = bootstrap_check(
-        result, n_boot, preprocess=preprocess, options=options, seed=common["seed"])
+        result, run.n_boot, preprocess=run.preprocess, options=options,
+        seed=run.common["seed"])
     T, h = estimate(result.chosen)
-    cal, direction = direction_lines(result, Calibration(T, h), payload, veto, site, lag)
+    cal, direction = direction_lines(result, Calibration(T, h), payload, veto, run.site, lag)
     write_text_atomic(json.dumps(payload, indent=2) + "\n", out / "calibration.json")
     written, notes = _write_exports(cal, payload, out)
     notes = [line for line in (varying, mounting, *direction) if line] + notes
@@ -440,6 +397,87 @@ def run_calibrate(cfg: DictConfig, picture: PictureWorker | None = None) -> int:
     _report(result, payload, out, rec.K, ["calibration.json (m = A (y - b))", *written,
                                           "ranking.csv", "calibration.png"], start, notes)
     return 0
+
+
+@dataclass(frozen=True)
+class _Run:
+    """The checked keys of one ``calibrate`` command."""
+
+    common: dict
+    path: Path
+    preprocess: str
+    max_samples: int
+    n_boot: int
+    gate: object
+    columns: list | None
+    units: object
+    expected: object
+    instance: object
+    compensate: object
+    site: object
+    out: Path
+    name: str | None
+
+
+def _settings(cfg: DictConfig) -> _Run:
+    """Every key ``calibrate`` reads, checked before the file is read (so a misspelt option is
+    named as such)."""
+    common = check_common(cfg)
+    if not cfg.get("file"):
+        raise UsageError("calibrate needs file=PATH, a CSV of magnetometer samples (columns "
+                         "mx,my,mz, or choose them with columns=[...])")
+    path = Path(str(cfg.file))
+    preprocess = str(cfg.get("preprocess", "centre"))
+    if preprocess not in PREPROCESSING:
+        raise UsageError(f"preprocess must be one of {', '.join(PREPROCESSING)}, got "
+                         f"{preprocess!r}")
+    units = check_units(cfg)
+    if not units.known and not units.counts and is_log(path):
+        units = parse_units(log_units(path))    # a log's compass unit is the firmware's
+    out = Path(str(cfg.out)) if cfg.get("out") else default_out(path)
+    check_out_calibration(out, cfg.get("overwrite"))
+    name = cfg.get("method")
+    if name is not None and str(name) not in methods():
+        raise UsageError(f"unknown method {name!r}; expected one of: {', '.join(methods())}")
+    _check_candidates(cfg)
+    check_options(cfg, [str(name)] if name is not None else methods())
+    return _Run(common, path, preprocess,
+                check_integer(cfg.get("max_samples", DEFAULT_MAX_SAMPLES), "max_samples", 8),
+                check_integer(cfg.get("bootstrap", 50), "bootstrap", 0, 10_000),
+                check_gate(cfg), check_columns(cfg), units, check_field_strength(cfg, units),
+                check_instance(cfg), check_compensate(cfg), check_site(cfg), out,
+                None if name is None else str(name))
+
+
+def _read(run: _Run) -> Recording:
+    """The recording, its reader's warnings printed one line each; one line if unreadable."""
+    need = get_method(run.name).min_samples if run.name else min(
+        get_method(m).min_samples for m in methods())
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        try:
+            rec = read_samples(run.path, run.columns, min_samples=need,
+                               min_coverage=MIN_COVERAGE, instance=run.instance)
+        except ValueError as exc:
+            raise UsageError(str(exc)) from None
+    for w in caught:
+        print(f"magbench: warning: {w.message}", file=sys.stderr)
+    if run.compensate:
+        try:
+            check_regressors(rec, run.compensate)
+        except ValueError as exc:
+            raise UsageError(str(exc)) from None
+    return rec
+
+
+def _write_fail(result: CalibrationResult, payload: dict, out: Path, n_file: int,
+                start: float) -> None:
+    """A FAIL: only ``calibration.json`` with the reasons; an earlier run's files removed."""
+    write_text_atomic(json.dumps(payload, indent=2) + "\n", out / "calibration.json")
+    for stale in {*FIRMWARE_FILES, "calibration.h", "ranking.csv", "calibration.png"}:
+        (out / stale).unlink(missing_ok=True)       # an earlier run's, now wrong
+    _report(result, payload, out, n_file, ["calibration.json (the reasons; no correction)"],
+            start)
 
 
 def _report(result: CalibrationResult, payload: dict, out: Path, n_file: int,
