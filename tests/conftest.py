@@ -21,3 +21,14 @@ def noise_free() -> Dataset:
 @pytest.fixture
 def nominal() -> Dataset:
     return dataset(seed=2)
+
+
+@pytest.fixture
+def blank_figures(monkeypatch):
+    """Figures are written as empty files: these tests check rows, and rendering a PNG costs
+    more than a tiny sweep (the figures have their own tests in tests/figures)."""
+    from pathlib import Path
+
+    from matplotlib.figure import Figure
+
+    monkeypatch.setattr(Figure, "savefig", lambda self, fname, *a, **k: Path(fname).touch())

@@ -11,6 +11,7 @@ import pytest
 from magbench.cli import main
 
 REPO = Path(__file__).resolve().parents[1]
+pytestmark = pytest.mark.usefixtures("blank_figures")
 
 #: Overrides that shrink a sweep of each kind to seconds; the files it writes do not change.
 TINY = {

@@ -21,6 +21,8 @@ from magbench.studies.calibration import FIRST_ROUND
 
 T_TRUE = np.array([[520.0, 20.0, -8.0], [0.0, 470.0, 15.0], [0.0, 0.0, 610.0]])
 H_TRUE = np.array([900.0, -350.0, 120.0])          # counts; offset larger than the radius
+# The picture is written as an empty file here; tests/cli/test_picture.py draws it for real.
+pytestmark = pytest.mark.usefixtures("blank_figures")
 
 
 def recording(K: int = 240, sigma: float = 3.0, seed: int = 0) -> np.ndarray:
@@ -60,7 +62,7 @@ def test_one_method_writes_json_in_the_safe_gauge(tmp_path, capsys):
                                atol=3.0)
     assert data["J_r_in"] < 1e-3 and data["J_r_out"] < 1e-3 and data["meaningful"]
     assert data["samples_used"] == 240 and data["columns"] == ["mx", "my", "mz"]
-    assert (tmp_path / "out" / "calibration.png").stat().st_size > 20_000
+    assert (tmp_path / "out" / "calibration.png").is_file()
     out = capsys.readouterr().out
     assert "   1  magical" in out and "calibration.json" in out
 

@@ -65,6 +65,7 @@ SWEEPS = sorted(p.stem for p in (Path(__file__).resolve().parents[2] / "conf" / 
 
 
 @pytest.mark.parametrize("sweep", SWEEPS)
+@pytest.mark.usefixtures("blank_figures")
 def test_every_sweep_config_composes_and_runs(sweep, tmp_path):
     from magbench.cli.config import compose_config
 

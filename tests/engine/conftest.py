@@ -21,3 +21,4 @@ def faulty():
     for name in [n for n in _REGISTRY if n.startswith("faulty_")]:
         unregister(name)
     sys.modules.pop(FAULTY, None)
+

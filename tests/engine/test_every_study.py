@@ -4,7 +4,8 @@ For the review, gyro, Wu-Shi and real-recording studies, at a tiny size, through
 line: a method that raises an unusual exception, one that returns NaN and one that hangs past
 ``call_timeout_s`` each become rows with a reason, with 1 and 2 workers; the rows are the same
 with 1 worker, 2 workers and the Dask backend; a SIGKILL and a rerun give the rows of one
-uninterrupted run; ``trials`` means the same for every kind.
+uninterrupted run; ``trials`` means the same for every kind. The two-worker and Dask repeats
+of kinds the fast ones already cover are marked slow (``make test-all``).
 """
 
 from __future__ import annotations
@@ -23,6 +24,7 @@ from magbench.core.geometry import fibonacci_sphere
 from tests.engine.conftest import FAULTY
 
 REPO = Path(__file__).resolve().parents[2]
+pytestmark = pytest.mark.usefixtures("blank_figures")
 
 
 def recordings(root: Path) -> Path:
@@ -62,13 +64,27 @@ def kind_args(kind: str, tmp_path: Path) -> tuple[list[str], str, str]:
 KINDS = ["review", "gyro", "wushi", "real", "heading", "compensation"]
 
 
+def kinds_beyond(*fast: str) -> list:
+    """Every kind, those not in ``fast`` marked slow: the repeats of a property that the fast
+    kinds already show on the same engine run in ``make test-all``, keeping CI's suite short."""
+    return [k if k in fast else pytest.param(k, marks=pytest.mark.slow) for k in KINDS]
+
+
 def table(folder: Path, name: str) -> pd.DataFrame:
     return pd.read_csv(folder / name, keep_default_na=False)
 
 
-@pytest.mark.parametrize("n_jobs", [1, 2])
 @pytest.mark.parametrize("kind", KINDS)
-def test_failures_of_every_kind_are_rows_in_every_study(kind, n_jobs, faulty, tmp_path):
+def test_failures_of_every_kind_are_rows_in_every_study(kind, faulty, tmp_path):
+    check_failures_are_rows(kind, 1, tmp_path)
+
+
+@pytest.mark.parametrize("kind", kinds_beyond("review", "real"))
+def test_failures_are_rows_with_two_workers(kind, faulty, tmp_path):
+    check_failures_are_rows(kind, 2, tmp_path)
+
+
+def check_failures_are_rows(kind: str, n_jobs: int, tmp_path: Path) -> None:
     args, folder, name = kind_args(kind, tmp_path)
     assert main([*args, f"plugins=[{FAULTY}]", "call_timeout_s=0.3", f"n_jobs={n_jobs}",
                  "algorithms=[faulty_keyerror,faulty_nan,faulty_hangs,sphere]",
@@ -82,7 +98,7 @@ def test_failures_of_every_kind_are_rows_in_every_study(kind, n_jobs, faulty, tm
     assert (tmp_path / "out" / folder / "run.json").exists()
 
 
-@pytest.mark.parametrize("kind", KINDS)
+@pytest.mark.parametrize("kind", kinds_beyond("review", "real", "heading"))
 def test_same_rows_with_one_worker_two_workers_and_dask(kind, tmp_path):
     pytest.importorskip("distributed")
     args, folder, name = kind_args(kind, tmp_path)

@@ -55,6 +55,12 @@ def sweep_command(results: Path, *extra: str) -> list[str]:
             "nominal.K=40", "progress=false", f"results_dir={results}", *extra]
 
 
+def with_ctrl_c() -> None:
+    """A child's Ctrl-C back to the default: a shell's background job (a CI runner's, say)
+    starts its processes with SIGINT ignored, which Python then keeps."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def wait_for_parts(folder: Path, count: int, proc: subprocess.Popen, limit: float = 60) -> None:
     start = time.monotonic()
     while len(list(folder.glob("c*.json"))) < count:
@@ -92,7 +98,7 @@ def test_a_killed_sweep_resumes_to_the_same_rows(tmp_path):
                                                       (signal.SIGTERM, 143, "terminated")])
 def test_sigint_and_sigterm_stop_cleanly_with_one_line(tmp_path, signum, code, word):
     proc = subprocess.Popen(sweep_command(tmp_path), cwd=REPO, stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True)
+                            stderr=subprocess.PIPE, text=True, preexec_fn=with_ctrl_c)
     wait_for_parts(tmp_path / "baseline" / "parts", 1, proc)
     proc.send_signal(signum)
     _, err = proc.communicate(timeout=30)
@@ -197,8 +203,8 @@ def test_dask_backend_stops_a_hanging_method(faulty, tmp_path):
 
 
 def test_a_second_run_on_the_same_folder_exits_2_and_nothing_mixes(tmp_path):
-    # 30 trials of 0.3 s: the first run is still going when the second one starts.
-    slow = "options.faulty_slow.delay=0.3"
+    # 30 trials of 0.2 s: the first run is still going when the second one starts.
+    slow = "options.faulty_slow.delay=0.2"
     first = subprocess.Popen(sweep_command(tmp_path, "seed=11", slow), cwd=REPO,
                              stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     wait_for_parts(tmp_path / "baseline" / "parts", 1, first)
@@ -296,7 +302,7 @@ def test_ctrl_c_to_the_process_group_prints_one_line_and_no_worker_speaks(tmp_pa
     neither a worker's traceback nor joblib's warning about a stopped worker appears."""
     proc = subprocess.Popen(sweep_command(tmp_path, "n_jobs=2"), cwd=REPO,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            start_new_session=True)
+                            start_new_session=True, preexec_fn=with_ctrl_c)
     wait_for_parts(tmp_path / "baseline" / "parts", 1, proc)
     os.killpg(proc.pid, signal.SIGINT)
     _, err = proc.communicate(timeout=60)

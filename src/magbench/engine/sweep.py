@@ -244,7 +244,9 @@ def _interrupt_blocked() -> Iterator[None]:
 
 
 def _worker_start(parent_pid: int) -> None:
-    """A loky worker's first act: die with the run that started it."""
+    """A loky worker's first act: die with the run that started it, and leave Ctrl-C to the
+    run, which stops its workers itself (the blocked mask covers only the worker's start)."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     die_with_parent()
     _exit_with_parent(parent_pid)
 
