@@ -106,6 +106,14 @@ def test_calibrate_from_a_log_fits_the_current_term_and_keeps_it(tmp_path, capsy
     terms = json.loads((out / "calibration.json").read_text())["time_varying"]
     assert terms["kept"] and terms["held_out_time_varying"] < 0.1 * terms["held_out_static"]
     np.testing.assert_allclose(np.array(terms["C"])[:, 0], motor, atol=2e-4)
+    # The firmware files carry the term: PX4 in gauss per kA, subtracted before the offset.
+    assert "firmware files hold the fit with the current term" in said
+    px4 = {row.split("\t")[2]: float(row.split("\t")[3])
+           for row in (out / "px4.params").read_text().splitlines() if not row.startswith("#")}
+    assert px4["CAL_MAG_COMP_TYP"] == 2
+    np.testing.assert_allclose([px4[f"CAL_MAG0_{a}COMP"] for a in "XYZ"], -1000 * motor,
+                               atol=0.2)
+    assert "\nCOMPASS_MOTCT 2\n" in (out / "ardupilot.param").read_text()
     assert main(["calibrate", f"file={log}", f"out={tmp_path / 'none'}", "bootstrap=0",
                  "compensate=none"]) == 0
     assert "time-varying" not in capsys.readouterr().out

@@ -14,6 +14,7 @@ from scipy.spatial.transform import Rotation
 from magbench.core.exports import (
     FIRMWARE_FILES,
     GAUGE,
+    MotorCompensation,
     ardupilot_param_file,
     ardupilot_params,
     betaflight_cli,
@@ -341,3 +342,83 @@ def test_firmware_files_write_the_rotation_in_both_and_none_without_one():
     assert "1\t1\tCAL_MAG0_ROT\t6\t6" in written["px4.params"]
     plain, _ = firmware_files(sensor(), MGAUSS)
     assert "ORIENT" not in plain["ardupilot.param"] and "_ROT" not in plain["px4.params"]
+
+
+#: A disturbance of (4, -2, 3) mGauss per ampere in the sensor's axes.
+C_PER_AMP = np.array([4.0, -2.0, 3.0])
+
+
+def compensated_samples(cal: Calibration, u: np.ndarray, C: np.ndarray) -> np.ndarray:
+    """Raw samples ``y = T m + h + C u`` of a unit field."""
+    return raw_samples(cal, K=len(u)) + u[:, None] * C
+
+
+def test_motor_compensation_refuses_what_no_firmware_holds():
+    with pytest.raises(ValueError, match="per current or throttle, got 'temperature'"):
+        MotorCompensation("temperature", C_PER_AMP)
+    with pytest.raises(ValueError, match="3 finite numbers"):
+        MotorCompensation("current", [1.0, np.nan, 0.0])
+
+
+@pytest.mark.parametrize(("regressor", "motct", "rotation"), [("current", 2, None),
+                                                              ("throttle", 1, None),
+                                                              ("current", 2, 6)])
+def test_ardupilot_motor_compensation_gives_back_the_time_varying_correction(regressor, motct,
+                                                                             rotation):
+    from magbench.core.mounting import rotation_matrix
+
+    cal = sensor()
+    u = np.linspace(0.0, 20.0 if regressor == "current" else 1.0, 200)
+    C = C_PER_AMP * (20.0 if regressor == "throttle" else 1.0)
+    y = compensated_samples(cal, u, C)
+    p = parse_params(ardupilot_param_file(ardupilot_params(
+        cal, MGAUSS, rotation=rotation, motor=MotorCompensation(regressor, C))))
+    assert p["COMPASS_MOTCT"] == motct
+    Mr = np.eye(3) if rotation is None else rotation_matrix(rotation)
+    # correct_field: M (raw + OFS), then + COMPASS_MOT * u (current in A or throttle 0-1).
+    mot = np.array([p[f"COMPASS_MOT_{a}"] for a in "XYZ"], np.float32)
+    corrected = ardupilot_correct(p, y @ Mr.T) + u[:, None].astype(np.float32) * mot
+    expected = cal.safe().apply(y - u[:, None] * C) @ Mr.T
+    np.testing.assert_allclose(corrected / field_strength(cal), expected, rtol=1e-5, atol=1e-5)
+    # Without the term the field moves by up to 20 A x |C| = 108 mGauss, a quarter of 450.
+    static = ardupilot_correct(p, y @ Mr.T)
+    assert np.ptp(np.linalg.norm(static, axis=1)) > 50
+    assert np.ptp(np.linalg.norm(corrected, axis=1)) < 0.05
+
+
+def test_ardupilot_refuses_a_motor_term_beyond_its_range():
+    with pytest.raises(ValueError, match=r"COMPASS_MOT values .* exceed ArduPilot's range of "
+                                         r"\+-1000"):
+        ardupilot_params(sensor(), MGAUSS, motor=MotorCompensation("current", [0, 0, 1500.0]))
+
+
+@pytest.mark.parametrize(("regressor", "comp_typ", "power_per_unit"), [("current", 2, 1e-3),
+                                                                       ("throttle", 1, 1.0)])
+def test_px4_power_compensation_gives_back_the_time_varying_correction(regressor, comp_typ,
+                                                                       power_per_unit):
+    cal = Calibration(sensor().T / 1000, sensor().h / 1000)            # gauss
+    u = np.linspace(0.0, 20.0 if regressor == "current" else 1.0, 200)
+    C = C_PER_AMP / 1000 * (20.0 if regressor == "throttle" else 1.0)
+    y = compensated_samples(cal, u, C)
+    p = parse_qgc(px4_param_file(px4_params(cal, parse_units("gauss"),
+                                            motor=MotorCompensation(regressor, C))))
+    assert p["CAL_MAG_COMP_TYP"] == comp_typ
+    # Magnetometer::Correct: S ((raw + power COMP) - OFF), power in kA or throttle 0-1.
+    comp = np.array([p[f"CAL_MAG0_{a}COMP"] for a in "XYZ"], np.float32)
+    power = (u * power_per_unit).astype(np.float32)
+    corrected = px4_correct(p, y.astype(np.float32) + power[:, None] * comp)
+    expected = cal.safe().apply(y - u[:, None] * C)
+    np.testing.assert_allclose(corrected / field_strength(cal), expected, rtol=1e-5, atol=1e-5)
+
+
+def test_firmware_files_with_a_motor_term_say_where_it_goes():
+    written, _ = firmware_files(sensor(), parse_units("counts"), motor=MotorCompensation(
+        "current", C_PER_AMP))
+    assert set(written) == {"inav.txt", "betaflight.txt"}
+    assert all("current term C of calibration.json's time_varying is not applied" in t
+               for t in written.values())
+    written, _ = firmware_files(sensor(), MGAUSS, motor=MotorCompensation("current", C_PER_AMP))
+    assert "+ COMPASS_MOT * u, u the current in A" in written["ardupilot.param"]
+    assert "\nCOMPASS_MOTCT 2\n" in written["ardupilot.param"]
+    assert "S ((raw + p COMP) - OFF), p the current in kA (while armed)" in written["px4.params"]
+    assert "\tCAL_MAG_COMP_TYP\t2\t6" in written["px4.params"]

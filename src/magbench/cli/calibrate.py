@@ -62,6 +62,7 @@ from magbench.cli.direction import direction_lines, mark_vetoes
 from magbench.cli.picture import PictureWorker, draw_picture
 from magbench.core.exports import (
     FIRMWARE_FILES,
+    MotorCompensation,
     c_header,
     field_strength,
     firmware_files,
@@ -560,9 +561,12 @@ def _write_exports(cal: Calibration, payload: dict, out: Path) -> tuple[list[str
     rotation, why_not = _export_rotation(payload)
     write_text_atomic(c_header(cal, "mag_cal", verdict=verdict, units=units),
                       out / "calibration.h")
-    written, refused = firmware_files(cal, units, instance=payload.get("instance_index") or 0,
-                                      device_id=payload.get("device_id"),
-                                      rotation=rotation, comment=verdict)
+    firmware_cal, motor, motor_note = _export_motor(cal, payload)
+    written, refused = firmware_files(firmware_cal, units,
+                                      instance=payload.get("instance_index") or 0,
+                                      device_id=payload.get("device_id"), rotation=rotation,
+                                      motor=motor, comment=verdict + (
+                                          f"\n{motor_note}" if motor else ""))
     for file, text in written.items():
         write_text_atomic(text, out / file)
     for stale in set(FIRMWARE_FILES) - set(written):
@@ -570,7 +574,31 @@ def _write_exports(cal: Calibration, payload: dict, out: Path) -> tuple[list[str
     notes = ["not writing " + "; ".join(
         f"{', '.join(n for n, r in refused.items() if r == reason)} ({reason})"
         for reason in dict.fromkeys(refused.values()))] if refused else []
-    return ["calibration.h", *written], notes + ([why_not] if why_not else [])
+    return (["calibration.h", *written],
+            notes + [line for line in (why_not, motor_note if written else "") if line])
+
+
+def _export_motor(cal: Calibration, payload: dict) -> tuple[Calibration, MotorCompensation | None,
+                                                             str]:
+    """The calibration the firmware files hold, its motor term and a line saying so: the
+    time-varying fit's ``A``, ``b`` and ``C`` when its only kept term is the current or the
+    throttle (what ArduPilot's COMPASS_MOT and PX4's CAL_MAGn_*COMP hold), else ``cal``."""
+    tv = payload.get("time_varying") or {}
+    if not tv.get("kept"):
+        return cal, None, ""
+    names = tv["regressors"]
+    if names not in (["current"], ["throttle"]):
+        return cal, None, (f"firmware files hold the static calibration: the kept "
+                           f"{', '.join(names)} terms have no ArduPilot or PX4 parameter "
+                           "(they hold one current or throttle term)")
+    motor = MotorCompensation(names[0], np.asarray(tv["C"], dtype=float)[:, 0])
+    kept = Calibration(np.linalg.inv(np.asarray(tv["A"], dtype=float)),
+                       np.asarray(tv["b"], dtype=float))
+    rms = {k: 100 * np.sqrt(tv[f"held_out_{k}"]) for k in ("static", "time_varying")}
+    return kept, motor, (f"firmware files hold the fit with the {names[0]} term "
+                         f"(COMPASS_MOT*, CAL_MAGn_*COMP; held-out field magnitude error "
+                         f"{rms['time_varying']:.2f} % RMS, static {rms['static']:.2f} %); "
+                         "calibration.json and calibration.h hold the static calibration")
 
 
 #: ArduPilot logs: their ``MAG`` is after COMPASS_ORIENT (docs/flight_logs.md).

@@ -68,6 +68,11 @@ the raw sample by it before correcting (``AP_Compass_Backend::rotate_field``, th
 mGauss (FIELD_RADIUS_MIN/MAX), offsets below 1800 mGauss (AP_COMPASS_OFFSETS_MAX_DEFAULT, the
 default of COMPASS_OFFS_MAX), diagonals in (0.2, 5) and off-diagonals below 1 in magnitude.
 File: ``NAME VALUE`` lines (``param load`` of MAVProxy, Mission Planner's "Load from file").
+A disturbance proportional to the battery current or the throttle (:class:`MotorCompensation`,
+``m = A (y - b - C u)``) is ArduPilot's motor compensation: ``correct_field`` adds
+``COMPASS_MOT * u`` *after* the matrix, ``u`` the current in amperes (COMPASS_MOTCT = 2, @Units
+mGauss/A) or the throttle from 0 to 1 (COMPASS_MOTCT = 1), so ``MOT = -M M_r k C`` (``k`` mGauss
+per file unit); its @Range is -1000 to 1000. COMPASS_MOTCT is one setting for every compass.
 
 *PX4* (:func:`px4_params`). ``calibration::Magnetometer::Correct`` (src/lib/sensor_calibration/
 Magnetometer.hpp) applies
@@ -86,7 +91,11 @@ is used only for the compass whose device id is CAL_MAGn_ID (``FindCalibrationIn
 (``MAG_MAX_OFFSET_LEN`` of mag_calibration.cpp, saturation); the file says so too. File:
 QGroundControl's ``.params`` (its developer guide, "Parameter File Format"): ``#`` comments,
 then ``vehicle-id<TAB>component-id<TAB>name<TAB>value<TAB>type`` with the MAV_PARAM_TYPE (9 =
-REAL32, 6 = INT32).
+REAL32, 6 = INT32). PX4's power compensation (``Correct`` above, in full
+``S ((raw + p COMP) - OFF)``) adds CAL_MAGn_{X,Y,Z}COMP times ``p`` *before* the offset, ``p``
+the battery current in kiloamperes (``VehicleMagnetometer::Run`` divides ``current_a`` by 1000;
+CAL_MAG_COMP_TYP = 2, battery instance 0) or the throttle from 0 to 1 (CAL_MAG_COMP_TYP = 1),
+and only while armed; so ``COMP = -k C``, times 1000 for the current (gauss per kA).
 
 *INAV and Betaflight* (:func:`inav_cli`, :func:`betaflight_cli`) hold offsets in raw counts
 and no cross-axis terms, so these files carry ``b`` only (rounded to whole counts) and say so;
@@ -103,6 +112,7 @@ from __future__ import annotations
 
 import re
 from collections.abc import Callable
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -120,7 +130,8 @@ from magbench.core.mounting import ROTATIONS, rotation_matrix
 from magbench.core.units import UNKNOWN, Units
 
 __all__ = ["ARDUPILOT_LIMITS", "FIRMWARE_FILES", "FORMAT", "GAUGE", "GAUGE_HEADING_TRUE",
-           "PX4_MAX_OFFSET_GAUSS", "SCHEMA_VERSION", "ardupilot_param_file",
+           "PX4_MAX_OFFSET_GAUSS", "SCHEMA_VERSION", "MotorCompensation",
+           "ardupilot_param_file",
            "ardupilot_params", "betaflight_cli", "c_header", "field_strength",
            "firmware_files", "from_json_dict", "inav_cli", "px4_param_file", "px4_params",
            "to_json_dict"]
@@ -135,6 +146,35 @@ GAUGE_HEADING_TRUE = GAUGE_TEXT[HEADING_TRUE]
 ARDUPILOT_LIMITS = {"field_mgauss": (150.0, 950.0), "offset_mgauss": 1800.0,
                     "diagonal": (0.2, 5.0), "off_diagonal": 1.0}
 _ODI = ((0, 1), (0, 2), (1, 2))          # ODI_X, ODI_Y, ODI_Z positions in M
+#: ArduPilot's COMPASS_MOT_* @Range (mGauss/A, or mGauss at full throttle).
+ARDUPILOT_MOT_MAX = 1000.0
+#: COMPASS_MOTCT and CAL_MAG_COMP_TYP values of a regressor (module notes).
+_ARDUPILOT_MOTCT = {"throttle": 1, "current": 2}
+_PX4_COMP_TYP = {"throttle": 1, "current": 2}
+#: PX4's power per regressor unit: the current in kA, the throttle as it is.
+_PX4_POWER = {"throttle": 1.0, "current": 1e-3}
+
+
+@dataclass(frozen=True)
+class MotorCompensation:
+    """A disturbance proportional to the battery current or the throttle.
+
+    The correction with it is ``m = A (y - b - C u)``: ``u`` is the current in amperes
+    (``regressor="current"``) or the throttle from 0 to 1 (``"throttle"``), ``C`` the
+    disturbance in the recording's units per unit of ``u``, in the sensor's axes.
+    """
+
+    regressor: str
+    C: np.ndarray
+
+    def __post_init__(self) -> None:
+        if self.regressor not in _ARDUPILOT_MOTCT:
+            raise ValueError(f"motor compensation is per current or throttle, got "
+                             f"{self.regressor!r}")
+        C = np.asarray(self.C, dtype=float).reshape(-1)
+        if C.shape != (3,) or not np.isfinite(C).all():
+            raise ValueError(f"motor compensation C must be 3 finite numbers, got {self.C!r}")
+        object.__setattr__(self, "C", C)
 
 
 def field_strength(cal: Calibration) -> float:
@@ -309,9 +349,10 @@ def _instance_suffix(instance: int, count: int, firmware: str) -> int:
 
 
 def ardupilot_params(cal: Calibration, units: Units, *, instance: int = 0,
-                     rotation: int | None = None) -> dict[str, float]:
+                     rotation: int | None = None,
+                     motor: MotorCompensation | None = None) -> dict[str, float]:
     """ArduPilot COMPASS_OFS*, COMPASS_DIA*, COMPASS_ODI*, COMPASS_SCALE* and, with a
-    rotation, COMPASS_ORIENT* (module notes).
+    rotation, COMPASS_ORIENT*; with a motor term, COMPASS_MOTCT and COMPASS_MOT* (module notes).
 
     Parameters
     ----------
@@ -325,14 +366,17 @@ def ardupilot_params(cal: Calibration, units: Units, *, instance: int = 0,
     rotation : int, optional
         The compass's mounting, an id of ArduPilot's ``enum Rotation`` (COMPASS_ORIENT of an
         external compass); the offsets and matrix are then in the vehicle's axes.
+    motor : MotorCompensation, optional
+        A current or throttle term fitted with ``cal`` (``cal`` is then the time-varying fit's
+        ``A``, ``b``); COMPASS_MOTCT is one setting for all compasses.
 
     Returns
     -------
     dict
         Parameter name -> value, in ArduPilot's convention
-        ``corrected = M (COMPASS_SCALE (raw + OFS))``, equal to ``F A (y - b)`` in mGauss
-        (``M_r F A (y - b)`` with a rotation, raw turned by COMPASS_ORIENT first);
-        COMPASS_ORIENT* is an int.
+        ``corrected = M (COMPASS_SCALE (raw + OFS)) + MOT u``, equal to ``F A (y - b - C u)``
+        in mGauss (``M_r F A (...)`` with a rotation, raw turned by COMPASS_ORIENT first);
+        COMPASS_ORIENT* and COMPASS_MOTCT are ints.
 
     Raises
     ------
@@ -356,6 +400,14 @@ def ardupilot_params(cal: Calibration, units: Units, *, instance: int = 0,
     out[f"COMPASS_SCALE{s}"] = 1.0
     if rotation is not None:
         out[f"COMPASS_ORIENT{s}"] = int(rotation)
+    if motor is not None:
+        mot = -M @ Mr @ (k * motor.C)
+        if np.abs(mot).max() > ARDUPILOT_MOT_MAX:
+            raise ValueError(f"COMPASS_MOT values {np.round(mot, 1).tolist()} exceed ArduPilot's "
+                             f"range of +-{ARDUPILOT_MOT_MAX:g} (mGauss per A or at full "
+                             "throttle)")
+        out["COMPASS_MOTCT"] = _ARDUPILOT_MOTCT[motor.regressor]
+        out |= {f"COMPASS_MOT{s}_{a}": float(v) for a, v in zip("XYZ", mot, strict=True)}
     return out
 
 
@@ -405,7 +457,8 @@ _REAL32, _INT32 = 9, 6
 
 
 def px4_params(cal: Calibration, units: Units, *, instance: int = 0,
-               device_id: int | None = None, rotation: int | None = None) -> dict[str, float]:
+               device_id: int | None = None, rotation: int | None = None,
+               motor: MotorCompensation | None = None) -> dict[str, float]:
     """PX4 CAL_MAGn_* parameters (module notes): offsets in gauss, the symmetric scale matrix.
 
     Parameters
@@ -420,12 +473,15 @@ def px4_params(cal: Calibration, units: Units, *, instance: int = 0,
         The compass's device id (ULog ``sensor_mag.device_id``), written as CAL_MAGn_ID.
     rotation : int, optional
         PX4's rotation enum value for CAL_MAGn_ROT (external compasses).
+    motor : MotorCompensation, optional
+        A current or throttle term fitted with ``cal``: CAL_MAG_COMP_TYP (one setting for all
+        compasses) and CAL_MAGn_{X,Y,Z}COMP.
 
     Returns
     -------
     dict
-        Name -> value; CAL_MAGn_ID and CAL_MAGn_ROT are ints (INT32), the rest floats:
-        ``S (raw - OFF)`` equals ``F A (y - b)`` in gauss.
+        Name -> value; CAL_MAGn_ID, CAL_MAGn_ROT and CAL_MAG_COMP_TYP are ints (INT32), the
+        rest floats: ``S ((raw + p COMP) - OFF)`` equals ``F A (y - b - C u)`` in gauss.
 
     Raises
     ------
@@ -449,6 +505,10 @@ def px4_params(cal: Calibration, units: Units, *, instance: int = 0,
             raise ValueError(f"PX4 rotation must be an entry of its Rotation enum (CAL_MAGn_ROT, "
                              f"an integer from -1), got {rotation!r}")
         out[f"CAL_MAG{n}_ROT"] = int(rotation)
+    if motor is not None:
+        comp = -k * motor.C / _PX4_POWER[motor.regressor]
+        out["CAL_MAG_COMP_TYP"] = _PX4_COMP_TYP[motor.regressor]
+        out |= {f"CAL_MAG{n}_{a}COMP": float(v) for a, v in zip("XYZ", comp, strict=True)}
     return out
 
 
@@ -532,6 +592,7 @@ FIRMWARE_FILES = ("ardupilot.param", "px4.params", "inav.txt", "betaflight.txt")
 
 def firmware_files(cal: Calibration, units: Units, *, instance: int = 0,
                    device_id: int | None = None, rotation: int | None = None,
+                   motor: MotorCompensation | None = None,
                    comment: str = "") -> tuple[dict[str, str], dict[str, str]]:
     """Every firmware file the calibration can be written as, and why the others cannot.
 
@@ -548,6 +609,9 @@ def firmware_files(cal: Calibration, units: Units, *, instance: int = 0,
     rotation : int, optional
         The detected mounting (:mod:`magbench.core.mounting`): ArduPilot's COMPASS_ORIENT and
         PX4's CAL_MAGn_ROT, both for an external compass; None writes neither.
+    motor : MotorCompensation, optional
+        A current or throttle term fitted with ``cal``: ArduPilot's COMPASS_MOT* and PX4's
+        CAL_MAGn_*COMP; INAV's and Betaflight's files say they cannot hold it.
     comment : str
         Lines put at the head of each file (e.g. the verdict).
 
@@ -571,17 +635,28 @@ def firmware_files(cal: Calibration, units: Units, *, instance: int = 0,
                   "external compass: COMPASS_EXTERNAL)")
         rot = (f", then turned by CAL_MAGn_ROT = {name}, the detected mounting (external "
                "compass; an internal one takes the board rotation)")
+    mot = offsets_only = ""
+    px4_formula = "S (raw - OFF)"
+    if motor is not None:
+        u = "the current in A" if motor.regressor == "current" else "the throttle (0 to 1)"
+        mot = f" + COMPASS_MOT * u, u {u}"
+        p = "the current in kA" if motor.regressor == "current" else u
+        px4_formula = f"S ((raw + p COMP) - OFF), p {p} (while armed)"
+        offsets_only = (f"\nthe {motor.regressor} term C of calibration.json's time_varying is "
+                        "not applied either (no such setting)")
     makers = {
         "ardupilot.param": (units.known, physical, lambda: ardupilot_param_file(
-            ardupilot_params(cal, units, instance=instance, rotation=rotation),
-            "magbench calibration for ArduPilot: corrected = M (COMPASS_SCALE (raw + OFS)), "
-            f"raw in milligauss{orient}\n{comment}")),
+            ardupilot_params(cal, units, instance=instance, rotation=rotation, motor=motor),
+            f"magbench calibration for ArduPilot: corrected = M (COMPASS_SCALE (raw + OFS)){mot}"
+            f", raw in milligauss{orient}\n{comment}")),
         "px4.params": (units.known, physical, lambda: px4_param_file(
-            px4_params(cal, units, instance=instance, device_id=device_id, rotation=rotation),
-            f"magbench calibration for PX4: corrected = S (raw - OFF), raw in gauss{rot}"
+            px4_params(cal, units, instance=instance, device_id=device_id, rotation=rotation,
+                       motor=motor),
+            f"magbench calibration for PX4: corrected = {px4_formula}, raw in gauss{rot}"
             f"\n{comment}")),
-        "inav.txt": (units.counts, raw, lambda: inav_cli(cal, units, comment)),
-        "betaflight.txt": (units.counts, raw, lambda: betaflight_cli(cal, units, comment)),
+        "inav.txt": (units.counts, raw, lambda: inav_cli(cal, units, comment + offsets_only)),
+        "betaflight.txt": (units.counts, raw,
+                           lambda: betaflight_cli(cal, units, comment + offsets_only)),
     }
     for name, (possible, why, make) in makers.items():
         if not possible:
