@@ -144,3 +144,28 @@ def test_apply_reads_one_compass_of_a_log(tmp_path, capsys):
     from tests.sources.test_logs import T1, mag1
 
     np.testing.assert_allclose(frame[["mx", "my", "mz"]], mag1(T1) / 2, rtol=1e-5)
+
+
+def test_a_kept_temperature_term_leaves_the_firmware_files_static(tmp_path, capsys):
+    """Neither ArduPilot nor PX4 has a parameter for a temperature term: when it is kept, the
+    firmware files hold the static calibration and one line says why."""
+    from magbench.core.geometry import fibonacci_sphere
+
+    K = 1200
+    temperature = np.linspace(5.0, 45.0, K)                  # C, a warming board
+    drift = np.array([2.0, -1.5, 1.0])                       # mGauss per C: 80 mGauss over 40 C
+    y = 450.0 * fibonacci_sphere(K) @ np.diag([1.05, 0.97, 1.0]) + [60.0, -40.0, 25.0]
+    y = y + np.outer(temperature, drift)
+    y = y + np.random.default_rng(3).normal(0.0, 1.0, y.shape)
+    data = tmp_path / "data.csv"
+    pd.DataFrame({"mx": y[:, 0], "my": y[:, 1], "mz": y[:, 2],
+                  "temperature": temperature}).to_csv(data, index=False)
+    out = tmp_path / "cal"
+    assert main(["calibrate", f"file={data}", f"out={out}", "units=mgauss", "bootstrap=0",
+                 "compensate=[temperature]"]) == 0
+    said = capsys.readouterr().out
+    assert "u = temperature" in said and ": kept; C per unit of u" in said
+    assert ("firmware files hold the static calibration: the kept temperature terms have no "
+            "ArduPilot or PX4 parameter") in said
+    assert "COMPASS_MOT" not in (out / "ardupilot.param").read_text()
+    assert "COMP" not in (out / "px4.params").read_text().replace("COMPASS", "")

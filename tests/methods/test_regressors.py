@@ -54,3 +54,29 @@ def test_a_constant_regressor_is_refused():
         fit_time_varying(traj.y, np.ones((len(traj.y), 1)), fang)
     choice = held_out_choice(traj.y, np.ones((len(traj.y), 1)), fang)
     assert not choice.kept and choice.fit is None and "does not vary" in choice.reason
+
+
+def test_a_static_fit_that_fails_is_a_reason_not_a_traceback():
+    from magbench.core.model import CalibrationFailed
+
+    traj, u = manoeuvre(0.005)
+    y = traj.y + u[:, :1] @ C_TRUE[:, :1].T
+    calls = []
+
+    def fails_after_the_first(samples):
+        calls.append(len(samples))
+        if len(calls) > 1:                  # the algebraic start's refit: that start only
+            raise CalibrationFailed("fang: fitted quadric is not an ellipsoid")
+        return fang(samples)
+
+    fit = fit_time_varying(y, u[:, :1], fails_after_the_first)
+    np.testing.assert_allclose(fit.C[:, 0], C_TRUE[:, 0], atol=4e-4)
+
+    def always_fails(samples):
+        raise CalibrationFailed("fang: fitted quadric is not an ellipsoid")
+
+    with pytest.raises(CalibrationFailed, match="not an ellipsoid"):
+        fit_time_varying(y, u[:, :1], always_fails)
+    choice = held_out_choice(y, u[:, :1], always_fails)
+    assert not choice.kept and choice.fit is None
+    assert choice.reason == "not fitted: fang: fitted quadric is not an ellipsoid"

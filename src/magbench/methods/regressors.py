@@ -26,6 +26,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from magbench.core.model import CalibrationFailed
+
+#: What a static fit or the time-varying fit may raise on data it cannot fit.
+_FIT_ERRORS = (ValueError, np.linalg.LinAlgError, ArithmeticError, CalibrationFailed)
+
 __all__ = ["BLOCKS", "HeldOutChoice", "StaticFit", "TimeVarying", "fit_time_varying",
            "held_out_choice", "norm_residuals"]
 
@@ -174,11 +179,15 @@ def fit_time_varying(y: np.ndarray, u: np.ndarray, static_fit: StaticFit, *,
     # Two starts, the better kept: no terms (the static fit as it is), and the terms of the
     # algebraic quadric with the static fit redone on the samples they correct (a large
     # disturbance bends the static fit so far that Gauss-Newton from it can stall).
-    best = None
+    best, failed = None, None
     for C in (np.zeros((3, u.shape[1])), _algebraic_start(y, v)):
         if C is None or not np.isfinite(C).all():
             continue
-        A, b = static_fit(y - v @ C.T)
+        try:
+            A, b = static_fit(y - v @ C.T)
+        except _FIT_ERRORS as exc:          # this start only: the other may still fit
+            failed = exc
+            continue
         # A method of fixed scale (T = field_norm I) starts at the data's own field strength.
         A = A / float(np.median(np.linalg.norm((y - b - v @ C.T) @ A.T, axis=1)))
         # First b and C with the static A (a safe start), then every parameter together.
@@ -188,6 +197,8 @@ def fit_time_varying(y: np.ndarray, u: np.ndarray, static_fit: StaticFit, *,
         cost = _cost(y, v, a, b, C) if np.isfinite(A).all() and np.isfinite(C).all() else np.inf
         if best is None or cost < best[0]:
             best = (cost, A, b, C)
+    if best is None:
+        raise failed if failed is not None else ValueError("no start of the time-varying fit")
     cost, A, b, C = best
     if not np.isfinite(cost):
         raise ValueError("the time-varying fit diverged")
@@ -238,7 +249,7 @@ def held_out_choice(y: np.ndarray, u: np.ndarray, static_fit: StaticFit, *,
             tv = fit_time_varying(y[train], u[train], static_fit)
             varying_sq.append(norm_residuals(tv.apply(y[~train], u[~train])) ** 2)
         fit = fit_time_varying(y, u, static_fit)
-    except (ValueError, np.linalg.LinAlgError, ArithmeticError) as exc:
+    except _FIT_ERRORS as exc:
         return HeldOutChoice(False, np.nan, np.nan, None, f"not fitted: {exc}")
     s_out = float(np.mean(np.concatenate(static_sq)))
     v_out = float(np.mean(np.concatenate(varying_sq)))
