@@ -169,3 +169,32 @@ def test_a_kept_temperature_term_leaves_the_firmware_files_static(tmp_path, caps
             "ArduPilot or PX4 parameter") in said
     assert "COMPASS_MOT" not in (out / "ardupilot.param").read_text()
     assert "COMP" not in (out / "px4.params").read_text().replace("COMPASS", "")
+
+
+def test_a_fail_caused_by_the_current_says_what_the_terms_would_give(tmp_path, capsys):
+    """A motor disturbance ten times the field fails the static verdict; the FAIL still fits
+    the current term and says how small the held-out error is with it."""
+    import json
+
+    from magbench.core.geometry import fibonacci_sphere
+
+    K = 1500
+    t = np.arange(K) / 20.0
+    current = 10.0 + 8.0 * np.sin(0.3 * t)                          # A
+    y = 450.0 * fibonacci_sphere(K) @ np.diag([1.05, 0.97, 1.0]) + [60.0, -40.0, 25.0]
+    y = y + np.outer(current, [300.0, -200.0, 100.0])               # mGauss per A
+    y = y + np.random.default_rng(1).normal(0.0, 1.0, y.shape)
+    data = tmp_path / "data.csv"
+    pd.DataFrame({"t": t, "mx": y[:, 0], "my": y[:, 1], "mz": y[:, 2],
+                  "current": current}).to_csv(data, index=False)
+    out = tmp_path / "cal"
+    assert main(["calibrate", f"file={data}", f"out={out}", "units=mgauss"]) == 3
+    said = capsys.readouterr().out
+    assert said.startswith("FAIL ")
+    cure = next(s for s in said.splitlines() if s.startswith("the field moves with the current"))
+    rms = float(cure.split("error is ")[1].split(" %")[0])
+    assert rms < 1.0 and "against" in cure and "verdict judges the static calibration" in cure
+    terms = json.loads((out / "calibration.json").read_text())["time_varying"]
+    assert terms["kept"]
+    np.testing.assert_allclose(np.array(terms["C"])[:, 0], [300.0, -200.0, 100.0], rtol=0.01)
+    assert sorted(p.name for p in out.iterdir()) == ["calibration.json"]

@@ -372,10 +372,10 @@ def run_calibrate(cfg: DictConfig, picture: PictureWorker | None = None) -> int:
                                n_file=rec.K, preprocess=run.preprocess, units=run.units,
                                expected_field=run.expected)
     payload |= _instance_keys(rec)
-    if payload["status"] == "FAIL":
-        _write_fail(result, payload, out, rec.K, start)
-        return 3
     varying, corrected = _add_time_varying(result, payload, run.compensate, options)
+    if payload["status"] == "FAIL":
+        _write_fail(result, payload, out, rec.K, start, [varying, _cure_line(payload)])
+        return 3
     mounting = _add_mounting(result, payload, corrected)
     job = {"path": out / "calibration.png", "dpi": PICTURE_DPI,
            "compress_level": PICTURE_COMPRESSION, "kwargs": _picture_arguments(result, payload)}
@@ -472,13 +472,28 @@ def _read(run: _Run) -> Recording:
 
 
 def _write_fail(result: CalibrationResult, payload: dict, out: Path, n_file: int,
-                start: float) -> None:
-    """A FAIL: only ``calibration.json`` with the reasons; an earlier run's files removed."""
+                start: float, notes: Sequence[str] = ()) -> None:
+    """A FAIL: only ``calibration.json`` with the reasons; an earlier run's files removed.
+    ``notes``: lines printed before the closing one (empty ones skipped)."""
     write_text_atomic(json.dumps(payload, indent=2) + "\n", out / "calibration.json")
     for stale in {*FIRMWARE_FILES, "calibration.h", "ranking.csv", "calibration.png"}:
         (out / stale).unlink(missing_ok=True)       # an earlier run's, now wrong
     _report(result, payload, out, n_file, ["calibration.json (the reasons; no correction)"],
-            start)
+            start, [line for line in notes if line])
+
+
+def _cure_line(payload: dict) -> str:
+    """On a FAIL whose time-varying terms were kept: the held-out error with them, since a
+    field that moves with the current (or temperature) is what failed, not the sensor."""
+    tv = payload.get("time_varying") or {}
+    if not tv.get("kept"):
+        return ""
+    rms = {k: 100 * np.sqrt(tv[f"held_out_{k}"]) for k in ("static", "time_varying")}
+    return (f"the field moves with the {', '.join(tv['regressors'])}: with the terms the "
+            f"held-out field magnitude error is {rms['time_varying']:.2f} % RMS against "
+            f"{rms['static']:.2f} % static, but the verdict judges the static calibration; "
+            "calibration.json holds the terms (time_varying), or record with the "
+            f"{', '.join(tv['regressors'])} steady")
 
 
 def _report(result: CalibrationResult, payload: dict, out: Path, n_file: int,
