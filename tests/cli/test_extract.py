@@ -198,3 +198,20 @@ def test_a_fail_caused_by_the_current_says_what_the_terms_would_give(tmp_path, c
     assert terms["kept"]
     np.testing.assert_allclose(np.array(terms["C"])[:, 0], [300.0, -200.0, 100.0], rtol=0.01)
     assert sorted(p.name for p in out.iterdir()) == ["calibration.json"]
+
+
+def test_a_regressor_column_left_out_is_named_with_the_reason(tmp_path, capsys):
+    from magbench.core.geometry import fibonacci_sphere
+
+    K = 400
+    y = 450.0 * fibonacci_sphere(K) + [60.0, -40.0, 25.0]
+    current = np.linspace(2.0, 18.0, K)
+    current[::2] = np.nan                                   # logged at half the rate
+    data = tmp_path / "data.csv"
+    pd.DataFrame({"mx": y[:, 0], "my": y[:, 1], "mz": y[:, 2], "current": current,
+                  "temperature": 25.0}).to_csv(data, index=False)
+    assert main(["calibrate", f"file={data}", f"out={tmp_path / 'cal'}", "units=mgauss",
+                 "bootstrap=0"]) == 0
+    said = capsys.readouterr().out.splitlines()
+    assert ("time-varying terms not fitted: current (values in 50 % of the samples, 90 % "
+            "needed), temperature (constant)") in said

@@ -89,6 +89,7 @@ from magbench.studies.flight import (
     check_regressors,
     mounting_rotation,
     time_varying_terms,
+    unused_regressors,
     usable_regressors,
 )
 from magbench.studies.real import DEFAULT_MAX_SAMPLES, PREPROCESSING, applicability
@@ -535,8 +536,9 @@ def _add_time_varying(result: CalibrationResult, payload: dict, wanted: list[str
     the terms are kept, every sample corrected with them (NaN where ``u`` is missing)."""
     rec: Recording = result.rec
     names = usable_regressors(rec, wanted)
+    unused = unused_regressors(rec) if wanted is None else []
     if not names:
-        return "", None
+        return ("time-varying terms not fitted: " + ", ".join(unused) if unused else ""), None
     spec = get_method(payload["method"])
     name = payload["method"] if spec.model == "full" and spec.magnetometer_only else "fang"
     opts = options.get(name) or {}
@@ -546,8 +548,9 @@ def _add_time_varying(result: CalibrationResult, payload: dict, wanted: list[str
 
     choice = time_varying_terms(rec, names, static_fit, result.inliers)
     payload["time_varying"] = {"method": name, **choice.to_dict(names)}
-    head = (f"time-varying terms (y = T m + h + C u, u = {', '.join(names)}; {name}; held out "
-            "on interleaved time blocks): ")
+    left_out = f"; not fitted: {', '.join(unused)}" if unused else ""
+    head = (f"time-varying terms (y = T m + h + C u, u = {', '.join(names)}{left_out}; {name}; "
+            "held out on interleaved time blocks): ")
     if choice.fit is None:
         return head + f"not kept ({choice.reason})", None
     terms = "; ".join(f"{n} ({', '.join(f'{c:.3g}' for c in choice.fit.C[:, j])})"

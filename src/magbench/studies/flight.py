@@ -20,7 +20,7 @@ from magbench.sources.recordings import Recording
 
 __all__ = ["QUATERNION", "REGRESSORS", "check_regressors", "mounting_rotation",
            "time_varying_terms",
-           "usable_regressors"]
+           "unused_regressors", "usable_regressors"]
 
 QUATERNION = ["qw", "qx", "qy", "qz"]
 ACCEL = ["ax", "ay", "az"]
@@ -84,6 +84,24 @@ def usable_regressors(rec: Recording, wanted: list[str] | None = None) -> list[s
         if finite.size >= 0.9 * rec.K and np.ptp(finite) > 0:
             found.append(name)
     return found
+
+
+def unused_regressors(rec: Recording) -> list[str]:
+    """Why each regressor column ``compensate=auto`` leaves out was left out (a value in too
+    few samples, or constant), as ``"current (values in 50 % of the samples, 90 % needed)"``;
+    the throttle is not listed when the current stands in for it."""
+    if rec.extra is None:
+        return []
+    used = usable_regressors(rec)
+    out = []
+    for name in REGRESSORS:
+        if name not in rec.extra or name in used or (name == "throttle" and "current" in used):
+            continue
+        values = rec.extra[name].to_numpy(float)
+        finite = values[np.isfinite(values)]
+        out.append(f"{name} (values in {100 * finite.size / rec.K:.0f} % of the samples, 90 % "
+                   "needed)" if finite.size < 0.9 * rec.K else f"{name} (constant)")
+    return out
 
 
 def check_regressors(rec: Recording, names: list[str]) -> None:
