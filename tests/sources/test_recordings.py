@@ -107,6 +107,22 @@ def test_an_error_after_blank_lines_names_the_line_of_the_file(tmp_path):
         read_samples(path, check=False)
 
 
+def test_leading_comment_lines_are_notes_and_still_count_as_lines(tmp_path):
+    """A logger's '#' lines before the table (device, date) are skipped; an error names the
+    line of the file, counting them."""
+    table = frame(50)[["mx", "my", "mz"]]
+    lines = table.to_csv(index=False).splitlines()
+    path = tmp_path / "rec.csv"
+    path.write_text("# logger v2, 2026-11-24\n#   sensor: QMC5883L\n" + "\n".join(lines) + "\n")
+    rec = read_samples(path, check=False)
+    np.testing.assert_allclose(rec.y, table.to_numpy(), rtol=1e-12)
+    lines[4] = "1.0,oops,2.0"                      # data row 4: line 8 after 3 lines of notes
+    path.write_text("# logger v2\n\n# sensor\n" + "\n".join(lines) + "\n")
+    with pytest.raises(ValueError, match=r"non-numeric value 'oops' in column 'my' at data row "
+                                         r"4 \(line 8 of the file\)"):
+        read_samples(path, check=False)
+
+
 def two_compasses(tmp_path, column="I"):
     a, b = frame(40), frame(40) * 1.5
     a.insert(0, column, 0)

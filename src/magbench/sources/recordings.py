@@ -237,8 +237,8 @@ def _head_lines(path: Path, compression: str | None) -> list[tuple[int, str]]:
 def _sniff(path: Path, compression: str | None = None) -> dict:
     """Delimiter, header, number of columns and decimal mark of ``path``, from its start.
 
-    Returns a dict with ``sep``, ``has_header``, ``n_cols`` (the most fields of a data row)
-    and ``decimal``.
+    Returns a dict with ``sep``, ``has_header``, ``n_cols`` (the most fields of a data row),
+    ``decimal`` and ``skip`` (the lines before the first one that is not a '#' note).
 
     Raises
     ------
@@ -246,6 +246,11 @@ def _sniff(path: Path, compression: str | None = None) -> dict:
         An empty or binary file, or a header that names fewer columns than a row holds.
     """
     lines = _head_lines(path, compression)
+    # Leading '#' lines are a logger's notes (device, date): skipped, as pandas' skiprows.
+    notes = next((k for k, (_, ln) in enumerate(lines) if not ln.lstrip().startswith("#")),
+                 len(lines))
+    skip = lines[notes][0] - 1 if notes < len(lines) else 0
+    lines = lines[notes:]
     if not lines:
         raise ValueError(f"{path} is empty; expected a CSV with one magnetometer sample per row")
     texts = [ln for _, ln in lines]
@@ -273,17 +278,19 @@ def _sniff(path: Path, compression: str | None = None) -> dict:
                          f"has {n_cols} fields; name every column, or remove the header and "
                          "choose the columns by position (columns=[0,1,2])")
     return {"sep": sep, "has_header": has_header, "n_cols": n_cols,
-            "decimal": "," if comma else "."}
+            "decimal": "," if comma else ".", "skip": skip}
 
 
-def _line_of(path: Path, compression: str | None, has_header: bool, row: int) -> int:
+def _line_of(path: Path, compression: str | None, has_header: bool, row: int,
+             skip: int = 0) -> int:
     """The line number of data row ``row`` (0-based), counting blank lines as the file does
-    (pandas skips them, so its row index alone is short by one per blank line)."""
+    (pandas skips them, so its row index alone is short by one per blank line) and the
+    ``skip`` lines of notes before the table."""
     opener = _READABLE.get(compression or "", open)
     seen = -1 if has_header else 0
     with opener(path, "rt", newline="") as handle:
         for number, line in enumerate(handle, start=1):
-            if not line.strip():
+            if number <= skip or not line.strip():
                 continue
             if seen == row:
                 return number
@@ -291,13 +298,14 @@ def _line_of(path: Path, compression: str | None, has_header: bool, row: int) ->
     return number
 
 
-def _ragged(path: Path, compression: str | None, sep: str, n_cols: int) -> str:
-    """The first line with more fields than ``n_cols``, as one message."""
+def _ragged(path: Path, compression: str | None, sep: str, n_cols: int, skip: int = 0) -> str:
+    """The first line with more fields than ``n_cols`` (after ``skip`` lines of notes), as
+    one message."""
     opener = _READABLE.get(compression or "", open)
     with opener(path, "rt", newline="") as handle:
         for number, line in enumerate(handle, start=1):
             n = len(_fields(line.rstrip("\r\n"), sep))
-            if line.strip() and n > n_cols:
+            if number > skip and line.strip() and n > n_cols:
                 return (f"{path.name}: line {number} has {n} fields where the rows before have "
                         f"{n_cols}; every row must hold the same columns")
     return f"{path.name}: rows of unequal length; every row must hold the same columns"
@@ -342,11 +350,12 @@ class _Where:
         self.path, self.compression, self.sniffed = path, compression, sniffed
 
     def line(self, row: int) -> int:
-        return _line_of(self.path, self.compression, self.sniffed["has_header"], row)
+        return _line_of(self.path, self.compression, self.sniffed["has_header"], row,
+                        self.sniffed["skip"])
 
     def ragged(self) -> str:
         return _ragged(self.path, self.compression, self.sniffed["sep"],
-                       self.sniffed["n_cols"])
+                       self.sniffed["n_cols"], self.sniffed["skip"])
 
     def unclosed_quote(self) -> str:
         """Where a quoted field opens and never closes (the first line with an odd number of
@@ -609,7 +618,7 @@ def _open_csv(path: Path) -> tuple[dict, _Where, list[str] | None, int]:
     sep, has_header = sniffed["sep"], sniffed["has_header"]
     layout = {"sep": r"\s+" if sep == " " else sep, "header": 0 if has_header else None,
               "compression": compression, "skip_blank_lines": True,
-              "decimal": sniffed["decimal"]}
+              "decimal": sniffed["decimal"], "skiprows": sniffed["skip"]}
     header = None
     if has_header:
         first = _read_csv(path, nrows=0, dtype=str, keep_default_na=False, **layout)
