@@ -4,8 +4,9 @@ For the review, gyro, Wu-Shi and real-recording studies, at a tiny size, through
 line: a method that raises an unusual exception, one that returns NaN and one that hangs past
 ``call_timeout_s`` each become rows with a reason, with 1 and 2 workers; the rows are the same
 with 1 worker, 2 workers and the Dask backend; a SIGKILL and a rerun give the rows of one
-uninterrupted run; ``trials`` means the same for every kind. The two-worker and Dask repeats
-of kinds the fast ones already cover are marked slow (``make test-all``).
+uninterrupted run; ``trials`` means the same for every kind. The two-worker, Dask and
+kill-and-resume repeats of kinds the fast ones already cover are marked slow
+(``make test-all``): resuming is the engine's, whatever the kind.
 """
 
 from __future__ import annotations
@@ -121,7 +122,7 @@ def slow_args(kind: str, tmp_path: Path, results: Path) -> list[str]:
             f"results_dir={results}"]
 
 
-@pytest.mark.parametrize("kind", KINDS)
+@pytest.mark.parametrize("kind", kinds_beyond("review", "real", "heading"))
 def test_a_killed_run_of_every_kind_resumes_to_the_same_rows(kind, faulty, tmp_path):
     _, folder, name = kind_args(kind, tmp_path)
     # The uninterrupted run and the resumed one run in this process; only the killed one needs

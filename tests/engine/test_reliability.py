@@ -73,6 +73,7 @@ def read_without_time(path: Path) -> pd.DataFrame:
     return pd.read_csv(path, keep_default_na=False)
 
 
+@pytest.mark.slow      # test_every_study's kill-and-resume of the review kind runs in CI
 def test_a_killed_sweep_resumes_to_the_same_rows(tmp_path):
     full = subprocess.run(sweep_command(tmp_path / "full"), cwd=REPO, capture_output=True,
                           text=True, timeout=120)
