@@ -136,3 +136,23 @@ def test_apply_keeps_the_chosen_instance(tmp_path, capsys):
     out = pd.read_csv(tmp_path / "a.csv")
     np.testing.assert_allclose(out[["mx", "my", "mz"]].to_numpy(),
                                Calibration(T_TRUE, H_TRUE).safe().apply(y1), atol=1e-9)
+
+
+@pytest.mark.parametrize(("scale", "code", "warned"), [(1.0, 0, False), (1.2, 0, False),
+                                                      (1.5, 0, True), (0.5, 0, True),
+                                                      (3.5, 3, False), (1e-3, 3, False)])
+def test_a_field_far_from_the_calibrated_one_warns_or_fails(tmp_path, capsys, scale, code,
+                                                            warned):
+    """Another site changes the field by at most ~3x: beyond it the calibration does not fit
+    (another sensor or unit), FAIL with nothing written; beyond 25 % a warning."""
+    y = (recording(sigma=0.0) - H_TRUE) * scale + H_TRUE
+    rec = save(tmp_path / "rec.csv", y)
+    cal = write_calibration(tmp_path / "c.json")
+    out = tmp_path / "o.csv"
+    assert apply(f"calibration={cal}", f"file={rec}", f"out={out}") == code
+    said = capsys.readouterr()
+    assert out.exists() == (code == 0)
+    if code:
+        assert said.out.startswith(f"FAIL  field magnitude {scale:.4g} (median, 1 = calibrated "
+                                   "field)") and "nothing written" in said.out
+    assert ("from the calibrated field: expected at a site" in said.err) == warned

@@ -134,7 +134,8 @@ def test_apply_reads_one_compass_of_a_log(tmp_path, capsys):
 
     log = px4_log(tmp_path / "flight.ulg")
     cal = tmp_path / "calibration.json"
-    cal.write_text(json.dumps(to_json_dict(Calibration(2 * np.eye(3), np.zeros(3)))))
+    # Compass 1 reads about 1000: a calibration of that field strength.
+    cal.write_text(json.dumps(to_json_dict(Calibration(1000 * np.eye(3), np.zeros(3)))))
     out = tmp_path / "corrected.csv"
     assert main(["apply", f"calibration={cal}", f"file={log}", f"out={out}"]) == 2
     assert "has 2 compasses; choose one with instance=N" in capsys.readouterr().err
@@ -143,7 +144,7 @@ def test_apply_reads_one_compass_of_a_log(tmp_path, capsys):
     frame = pd.read_csv(out)
     from tests.sources.test_logs import T1, mag1
 
-    np.testing.assert_allclose(frame[["mx", "my", "mz"]], mag1(T1) / 2, rtol=1e-5)
+    np.testing.assert_allclose(frame[["mx", "my", "mz"]], mag1(T1) / 1000, rtol=1e-5)
 
 
 def test_a_kept_temperature_term_leaves_the_firmware_files_static(tmp_path, capsys):

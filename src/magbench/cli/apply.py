@@ -8,6 +8,11 @@ samples to ``out`` under the same column names, after the time column ``t`` when
 one. The columns are ``columns=[...]`` if given, else those the calibration was fitted on (the
 JSON's ``columns``), else ``mx, my, mz``. Rows with a missing value are dropped with a warning
 line, as in ``calibrate``.
+
+The median field magnitude after correction is checked: the Earth's field strength differs by
+at most about 3x between sites (22-67 uT), so a median beyond 3x or below 1/3 of the
+calibrated field means the calibration does not fit the recording (another sensor or another
+unit): FAIL, exit 3, nothing written. Beyond 25 % it warns (another site, or a poor fit).
 """
 
 from __future__ import annotations
@@ -28,6 +33,11 @@ from magbench.core.model import Calibration
 from magbench.sources.recordings import Recording, read_samples
 
 __all__ = ["corrected_frame", "load_calibration", "output_csv", "run_apply"]
+
+#: The Earth's field strength spans about 22-67 uT: no site changes it by more than this factor.
+FIELD_RATIO_FAIL = 3.0
+#: A median magnitude this far (%) from the calibrated field warns.
+FIELD_WARN_PCT = 25.0
 
 
 def load_calibration(path: Path) -> tuple[Calibration, list | None]:
@@ -108,9 +118,19 @@ def run_apply(cfg: DictConfig) -> int:
     # A file without a header has no names to keep: call the axes mx, my, mz.
     names = [f"m{'xyz'[i]}" if c.startswith("column ") else c for i, c in enumerate(rec.columns)]
     frame = corrected_frame(rec, cal, names)
+    median = float(np.median(np.linalg.norm(frame[names].to_numpy(), axis=1)))
+    if not 1 / FIELD_RATIO_FAIL <= median <= FIELD_RATIO_FAIL:
+        print(f"FAIL  field magnitude {median:.4g} (median, 1 = calibrated field) after "
+              f"correcting {path.name}: no site's field differs by more than "
+              f"{FIELD_RATIO_FAIL:g}x, so this calibration does not fit the recording (another "
+              "sensor, or another unit); nothing written")
+        return 3
     write_csv_atomic(frame, out)
-    norms = np.linalg.norm(frame[names].to_numpy(), axis=1)
     print(f"{path.name}: corrected {rec.K} samples (columns {', '.join(rec.columns)}) with "
-          f"m = A (y - b); field magnitude {np.median(norms):.4f} (median, 1 = calibrated "
-          f"field); wrote {out}")
+          f"m = A (y - b); field magnitude {median:.4f} (median, 1 = calibrated field); wrote "
+          f"{out}")
+    if abs(median - 1) * 100 > FIELD_WARN_PCT:
+        print(f"magbench: warning: the median field magnitude is {abs(median - 1) * 100:.0f} % "
+              "from the calibrated field: expected at a site with another field strength, "
+              "else the calibration does not fit this sensor", file=sys.stderr)
     return 0
