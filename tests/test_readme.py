@@ -36,3 +36,10 @@ def test_every_example_sweep_writes_outside_the_committed_results():
         targets = [a.split("=", 1)[1] for a in args if a.startswith("results_dir=")]
         assert targets and not Path(targets[0]).resolve().is_relative_to(REPO / "results"), \
             f"README example would write into the committed results/: {command}"
+
+
+def test_the_key_table_names_every_sweep():
+    row = next(line for line in (REPO / "README.md").read_text().splitlines()
+               if line.startswith("| `sweep` |"))
+    listed = set(re.findall(r"`(\w+)`", row.split("|")[2]))
+    assert listed == {p.stem for p in (REPO / "conf" / "sweep").glob("*.yaml")}
