@@ -216,3 +216,33 @@ def test_a_regressor_column_left_out_is_named_with_the_reason(tmp_path, capsys):
     said = capsys.readouterr().out.splitlines()
     assert ("time-varying terms not fitted: current (values in 50 % of the samples, 90 % "
             "needed), temperature (constant)") in said
+
+
+def test_current_and_temperature_kept_give_the_firmware_the_current_alone(tmp_path, capsys):
+    """A PX4 log usually has a varying temperature too: when both terms are kept, the firmware
+    files (which hold a current term only) get the fit with the current alone if it holds."""
+    from magbench.core.geometry import fibonacci_sphere
+
+    K = 1500
+    t = np.arange(K) / 20.0
+    current = 10.0 + 8.0 * np.sin(0.3 * t)                          # A
+    temperature = np.linspace(10.0, 40.0, K)                        # C
+    y = 450.0 * fibonacci_sphere(K) @ np.diag([1.05, 0.97, 1.0]) + [60.0, -40.0, 25.0]
+    y = y + np.outer(current, [4.0, -2.0, 3.0]) + np.outer(temperature, [2.0, -1.5, 1.0])
+    y = y + np.random.default_rng(1).normal(0.0, 1.0, y.shape)
+    data = tmp_path / "data.csv"
+    pd.DataFrame({"t": t, "mx": y[:, 0], "my": y[:, 1], "mz": y[:, 2], "current": current,
+                  "temperature": temperature}).to_csv(data, index=False)
+    out = tmp_path / "cal"
+    assert main(["calibrate", f"file={data}", f"out={out}", "units=mgauss",
+                 "bootstrap=0"]) == 0
+    said = capsys.readouterr().out
+    assert "u = current, temperature" in said
+    assert ("firmware files hold the fit with the current term alone, as temperature has no "
+            "parameter") in said
+    params = dict(line.split() for line in (out / "ardupilot.param").read_text().splitlines()
+                  if not line.startswith("#"))
+    assert params["COMPASS_MOTCT"] == "2"
+    # MOT = -M C with M close to the identity: about (-4, 2, -3) mGauss per A.
+    np.testing.assert_allclose([float(params[f"COMPASS_MOT_{a}"]) for a in "XYZ"],
+                               [-4.0, 2.0, -3.0], atol=0.5)

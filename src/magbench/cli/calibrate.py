@@ -548,6 +548,12 @@ def _add_time_varying(result: CalibrationResult, payload: dict, wanted: list[str
 
     choice = time_varying_terms(rec, names, static_fit, result.inliers)
     payload["time_varying"] = {"method": name, **choice.to_dict(names)}
+    firmware = [n for n in names if n in FIRMWARE_REGRESSORS][:1]
+    if choice.kept and firmware and len(names) > 1:
+        # The autopilots hold a current or throttle term only: that term alone, if it holds.
+        alone = time_varying_terms(rec, firmware, static_fit, result.inliers)
+        if alone.kept:
+            payload["time_varying"]["firmware"] = alone.to_dict(firmware)
     left_out = f"; not fitted: {', '.join(unused)}" if unused else ""
     head = (f"time-varying terms (y = T m + h + C u, u = {', '.join(names)}{left_out}; {name}; "
             "held out on interleaved time blocks): ")
@@ -605,19 +611,27 @@ def _export_motor(cal: Calibration, payload: dict) -> tuple[Calibration, MotorCo
     if not tv.get("kept"):
         return cal, None, ""
     names = tv["regressors"]
-    if names not in (["current"], ["throttle"]):
+    terms = tv if len(names) == 1 and names[0] in FIRMWARE_REGRESSORS else tv.get("firmware")
+    if terms is None:
         return cal, None, (f"firmware files hold the static calibration: the kept "
                            f"{', '.join(names)} terms have no ArduPilot or PX4 parameter "
                            "(they hold one current or throttle term)")
-    motor = MotorCompensation(names[0], np.asarray(tv["C"], dtype=float)[:, 0])
-    kept = Calibration(np.linalg.inv(np.asarray(tv["A"], dtype=float)),
-                       np.asarray(tv["b"], dtype=float))
-    rms = {k: 100 * np.sqrt(tv[f"held_out_{k}"]) for k in ("static", "time_varying")}
-    return kept, motor, (f"firmware files hold the fit with the {names[0]} term "
+    name = terms["regressors"][0]
+    motor = MotorCompensation(name, np.asarray(terms["C"], dtype=float)[:, 0])
+    kept = Calibration(np.linalg.inv(np.asarray(terms["A"], dtype=float)),
+                       np.asarray(terms["b"], dtype=float))
+    rms = {k: 100 * np.sqrt(terms[f"held_out_{k}"]) for k in ("static", "time_varying")}
+    others = [n for n in names if n != name]
+    alone = (f" alone, as {' and '.join(others)} {'has' if len(others) == 1 else 'have'} no "
+             "parameter" if terms is not tv else "")
+    return kept, motor, (f"firmware files hold the fit with the {name} term{alone} "
                          f"(COMPASS_MOT*, CAL_MAGn_*COMP; held-out field magnitude error "
                          f"{rms['time_varying']:.2f} % RMS, static {rms['static']:.2f} %); "
                          "calibration.json and calibration.h hold the static calibration")
 
+
+#: The regressors the autopilots have a parameter for (COMPASS_MOT, CAL_MAGn_*COMP).
+FIRMWARE_REGRESSORS = ("current", "throttle")
 
 #: ArduPilot logs: their ``MAG`` is after COMPASS_ORIENT (docs/flight_logs.md).
 ARDUPILOT_LOGS = (".bin", ".log")
