@@ -333,3 +333,21 @@ def test_workers_die_with_the_run_even_inside_one_long_compiled_call(tmp_path):
     proc.wait(timeout=30)
     _, alive = psutil.wait_procs(children, timeout=10)
     assert alive == [], f"orphaned after SIGKILL: {[p.cmdline()[-3:] for p in alive]}"
+
+
+def test_the_resource_trackers_leak_warning_is_filtered_and_the_users_filters_kept(
+        monkeypatch):
+    """After a Ctrl-C, loky's resource tracker warns of the semaphores it then removes; the
+    filter passed to the processes silences exactly that warning."""
+    from magbench.engine.sweep import _TRACKER_FILTER, _quiet_resource_tracker
+
+    monkeypatch.setenv("PYTHONWARNINGS", "error::DeprecationWarning")
+    _quiet_resource_tracker()
+    _quiet_resource_tracker()                       # idempotent
+    assert os.environ["PYTHONWARNINGS"] == f"error::DeprecationWarning,{_TRACKER_FILTER}"
+    code = ("import warnings; warnings.warn_explicit('leaked semlock', UserWarning, "
+            "'resource_tracker.py', 1, module='joblib.externals.loky.backend.resource_tracker');"
+            " warnings.warn_explicit('other', UserWarning, 'x.py', 1, module='x')")
+    err = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         env=dict(os.environ)).stderr
+    assert "leaked semlock" not in err and "other" in err

@@ -218,10 +218,25 @@ def parallel_backend(backend: str, n_jobs: int,
         yield {"n_jobs": -1, "client": client}
 
 
+#: loky's resource tracker warns at exit of the semaphores an interrupted pool left, which it
+#: then removes: noise after a Ctrl-C, whose one line is the run's own.
+_TRACKER_FILTER = "ignore::UserWarning:joblib.externals.loky.backend.resource_tracker"
+
+
+def _quiet_resource_tracker() -> None:
+    """Pass :data:`_TRACKER_FILTER` to the processes started from here on (the tracker among
+    them), keeping any ``PYTHONWARNINGS`` the user set."""
+    current = os.environ.get("PYTHONWARNINGS", "")
+    if _TRACKER_FILTER not in current.split(","):
+        os.environ["PYTHONWARNINGS"] = ",".join(filter(None, [current, _TRACKER_FILTER]))
+
+
 def _loky_backend() -> object:
     """joblib's loky backend whose workers, from their start, end with the run (even those
     that never get a chunk)."""
     from joblib.parallel import LokyBackend
+
+    _quiet_resource_tracker()
 
     return LokyBackend(initializer=_worker_start, initargs=(os.getpid(),))
 
