@@ -147,20 +147,39 @@ def test_apply_reads_one_compass_of_a_log(tmp_path, capsys):
     np.testing.assert_allclose(frame[["mx", "my", "mz"]], mag1(T1) / 1000, rtol=1e-5)
 
 
+def disturbed_csv(path, K: int, regressors: dict, *, seed: int | None = 1,
+                  diag=(1.05, 0.97, 1.0), with_t: bool = True):
+    """A mGauss recording of a 450 mGauss field (scaled by ``diag``, offset) plus ``u C`` for
+    each ``name -> (u, C per unit or None)`` of ``regressors``, the ``u`` columns beside it,
+    and 1 mGauss of noise (none when ``seed`` is None)."""
+    from magbench.core.geometry import fibonacci_sphere
+
+    y = 450.0 * fibonacci_sphere(K) @ np.diag(diag) + [60.0, -40.0, 25.0]
+    for u, per_unit in regressors.values():
+        if per_unit is not None:
+            y = y + np.outer(u, per_unit)
+    if seed is not None:
+        y = y + np.random.default_rng(seed).normal(0.0, 1.0, y.shape)
+    columns = {"t": np.arange(K) / 20.0} if with_t else {}
+    columns |= {"mx": y[:, 0], "my": y[:, 1], "mz": y[:, 2]}
+    columns |= {name: u for name, (u, _) in regressors.items()}
+    pd.DataFrame(columns).to_csv(path, index=False)
+    return path
+
+
+def current_of(K: int) -> np.ndarray:
+    """A battery current of 2-18 A, in A, at 20 Hz."""
+    return 10.0 + 8.0 * np.sin(0.3 * np.arange(K) / 20.0)
+
+
 def test_a_kept_temperature_term_leaves_the_firmware_files_static(tmp_path, capsys):
     """Neither ArduPilot nor PX4 has a parameter for a temperature term: when it is kept, the
     firmware files hold the static calibration and one line says why."""
-    from magbench.core.geometry import fibonacci_sphere
-
     K = 1200
     temperature = np.linspace(5.0, 45.0, K)                  # C, a warming board
     drift = np.array([2.0, -1.5, 1.0])                       # mGauss per C: 80 mGauss over 40 C
-    y = 450.0 * fibonacci_sphere(K) @ np.diag([1.05, 0.97, 1.0]) + [60.0, -40.0, 25.0]
-    y = y + np.outer(temperature, drift)
-    y = y + np.random.default_rng(3).normal(0.0, 1.0, y.shape)
-    data = tmp_path / "data.csv"
-    pd.DataFrame({"mx": y[:, 0], "my": y[:, 1], "mz": y[:, 2],
-                  "temperature": temperature}).to_csv(data, index=False)
+    data = disturbed_csv(tmp_path / "data.csv", K, {"temperature": (temperature, drift)},
+                         seed=3, with_t=False)
     out = tmp_path / "cal"
     assert main(["calibrate", f"file={data}", f"out={out}", "units=mgauss", "bootstrap=0",
                  "compensate=[temperature]"]) == 0
@@ -177,17 +196,9 @@ def test_a_fail_caused_by_the_current_says_what_the_terms_would_give(tmp_path, c
     the current term and says how small the held-out error is with it."""
     import json
 
-    from magbench.core.geometry import fibonacci_sphere
-
     K = 1500
-    t = np.arange(K) / 20.0
-    current = 10.0 + 8.0 * np.sin(0.3 * t)                          # A
-    y = 450.0 * fibonacci_sphere(K) @ np.diag([1.05, 0.97, 1.0]) + [60.0, -40.0, 25.0]
-    y = y + np.outer(current, [300.0, -200.0, 100.0])               # mGauss per A
-    y = y + np.random.default_rng(1).normal(0.0, 1.0, y.shape)
-    data = tmp_path / "data.csv"
-    pd.DataFrame({"t": t, "mx": y[:, 0], "my": y[:, 1], "mz": y[:, 2],
-                  "current": current}).to_csv(data, index=False)
+    data = disturbed_csv(tmp_path / "data.csv", K,                 # mGauss per A
+                         {"current": (current_of(K), [300.0, -200.0, 100.0])})
     out = tmp_path / "cal"
     assert main(["calibrate", f"file={data}", f"out={out}", "units=mgauss"]) == 3
     said = capsys.readouterr().out
@@ -202,15 +213,12 @@ def test_a_fail_caused_by_the_current_says_what_the_terms_would_give(tmp_path, c
 
 
 def test_a_regressor_column_left_out_is_named_with_the_reason(tmp_path, capsys):
-    from magbench.core.geometry import fibonacci_sphere
-
     K = 400
-    y = 450.0 * fibonacci_sphere(K) + [60.0, -40.0, 25.0]
     current = np.linspace(2.0, 18.0, K)
     current[::2] = np.nan                                   # logged at half the rate
-    data = tmp_path / "data.csv"
-    pd.DataFrame({"mx": y[:, 0], "my": y[:, 1], "mz": y[:, 2], "current": current,
-                  "temperature": 25.0}).to_csv(data, index=False)
+    data = disturbed_csv(tmp_path / "data.csv", K, {"current": (current, None),
+                                                    "temperature": (np.full(K, 25.0), None)},
+                         seed=None, diag=(1.0, 1.0, 1.0), with_t=False)
     assert main(["calibrate", f"file={data}", f"out={tmp_path / 'cal'}", "units=mgauss",
                  "bootstrap=0"]) == 0
     said = capsys.readouterr().out.splitlines()
@@ -221,18 +229,10 @@ def test_a_regressor_column_left_out_is_named_with_the_reason(tmp_path, capsys):
 def test_current_and_temperature_kept_give_the_firmware_the_current_alone(tmp_path, capsys):
     """A PX4 log usually has a varying temperature too: when both terms are kept, the firmware
     files (which hold a current term only) get the fit with the current alone if it holds."""
-    from magbench.core.geometry import fibonacci_sphere
-
     K = 1500
-    t = np.arange(K) / 20.0
-    current = 10.0 + 8.0 * np.sin(0.3 * t)                          # A
-    temperature = np.linspace(10.0, 40.0, K)                        # C
-    y = 450.0 * fibonacci_sphere(K) @ np.diag([1.05, 0.97, 1.0]) + [60.0, -40.0, 25.0]
-    y = y + np.outer(current, [4.0, -2.0, 3.0]) + np.outer(temperature, [2.0, -1.5, 1.0])
-    y = y + np.random.default_rng(1).normal(0.0, 1.0, y.shape)
-    data = tmp_path / "data.csv"
-    pd.DataFrame({"t": t, "mx": y[:, 0], "my": y[:, 1], "mz": y[:, 2], "current": current,
-                  "temperature": temperature}).to_csv(data, index=False)
+    data = disturbed_csv(tmp_path / "data.csv", K, {
+        "current": (current_of(K), [4.0, -2.0, 3.0]),                 # mGauss per A
+        "temperature": (np.linspace(10.0, 40.0, K), [2.0, -1.5, 1.0])})   # mGauss per C
     out = tmp_path / "cal"
     assert main(["calibrate", f"file={data}", f"out={out}", "units=mgauss",
                  "bootstrap=0"]) == 0

@@ -62,6 +62,7 @@ from magbench.cli.direction import direction_lines, mark_vetoes
 from magbench.cli.picture import PictureWorker, draw_picture
 from magbench.core.exports import (
     FIRMWARE_FILES,
+    MOTOR_REGRESSORS,
     MotorCompensation,
     c_header,
     field_strength,
@@ -483,13 +484,19 @@ def _write_fail(result: CalibrationResult, payload: dict, out: Path, n_file: int
             start, [line for line in notes if line])
 
 
+def _held_out_rms_pct(terms: dict) -> dict[str, float]:
+    """The held-out RMS field error (%) of ``time_varying``'s static and time-varying fits
+    (the dict holds their mean squared norm residuals)."""
+    return {k: 100 * float(np.sqrt(terms[f"held_out_{k}"])) for k in ("static", "time_varying")}
+
+
 def _cure_line(payload: dict) -> str:
     """On a FAIL whose time-varying terms were kept: the held-out error with them, since a
     field that moves with the current (or temperature) is what failed, not the sensor."""
     tv = payload.get("time_varying") or {}
     if not tv.get("kept"):
         return ""
-    rms = {k: 100 * np.sqrt(tv[f"held_out_{k}"]) for k in ("static", "time_varying")}
+    rms = _held_out_rms_pct(tv)
     return (f"the field moves with the {', '.join(tv['regressors'])}: with the terms the "
             f"held-out field magnitude error is {rms['time_varying']:.2f} % RMS against "
             f"{rms['static']:.2f} % static, but the verdict judges the static calibration; "
@@ -548,7 +555,7 @@ def _add_time_varying(result: CalibrationResult, payload: dict, wanted: list[str
 
     choice = time_varying_terms(rec, names, static_fit, result.inliers)
     payload["time_varying"] = {"method": name, **choice.to_dict(names)}
-    firmware = [n for n in names if n in FIRMWARE_REGRESSORS][:1]
+    firmware = [n for n in names if n in MOTOR_REGRESSORS][:1]
     if choice.kept and firmware and len(names) > 1:
         # The autopilots hold a current or throttle term only: that term alone, if it holds.
         alone = time_varying_terms(rec, firmware, static_fit, result.inliers)
@@ -611,7 +618,7 @@ def _export_motor(cal: Calibration, payload: dict) -> tuple[Calibration, MotorCo
     if not tv.get("kept"):
         return cal, None, ""
     names = tv["regressors"]
-    terms = tv if len(names) == 1 and names[0] in FIRMWARE_REGRESSORS else tv.get("firmware")
+    terms = tv if len(names) == 1 and names[0] in MOTOR_REGRESSORS else tv.get("firmware")
     if terms is None:
         return cal, None, (f"firmware files hold the static calibration: the kept "
                            f"{', '.join(names)} terms have no ArduPilot or PX4 parameter "
@@ -620,7 +627,7 @@ def _export_motor(cal: Calibration, payload: dict) -> tuple[Calibration, MotorCo
     motor = MotorCompensation(name, np.asarray(terms["C"], dtype=float)[:, 0])
     kept = Calibration(np.linalg.inv(np.asarray(terms["A"], dtype=float)),
                        np.asarray(terms["b"], dtype=float))
-    rms = {k: 100 * np.sqrt(terms[f"held_out_{k}"]) for k in ("static", "time_varying")}
+    rms = _held_out_rms_pct(terms)
     others = [n for n in names if n != name]
     alone = (f" alone, as {' and '.join(others)} {'has' if len(others) == 1 else 'have'} no "
              "parameter" if terms is not tv else "")
@@ -629,9 +636,6 @@ def _export_motor(cal: Calibration, payload: dict) -> tuple[Calibration, MotorCo
                          f"{rms['time_varying']:.2f} % RMS, static {rms['static']:.2f} %); "
                          "calibration.json and calibration.h hold the static calibration")
 
-
-#: The regressors the autopilots have a parameter for (COMPASS_MOT, CAL_MAGn_*COMP).
-FIRMWARE_REGRESSORS = ("current", "throttle")
 
 #: ArduPilot logs: their ``MAG`` is after COMPASS_ORIENT (docs/flight_logs.md).
 ARDUPILOT_LOGS = (".bin", ".log")

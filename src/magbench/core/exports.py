@@ -130,7 +130,7 @@ from magbench.core.mounting import ROTATIONS, rotation_matrix
 from magbench.core.units import UNKNOWN, Units
 
 __all__ = ["ARDUPILOT_LIMITS", "FIRMWARE_FILES", "FORMAT", "GAUGE", "GAUGE_HEADING_TRUE",
-           "PX4_MAX_OFFSET_GAUSS", "SCHEMA_VERSION", "MotorCompensation",
+           "MOTOR_REGRESSORS", "PX4_MAX_OFFSET_GAUSS", "SCHEMA_VERSION", "MotorCompensation",
            "ardupilot_param_file",
            "ardupilot_params", "betaflight_cli", "c_header", "field_strength",
            "firmware_files", "from_json_dict", "inav_cli", "px4_param_file", "px4_params",
@@ -148,6 +148,8 @@ ARDUPILOT_LIMITS = {"field_mgauss": (150.0, 950.0), "offset_mgauss": 1800.0,
 _ODI = ((0, 1), (0, 2), (1, 2))          # ODI_X, ODI_Y, ODI_Z positions in M
 #: ArduPilot's COMPASS_MOT_* @Range (mGauss/A, or mGauss at full throttle).
 ARDUPILOT_MOT_MAX = 1000.0
+#: The regressors a firmware's motor compensation holds, in the units of :class:`MotorCompensation`.
+MOTOR_REGRESSORS = ("current", "throttle")
 #: COMPASS_MOTCT and CAL_MAG_COMP_TYP values of a regressor (module notes).
 _ARDUPILOT_MOTCT = {"throttle": 1, "current": 2}
 _PX4_COMP_TYP = {"throttle": 1, "current": 2}
@@ -168,7 +170,7 @@ class MotorCompensation:
     C: np.ndarray
 
     def __post_init__(self) -> None:
-        if self.regressor not in _ARDUPILOT_MOTCT:
+        if self.regressor not in MOTOR_REGRESSORS:
             raise ValueError(f"motor compensation is per current or throttle, got "
                              f"{self.regressor!r}")
         C = np.asarray(self.C, dtype=float).reshape(-1)

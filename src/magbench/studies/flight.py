@@ -67,41 +67,43 @@ def mounting_rotation(rec: Recording, A: np.ndarray, b: np.ndarray,
 REGRESSORS = ("current", "throttle", "temperature")
 
 
+#: Share of the samples a regressor must have a value in for ``compensate=auto`` to fit it.
+MIN_REGRESSOR_SHARE = 0.9
+
+
+def _survey_regressors(rec: Recording) -> tuple[list[str], list[str]]:
+    """Those of :data:`REGRESSORS` ``compensate=auto`` fits (a value in
+    :data:`MIN_REGRESSOR_SHARE` of the samples, not constant; the throttle only without a
+    usable current), and each other column it has, with why it was left out."""
+    used: list[str] = []
+    left_out: list[str] = []
+    for name in REGRESSORS if rec.extra is not None else ():
+        if name not in rec.extra or (name == "throttle" and "current" in used):
+            continue
+        values = rec.extra[name].to_numpy(float)
+        finite = values[np.isfinite(values)]
+        if finite.size < MIN_REGRESSOR_SHARE * rec.K:
+            left_out.append(f"{name} (values in {100 * finite.size / rec.K:.0f} % of the "
+                            f"samples, {100 * MIN_REGRESSOR_SHARE:.0f} % needed)")
+        elif np.ptp(finite) == 0:
+            left_out.append(f"{name} (constant)")
+        else:
+            used.append(name)
+    return used, left_out
+
+
 def usable_regressors(rec: Recording, wanted: list[str] | None = None) -> list[str]:
     """The regressors to fit: ``wanted`` as given, or (None) those of :data:`REGRESSORS` the
     recording has with values in at least 90 % of its samples and not constant (current
     before throttle: one of them)."""
-    if wanted is not None:
-        return list(wanted)
-    if rec.extra is None:
-        return []
-    found = []
-    for name in REGRESSORS:
-        if name not in rec.extra or (name == "throttle" and "current" in found):
-            continue
-        values = rec.extra[name].to_numpy(float)
-        finite = values[np.isfinite(values)]
-        if finite.size >= 0.9 * rec.K and np.ptp(finite) > 0:
-            found.append(name)
-    return found
+    return list(wanted) if wanted is not None else _survey_regressors(rec)[0]
 
 
 def unused_regressors(rec: Recording) -> list[str]:
     """Why each regressor column ``compensate=auto`` leaves out was left out (a value in too
     few samples, or constant), as ``"current (values in 50 % of the samples, 90 % needed)"``;
     the throttle is not listed when the current stands in for it."""
-    if rec.extra is None:
-        return []
-    used = usable_regressors(rec)
-    out = []
-    for name in REGRESSORS:
-        if name not in rec.extra or name in used or (name == "throttle" and "current" in used):
-            continue
-        values = rec.extra[name].to_numpy(float)
-        finite = values[np.isfinite(values)]
-        out.append(f"{name} (values in {100 * finite.size / rec.K:.0f} % of the samples, 90 % "
-                   "needed)" if finite.size < 0.9 * rec.K else f"{name} (constant)")
-    return out
+    return _survey_regressors(rec)[1]
 
 
 def check_regressors(rec: Recording, names: list[str]) -> None:
