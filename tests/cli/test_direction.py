@@ -57,6 +57,39 @@ def test_attitude_columns_give_a_heading_true_correction(tmp_path, capsys):
     assert "Heading-true" in (tmp_path / "o" / "calibration.h").read_text()
 
 
+def test_the_first_line_gives_the_heading_measured_against_the_attitude(tmp_path, capsys):
+    path, _ = inertial_csv(tmp_path / "rec.csv")
+    assert calibrate(f"file={path}", f"out={tmp_path / 'o'}", "method=magical") == 0
+    first = capsys.readouterr().out.splitlines()[0]
+    data = json.loads((tmp_path / "o" / "calibration.json").read_text())
+    measured = data["verdict"]["heading_measured_deg"]
+    assert measured == data["direction"]["heading_out_rms_deg"] < 1.0
+    assert f"heading {measured:.1f} deg RMS (held out, against the attitude)" in first
+    assert "heading ~" not in first
+
+
+def test_a_field_that_does_not_follow_the_attitude_fails_the_heading_gate(tmp_path, capsys):
+    """The attitude column turned about the vertical by up to 180 deg over the recording (a
+    yaw that drifted, or a field dragged by a magnet): the magnitude is as good as before,
+    the held-out heading is not, and the gate says FAIL with exit 3; a higher
+    ``gate.fail_heading_deg`` makes it a warning."""
+    path, traj = inertial_csv(tmp_path / "rec.csv")
+    frame = pd.read_csv(path)
+    yaw = np.radians(np.linspace(0.0, 180.0, len(frame)))
+    turn = np.array([rotation_exp(np.array([0.0, 0.0, a])) for a in yaw])
+    frame[["qw", "qx", "qy", "qz"]] = matrix_to_quat(turn @ traj.R)
+    frame.to_csv(path, index=False)
+    assert calibrate(f"file={path}", f"out={tmp_path / 'o'}", "method=magical") == 3
+    out = capsys.readouterr().out
+    data = json.loads((tmp_path / "o" / "calibration.json").read_text())
+    assert data["status"] == "FAIL" and data["verdict"]["field_error_pct"]["p95"] < 1.0
+    assert "heading error" in data["fitness"]["reasons"][0]
+    assert out.startswith("FAIL") and not (tmp_path / "o" / "calibration.h").exists()
+    assert calibrate(f"file={path}", f"out={tmp_path / 'w'}", "method=magical",
+                     "gate.fail_heading_deg=180") == 0
+    assert json.loads((tmp_path / "w" / "calibration.json").read_text())["status"] == "WARN"
+
+
 def test_gyro_and_accelerometer_alone_also_align(tmp_path, capsys):
     path, _ = inertial_csv(tmp_path / "rec.csv", attitude=False)
     assert calibrate(f"file={path}", f"out={tmp_path / 'o'}", "method=magical",

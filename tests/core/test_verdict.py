@@ -76,6 +76,11 @@ GOOD = dict(p95_pct=1.0, held_out=True, gap_deg=20.0, directions=200, band_deg=7
     ({"expected_field": 2.0}, "FAIL", "50 % from the expected 2"),
     ({"expected_field": (0.9, 1.1)}, "PASS", ""),
     ({"expected_field": (1.3, 1.5)}, "FAIL", "expected 1.3-1.5"),
+    ({"heading_deg": 3.0}, "PASS", ""),
+    ({"heading_deg": float("nan")}, "PASS", ""),
+    ({"heading_deg": 12.5}, "WARN", "heading error 12.5 deg RMS (held out, against the "
+                                    "attitude) > 10 deg"),
+    ({"heading_deg": 41.0}, "FAIL", "> 30 deg"),
 ])
 def test_fitness_statuses_and_reasons(change, status, words):
     from magbench.core.verdict import Gate, fitness

@@ -205,9 +205,12 @@ def answer_line(payload: dict, out: Path) -> str:
     where = "" if v["held_out"] else ", in sample"
     target = f"-> {out}/" if payload["status"] != "FAIL" else f"(nothing to flash; {out}/" \
         "calibration.json says why)"
+    measured = v.get("heading_measured_deg")
+    heading = (f"heading {measured:.1f} deg RMS (held out, against the attitude)"
+               if measured is not None else f"heading ~{v['heading_error_deg']['p95']:.1f} deg")
     return (f"{payload['status']:<4}  field error {v['field_error_pct']['p95']:.1f} % "
-            f"(p95{where}), heading ~{v['heading_error_deg']['p95']:.1f} deg, "
-            f"{payload['method']} ({payload['model']} model) {target}")
+            f"(p95{where}), {heading}, {payload['method']} ({payload['model']} model) "
+            f"{target}")
 
 
 def _interval_lines(payload: dict) -> list[str]:
@@ -326,7 +329,8 @@ def check_gate(cfg: DictConfig) -> Gate:
     gate = Gate(**values)
     for low, high in (("warn_error_pct", "fail_error_pct"), ("warn_gap_deg", "fail_gap_deg"),
                       ("fail_directions", "warn_directions"),
-                      ("warn_field_pct", "fail_field_pct")):
+                      ("warn_field_pct", "fail_field_pct"),
+                      ("warn_heading_deg", "fail_heading_deg")):
         if getattr(gate, low) > getattr(gate, high):
             raise UsageError(f"gate.{low} must not exceed gate.{high}, got "
                              f"{getattr(gate, low)} > {getattr(gate, high)}")

@@ -26,7 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from magbench.core.rotations import euler_zyx_to_matrix
+from magbench.core.rotations import euler_zyx_to_matrix, span_deg
 
 __all__ = ["AUTO_ROTATIONS", "MIN_CONFIDENCE", "ROTATIONS", "MountingResult", "detect_mounting",
            "rotation_matrix"]
@@ -148,12 +148,6 @@ def _same(a: int, b: int) -> bool:
     return bool(np.allclose(rotation_matrix(a), rotation_matrix(b), atol=1e-6))
 
 
-def _span_deg(R: np.ndarray) -> float:
-    """Largest rotation angle between ``R[0]`` and any ``R[k]``."""
-    cos = (np.einsum("ji,kji->k", R[0], R) - 1.0) / 2.0
-    return float(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)).max()))
-
-
 def _costs_attitude(m: np.ndarray, R: np.ndarray, rotations: tuple[int, ...]) -> np.ndarray:
     """Variance of the world-frame field ``R_k M m_k`` about its mean, per rotation."""
     M = np.stack([rotation_matrix(r) for r in rotations])          # (n, 3, 3)
@@ -204,7 +198,7 @@ def detect_mounting(m: np.ndarray, *, attitude: np.ndarray | None = None,
         R = np.asarray(attitude, dtype=float)
         if R.shape != (m.shape[0], 3, 3):
             raise ValueError(f"attitude must have shape ({m.shape[0]}, 3, 3), got {R.shape}")
-        costs, basis, span, n = _costs_attitude(m, R, rotations), "attitude", _span_deg(R), len(m)
+        costs, basis, span, n = _costs_attitude(m, R, rotations), "attitude", span_deg(R), len(m)
     elif accel is not None:
         a = np.asarray(accel, dtype=float)
         if a.shape != m.shape:

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["cumulative_product", "euler_zyx_to_matrix", "rotation_exp", "skew"]
+__all__ = ["cumulative_product", "euler_zyx_to_matrix", "rotation_exp", "skew", "span_deg"]
 
 
 def skew(v: np.ndarray) -> np.ndarray:
@@ -59,3 +59,10 @@ def cumulative_product(steps: np.ndarray) -> np.ndarray:
         P[shift:] = P[:-shift] @ P[shift:]
         shift *= 2
     return P
+
+
+def span_deg(R: np.ndarray) -> float:
+    """Largest rotation angle (deg) between ``R[0]`` and any ``R[k]`` of ``(K, 3, 3)``
+    rotations: how far a recording's attitude turned."""
+    cos = (np.einsum("ji,kji->k", R[0], R) - 1.0) / 2.0
+    return float(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)).max()))

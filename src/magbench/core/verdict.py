@@ -23,8 +23,9 @@ stated thresholds (:class:`Gate`, the ``gate.*`` keys of ``calibrate``), as Ardu
 calibrator checks its fit's residual: the held-out 95th-percentile field error, the largest
 uncovered cap, the number of distinct directions (occupied equal-area cells,
 :func:`magbench.core.geometry.direction_cells`), directions confined to a band about one plane
-(:func:`magbench.core.geometry.band_half_width`), and the fitted field strength against the
-samples' own radius and, when known, an expected value or range. The worst status wins.
+(:func:`magbench.core.geometry.band_half_width`), the fitted field strength against the
+samples' own radius and, when known, an expected value or range, and, when the recording has a
+reference attitude, the held-out heading error measured against it. The worst status wins.
 """
 
 from __future__ import annotations
@@ -199,6 +200,11 @@ class Gate:
         Fitted field strength farther than this (%) from the expected value (or outside the
         expected range by this much) warns / fails; ``fail_field_pct`` also bounds the
         distance from the samples' own sphere-fit radius (a fit that lost the data's scale).
+    warn_heading_deg, fail_heading_deg : float
+        Held-out heading RMS (deg) measured against a reference attitude, when the recording
+        has one, above which a result warns / fails: 10 deg is past what a compass-aided
+        navigator tolerates; 30 deg is a field that does not follow the sensor's rotation (a
+        magnet on the board for part of the recording, steel near the path).
     """
 
     warn_error_pct: float = 6.0
@@ -210,6 +216,8 @@ class Gate:
     warn_band_deg: float = 30.0
     warn_field_pct: float = 10.0
     fail_field_pct: float = 25.0
+    warn_heading_deg: float = 10.0
+    fail_heading_deg: float = 30.0
 
 
 def _field_distance_pct(value: float, expected: float | tuple[float, float]) -> float:
@@ -224,7 +232,8 @@ def _field_distance_pct(value: float, expected: float | tuple[float, float]) -> 
 
 def fitness(gate: Gate, *, p95_pct: float, held_out: bool, gap_deg: float, directions: int,
             band_deg: float, field: float, radius: float,
-            expected_field: float | tuple[float, float] | None = None) -> dict:
+            expected_field: float | tuple[float, float] | None = None,
+            heading_deg: float | None = None) -> dict:
     """PASS, WARN or FAIL with the reasons (see the module notes).
 
     Parameters
@@ -241,6 +250,8 @@ def fitness(gate: Gate, *, p95_pct: float, held_out: bool, gap_deg: float, direc
         The fit's field strength ``|det T|^(1/3)`` and the samples' sphere-fit radius.
     expected_field : float or (low, high), optional
         The field strength expected in the recording's units.
+    heading_deg : float, optional
+        Held-out heading RMS (deg) measured against a reference attitude; None without one.
 
     Returns
     -------
@@ -279,6 +290,9 @@ def fitness(gate: Gate, *, p95_pct: float, held_out: bool, gap_deg: float, direc
         judge(_field_distance_pct(field, expected_field), gate.warn_field_pct,
               gate.fail_field_pct, f"field strength {field:.4g} is {{v:.0f}} % from the "
               f"expected {_expected_text(expected_field)} (> {{t:g}} %)")
+    if heading_deg is not None and math.isfinite(heading_deg):
+        judge(heading_deg, gate.warn_heading_deg, gate.fail_heading_deg,
+              "heading error {v:.1f} deg RMS (held out, against the attitude) > {t:g} deg")
     status = "FAIL" if fails else "WARN" if warns else "PASS"
     return {"status": status, "reasons": fails + warns, "thresholds": dict(gate.__dict__)}
 

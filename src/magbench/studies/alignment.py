@@ -37,6 +37,7 @@ from magbench.core.geometry import sphere_fit
 from magbench.core.lag import attitude_rate, magnetometer_lag, shift
 from magbench.core.model import Calibration, CalibrationFailed
 from magbench.core.quaternions import quat_to_matrix
+from magbench.core.rotations import span_deg
 from magbench.core.units import infer_units
 from magbench.methods.algorithms._alignment_common import (
     check_spread,
@@ -90,11 +91,24 @@ def symmetric_field(cal: Calibration, y: np.ndarray) -> np.ndarray:
     return (y - cal.h) @ safe_gauge(cal.T, cal.h).A.T
 
 
+#: Least turn of the attitude (deg) that fixes the magnetometer's rotation: a calibration
+#: recording turns through far more; less means a frozen or unrelated attitude stream.
+MIN_ATTITUDE_SPAN_DEG = 30.0
+
+
 def wahba_alignment(m: np.ndarray, attitude: np.ndarray, n_iter: int = 10) -> np.ndarray:
     """The rotation ``R`` with ``R m_k`` nearest ``Q_k^T m_w`` for the best world direction
-    ``m_w``: alternate the mean world direction and Wahba's solution (SVD)."""
+    ``m_w``: alternate the mean world direction and Wahba's solution (SVD).
+
+    Raises :class:`CalibrationFailed` when the attitude turns through less than
+    :data:`MIN_ATTITUDE_SPAN_DEG`: the reference directions are then nearly one, which fixes
+    no rotation (a frozen or wrong attitude stream beside a magnetometer that turned)."""
     ok = np.isfinite(attitude).all(axis=1)
     Q, u = quat_to_matrix(attitude[ok]), unit_rows(m[ok])
+    turned = span_deg(Q) if len(Q) else 0.0
+    if turned < MIN_ATTITUDE_SPAN_DEG:
+        raise CalibrationFailed(f"the attitude turned through {turned:.0f} deg (< "
+                                f"{MIN_ATTITUDE_SPAN_DEG:g}): it cannot fix the rotation")
     R = np.eye(3)
     for _ in range(n_iter):
         m_w = mean_direction(np.einsum("kij,kj->ki", Q, u @ R.T))

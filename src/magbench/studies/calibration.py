@@ -38,6 +38,7 @@ writes). :func:`calibrate_recording` runs these steps, each a small function:
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
@@ -231,8 +232,11 @@ def retrim(rec: Recording, current: Screen, chosen: pd.Series) -> Screen:
 
 
 def judge(result: CalibrationResult, gate: Gate,
-          expected_field: float | tuple[float, float] | None = None) -> None:
-    """Verdict, model-based intervals and fitness of the choice (module notes, step 5)."""
+          expected_field: float | tuple[float, float] | None = None,
+          heading_deg: float | None = None) -> None:
+    """Verdict, model-based intervals and fitness of the choice (module notes, step 5);
+    ``heading_deg``: the choice's held-out heading RMS against a reference attitude, when
+    measured (recorded in the verdict and judged by the gate)."""
     chosen = result.chosen
     work = result.work
     name = str(chosen["algorithm"])
@@ -241,6 +245,9 @@ def judge(result: CalibrationResult, gate: Gate,
     result.verdict = (magnitude_verdict(corrected, held_out=True) if corrected is not None
                       else magnitude_verdict(np.linalg.solve(T, (work.y - h).T).T,
                                              held_out=False))
+    if heading_deg is not None and not math.isfinite(heading_deg):
+        heading_deg = None
+    result.verdict["heading_measured_deg"] = heading_deg
     model = get_method(name).model
     result.intervals = fisher_intervals(work.y, T, h, model)
     result.fitness = fitness(
@@ -248,7 +255,7 @@ def judge(result: CalibrationResult, gate: Gate,
         held_out=result.verdict["held_out"], gap_deg=result.coverage["largest_gap_deg"],
         directions=result.directions, band_deg=result.band_deg,
         field=float(np.cbrt(abs(np.linalg.det(T)))), radius=result.screen.radius,
-        expected_field=expected_field)
+        expected_field=expected_field, heading_deg=heading_deg)
 
 
 def _coverage_warnings(result: CalibrationResult, named: bool) -> list[str]:
@@ -303,7 +310,10 @@ def calibrate_recording(rec: Recording, candidates: Sequence[str], *,
     extra : callable, optional
         Another score for the choice: ``extra(summary, trials, work) -> (column, values)``,
         one value per row of ``summary`` (lower is better); a simpler model must tie on it too
-        (:func:`magbench.studies.choice.choose`'s ``scores``).
+        (:func:`magbench.studies.choice.choose`'s ``scores``). When it has a ``scores``
+        mapping (method -> held-out heading RMS, deg, as
+        :class:`magbench.studies.alignment.DirectionVeto`), the choice's entry goes to the
+        gate.
     """
     options = options or {}
     current = screen(rec.y)
@@ -345,7 +355,8 @@ def calibrate_recording(rec: Recording, candidates: Sequence[str], *,
     result.warnings += _coverage_warnings(result, named)
     if result.chosen is None:
         return result
-    judge(result, gate or Gate(), expected_field)
+    heading = getattr(extra, "scores", {}).get(str(result.chosen["algorithm"]))
+    judge(result, gate or Gate(), expected_field, heading)
     result.bootstrap = bootstrap_check(result, bootstrap, preprocess=preprocess,
                                        options=options, seed=seed)
     return result
