@@ -40,7 +40,8 @@ from magbench.methods.algorithms._gyro_common import check_gyro_inputs
 from magbench.methods.algorithms.magical import iterate
 from magbench.methods.registry import register
 
-N_PARAMS = 16          # vec G (9, row-major), h (3), theta (1), b (3)
+N_PARAMS = 19          # vec G (9, row-major), h (3), theta (1), b (3), b_acc (3)
+N_FIXED_ACC = 16       # the same without the accelerometer bias (``accel_bias=False``)
 
 
 def rotation_log(R: np.ndarray) -> np.ndarray:
@@ -91,8 +92,11 @@ def field_world(theta: float) -> tuple[np.ndarray, np.ndarray]:
 
 
 def residuals(Q, p, y, a, w_mid, dt, g_w, weights):
-    """Weighted residual vector (mag, accel, gyro blocks) and what the Jacobian reuses."""
+    """Weighted residual vector (mag, accel, gyro blocks) and what the Jacobian reuses.
+
+    ``p`` holds 19 parameters, or 16 when the accelerometer bias is held at zero."""
     G, h, theta, b = p[:9].reshape(3, 3), p[9:12], p[12], p[13:16]
+    b_acc = p[16:19] if p.size > N_FIXED_ACC else np.zeros(3)
     m_w, _ = field_world(theta)
     v = np.einsum("kji,j->ki", Q, m_w)
     u = np.einsum("kji,j->ki", Q, g_w)
@@ -101,7 +105,7 @@ def residuals(Q, p, y, a, w_mid, dt, g_w, weights):
     E = np.einsum("kij,kjl->kil", rotation_exp(-phi), C)          # Exp(-phi) C
     r_g = rotation_log(E)
     wm, wa, wg = weights
-    r = np.concatenate([((y - v @ G.T - h) * wm).ravel(), ((a - u) * wa).ravel(),
+    r = np.concatenate([((y - v @ G.T - h) * wm).ravel(), ((a - u - b_acc) * wa).ravel(),
                         (r_g * (wg / dt)[:, None]).ravel()])
     return r, (v, u, phi, C, r_g)
 
@@ -133,6 +137,8 @@ def jacobian(Q, p, parts, dt, weights) -> object:
     dth = -wm * (np.einsum("kji,j->ki", Q, dm_w) @ G.T)
     block(3 * k, np.full(K, n + 12), dth[:, :, None])                         # mag / theta
     block(n + 3 * k, 3 * k, -wa * skew(u))                                    # acc / d_k
+    if p.size > N_FIXED_ACC:
+        block(n + 3 * k, np.full(K, n + 16), np.broadcast_to(-wa * np.eye(3), (K, 3, 3)))
     s = (wg / dt)[:, None, None]
     Jinv = right_jacobian_inverse(r_g)
     j = np.arange(K - 1)
@@ -141,7 +147,7 @@ def jacobian(Q, p, parts, dt, weights) -> object:
     block(g0 + 3 * j, 3 * j, -s * (Jinv @ np.swapaxes(C, 1, 2)))             # gyro / d_k
     Jb = Jinv @ np.swapaxes(C, 1, 2) @ right_jacobian(-phi) * dt[:, None, None]
     block(g0 + 3 * j, np.full(K - 1, n + 13), s * Jb)                         # gyro / b
-    shape = (2 * n + 3 * (K - 1), n + N_PARAMS)
+    shape = (2 * n + 3 * (K - 1), n + p.size)
     return sparse.csr_matrix((np.concatenate(vals), (np.concatenate(rows),
                                                      np.concatenate(cols))), shape=shape)
 
@@ -162,7 +168,8 @@ def initial_state(y, a, max_iter, tol, rtol):
           needs_gyro=True, needs_accel=True)
 def fit(samples: np.ndarray, *, angular_rate: np.ndarray, time: np.ndarray,
         acceleration: np.ndarray, sigma_mag: float = 0.01, sigma_acc: float = 0.05,
-        sigma_gyro: float = 0.01, max_iter: int = 50, xtol: float = 1e-10) -> Calibration:
+        sigma_gyro: float = 0.01, accel_bias: bool = True, gravity: float | None = None,
+        max_iter: int = 50, xtol: float = 1e-10) -> Calibration:
     """Calibrate the magnetometer, its rotation to the IMU and the gyro bias jointly.
 
     Parameters
@@ -176,6 +183,12 @@ def fit(samples: np.ndarray, *, angular_rate: np.ndarray, time: np.ndarray,
     sigma_mag, sigma_acc, sigma_gyro : float
         Noise of the magnetometer (in field strengths), accelerometer (in g, linear
         accelerations included) and gyro (rad/s): the residuals' weights.
+    accel_bias : bool
+        True (the paper's parameter set): the accelerometer's bias is an unknown, ``a_k -
+        Q_k^T g_w - b_acc``; False holds it at zero (the accelerometer taken as calibrated).
+    gravity : float or None
+        Gravity's magnitude in the accelerometer's unit (known in the paper); None takes the
+        median specific-force norm, which a bias shifts slightly.
     max_iter : int
         Levenberg-Marquardt iteration cap.
     xtol : float
@@ -189,9 +202,16 @@ def fit(samples: np.ndarray, *, angular_rate: np.ndarray, time: np.ndarray,
     """
     w, t = check_gyro_inputs(samples, angular_rate, time)
     a = check_acceleration(samples, acceleration)
-    g = float(np.median(np.sqrt(np.einsum("ij,ij->i", a, a))))
+    if gravity is None:
+        g = float(np.median(np.sqrt(np.einsum("ij,ij->i", a, a))))
+    elif gravity > 0:
+        g = float(gravity)
+    else:
+        raise ValueError(f"gravity must be > 0 or None, got {gravity}")
     a = a / g
     Q, p = initial_state(samples, a, 2000, 1e-24, 1e-12)
+    if accel_bias:
+        p = np.concatenate([p, np.zeros(3)])
     # In units of the field strength, so that sigma_mag means the same in any unit.
     field = float(np.cbrt(abs(np.linalg.det(p[:9].reshape(3, 3)))))
     p[:12] /= field
@@ -206,6 +226,8 @@ def fit(samples: np.ndarray, *, angular_rate: np.ndarray, time: np.ndarray,
     incl = np.degrees(-p[12])
     message = (f"Levenberg-Marquardt {'converged' if converged else 'stopped at the cap'} after "
                f"{n_iter} iterations; inclination {incl:.2f} deg")
+    if accel_bias:
+        message += f"; accelerometer bias {np.array2string(g * p[16:19], precision=4)}"
     return Calibration(G, h, n_iter, converged, message, b, alignment_rotation(G))
 
 
