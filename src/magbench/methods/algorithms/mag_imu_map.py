@@ -1,27 +1,58 @@
 """Joint magnetometer-IMU calibration with the orientation trajectory as unknowns (Huang,
 Hendeby and Skog, "Joint Magnetometer-IMU Calibration via Maximum A Posteriori Estimation",
-arXiv:2505.16662, 2025; the same measurement models as Kok and Schon, "Magnetometer calibration
-using inertial sensors", IEEE Sensors J. 16(14), 2016, section III).
+arXiv:2505.16662, 2025). Kok and Schon, "Magnetometer calibration using inertial sensors",
+IEEE Sensors J. 16(14), 2016 (arXiv:1601.05257), estimate the same magnetometer parameters
+and misalignment by maximum likelihood with the orientation filtered rather than estimated
+(the companion code's ML baseline, a likelihood of filter innovations).
+
+Sources. Neither paper's numbered equations could be read (only the opening pages and
+abstracts are in the reference corpus), so no equation numbers are cited here. What is
+confirmed: Huang et al.'s abstract (a MAP estimate with the calibration parameters and the
+orientation trajectory as unknowns, analytic derivatives; "IMU preintegration" among the index
+terms of v2), Kok and Schon's abstract (maximum likelihood, offline, magnetometer errors,
+disturbances and the misalignment to the inertial axes), and the structure of the authors'
+companion code (Huang-Chuan/Mag-IMU-JointCalibration, JointMAP/), which the model below
+follows: magnetometer ``y = D R^T m + o``, accelerometer with a bias, a gyro residual on the
+preintegrated rotation, the field by its dip angle.
 
 Unknowns: the magnetometer's ``G`` (3x3, in the IMU's axes, so it holds the mounting
-rotation) and ``h``, the field's inclination ``theta``, the gyro bias ``b`` and the
-orientation ``Q_k`` (IMU to world) at every sample. With the world's z axis up, gravity's
-specific force ``g_w = (0, 0, g)`` and the field ``m_w = (0, cos theta, sin theta)`` (the world's
-y axis along its horizontal part, which fixes the heading gauge), the residuals are
+rotation) and ``h``, the field's inclination ``theta``, the gyro bias ``b``, the
+accelerometer bias ``b_acc`` and the orientation ``Q_k`` (IMU to world) at every sample. With
+the world's z axis up, gravity's specific force ``g_w = (0, 0, g)`` and the field ``m_w = (0,
+cos theta, sin theta)`` (the world's y axis along its horizontal part, which fixes the heading
+gauge), the residuals are
 
     magnetometer   y_k - G Q_k^T m_w - h                                  / sigma_mag
-    accelerometer  a_k - Q_k^T g_w                                        / sigma_acc
+    accelerometer  a_k - Q_k^T g_w - b_acc                                / sigma_acc
     gyroscope      Log(Exp(-(w_k - b) dt_k) Q_k^T Q_{k+1})                / (sigma_gyro dt_k)
 
-(``w_k`` the mean of the two rate samples of the interval). With flat priors the MAP estimate
-is the maximum-likelihood one; it is found by Levenberg-Marquardt over the 16 parameters and
+(``w_k`` the mean of the two rate samples of the interval). Linear accelerations enter as
+accelerometer noise. The minimum is found by Levenberg-Marquardt over the 19 parameters and
 the 3K orientation increments (``Q_k <- Q_k Exp(d_k)``), whose normal equations are sparse
-(block tridiagonal plus a dense border). Linear accelerations enter as accelerometer noise, as
-in both papers. The start: MAG.I.C.AL. for ``G`` and ``h`` (alignment the identity), and every
-orientation from the accelerometer and that field direction (TRIAD).
+(block tridiagonal plus a dense border).
+
+Named differences from the paper's estimator (as its companion code shows it):
+
+* Priors: none (flat), so the estimate is the maximum-likelihood one. The companion code's
+  residual has no prior rows either.
+* Preintegration: one interval per sample. The paper preintegrates the gyro over several
+  samples and keeps an orientation (and an accelerometer and magnetometer sample) only at
+  every L-th sample; here every sample keeps its orientation (L = 1), so no sample is dropped.
+* Gyro bias: inside the interval's rotation, with its exact Jacobian; the paper corrects the
+  preintegrated rotation to first order in the bias change about a nominal bias.
+* Solver: Levenberg-Marquardt; the paper's code takes Gauss-Newton steps (QR). Same minimum.
+* Gravity's magnitude: known in the paper; here the median specific-force norm unless
+  ``gravity`` is given (a bias shifts that median slightly).
+* Start: MAG.I.C.AL. (review Algorithm 7, eqs. 58-65) for ``G`` and ``h`` with the alignment
+  the identity, ``theta`` from the mean dot product of the field and gravity directions, and
+  every orientation from the accelerometer and that field direction (TRIAD). The paper's code
+  starts from a magnetometer ellipsoid fit, a misalignment from the gyro and magnetometer
+  (Wu et al.'s method), a given dip angle, and orientations integrated from the gyro.
+* The IMU's other errors (scale factors, the gyro's misalignment) are not estimated.
 
 The result's ``T = G``: ``T^-1 (y - h)`` is the field in the IMU's axes, the alignment is the
-rotation ``G^-1 (G G^T)^(1/2)`` and the gyro bias is returned.
+rotation ``G^-1 (G G^T)^(1/2)`` and the gyro bias is returned; the accelerometer bias is in
+the message.
 """
 
 from __future__ import annotations
@@ -170,7 +201,7 @@ def fit(samples: np.ndarray, *, angular_rate: np.ndarray, time: np.ndarray,
         acceleration: np.ndarray, sigma_mag: float = 0.01, sigma_acc: float = 0.05,
         sigma_gyro: float = 0.01, accel_bias: bool = True, gravity: float | None = None,
         max_iter: int = 50, xtol: float = 1e-10) -> Calibration:
-    """Calibrate the magnetometer, its rotation to the IMU and the gyro bias jointly.
+    """Calibrate the magnetometer, its rotation to the IMU and the IMU's biases jointly.
 
     Parameters
     ----------
