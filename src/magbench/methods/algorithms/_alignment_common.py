@@ -7,11 +7,11 @@ the IMU. Whatever the attitude,
 
     a_k^T R m_k / (|a_k| |m_k|) = cos(angle between g_w and m_w) = c,        (dip constraint)
 
-the invariance of the dip angle (Liu et al., Sensors 2014; Papafotis and Sotiriadis,
-Technologies 8(1):11, 2020, section 3). With ``X = R / s`` it is linear in the nine entries of
-``X``: the solution is a null vector of the centred products ``a_k m_k^T``, and ``R`` the
-rotation nearest ``X``. It determines all of ``R`` once the attitudes differ in more than one
-axis.
+the invariance of the dip angle: Liu et al.'s "constant intersection angle" (Sensors,
+2014; confirmed from the abstract only, its equations unread, so no numbers are cited). With
+``X = R / s`` it is linear in the nine entries of ``X``: the solution is a null vector of the
+centred products ``a_k m_k^T``, and ``R`` the rotation nearest ``X``. It determines all of
+``R`` once the attitudes differ in more than one axis.
 """
 
 from __future__ import annotations

@@ -1,13 +1,33 @@
 """Dip-angle alignment: MAG.I.C.AL.'s magnetometer fit, then the rotation to the accelerometer
-from the invariance of the angle between gravity and the field (Liu et al., Sensors 2014;
+from the invariance of the angle between gravity and the field (Liu, Li, Zhang and Feng,
+"Novel Calibration Algorithm for a Three-Axis Strapdown Magnetometer", Sensors, 2014;
 Papafotis and Sotiriadis, "Accelerometer and Magnetometer Joint Calibration and Axes
-Alignment", Technologies 8(1):11, 2020, section 3).
+Alignment", Technologies 8(1):11, 2020).
 
-The magnetometer is calibrated first (review Algorithm 7, eqs. 58-65), which fixes ``T`` up to
-a rotation; its symmetric gauge gives unit field directions ``m_k``. At the rows where the
-accelerometer sees gravity only (its norm within ``static_tol`` of the median), the dip
+Sources. Neither paper's numbered equations could be read (only their opening pages and
+abstracts are in the reference corpus), so no equation numbers are cited. Liu et al.'s
+abstract confirms the principle: an ellipsoid fit fixes the calibration matrix up to an
+unknown rotation ``R``, which the "constant intersection angle" between the geomagnetic and
+gravitational fields estimates, with a Tikhonov-regularised solve where the system is ill
+conditioned. Papafotis and Sotiriadis's abstract confirms a joint calibration and axes
+alignment of an accelerometer and a magnetometer on one rigid platform, without equipment.
+
+Here: the magnetometer is calibrated first (review Algorithm 7, eqs. 58-65), which fixes ``T``
+up to a rotation; its symmetric gauge gives unit field directions ``m_k``. At the rows where
+the accelerometer sees gravity only (:func:`~._alignment_common.static_rows`), the dip
 constraint ``a_k^T R m_k = c`` is solved linearly for ``X = R / s`` (a null vector of the
-centred products ``a_k m_k^T``) and ``R`` is the nearest rotation (``_alignment_common``).
+centred products ``a_k m_k^T``) and ``R`` is the nearest rotation
+(:func:`~._alignment_common.dip_rotation`).
+
+Named differences from Liu et al. (as far as the abstract shows their method):
+
+* Magnetometer fit: MAG.I.C.AL.'s Algorithm 7, not Liu et al.'s ellipsoid fit; both fix ``T``
+  up to a rotation, and they agree on noise-free data.
+* The linear solve: the null vector of the centred products by SVD (``c`` eliminated by the
+  centring, no regularisation) and then the nearest proper rotation, not a Tikhonov-
+  regularised least squares; the refusal of rests that turn about too few axes
+  (:func:`~._alignment_common.check_spread`) replaces the regularisation.
+* The accelerometer is taken as calibrated (``magical_aligned`` calibrates it first).
 """
 
 from __future__ import annotations

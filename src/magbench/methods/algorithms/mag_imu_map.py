@@ -1,27 +1,58 @@
 """Joint magnetometer-IMU calibration with the orientation trajectory as unknowns (Huang,
 Hendeby and Skog, "Joint Magnetometer-IMU Calibration via Maximum A Posteriori Estimation",
-arXiv:2505.16662, 2025; the same measurement models as Kok and Schon, "Magnetometer calibration
-using inertial sensors", IEEE Sensors J. 16(14), 2016, section III).
+arXiv:2505.16662, 2025). Kok and Schon, "Magnetometer calibration using inertial sensors",
+IEEE Sensors J. 16(14), 2016 (arXiv:1601.05257), estimate the same magnetometer parameters
+and misalignment by maximum likelihood with the orientation filtered rather than estimated
+(the companion code's ML baseline, a likelihood of filter innovations).
+
+Sources. Neither paper's numbered equations could be read (only the opening pages and
+abstracts are in the reference corpus), so no equation numbers are cited here. What is
+confirmed: Huang et al.'s abstract (a MAP estimate with the calibration parameters and the
+orientation trajectory as unknowns, analytic derivatives; "IMU preintegration" among the index
+terms of v2), Kok and Schon's abstract (maximum likelihood, offline, magnetometer errors,
+disturbances and the misalignment to the inertial axes), and the structure of the authors'
+companion code (Huang-Chuan/Mag-IMU-JointCalibration, JointMAP/), which the model below
+follows: magnetometer ``y = D R^T m + o``, accelerometer with a bias, a gyro residual on the
+preintegrated rotation, the field by its dip angle.
 
 Unknowns: the magnetometer's ``G`` (3x3, in the IMU's axes, so it holds the mounting
-rotation) and ``h``, the field's inclination ``theta``, the gyro bias ``b`` and the
-orientation ``Q_k`` (IMU to world) at every sample. With the world's z axis up, gravity's
-specific force ``g_w = (0, 0, g)`` and the field ``m_w = (0, cos theta, sin theta)`` (the world's
-y axis along its horizontal part, which fixes the heading gauge), the residuals are
+rotation) and ``h``, the field's inclination ``theta``, the gyro bias ``b``, the
+accelerometer bias ``b_acc`` and the orientation ``Q_k`` (IMU to world) at every sample. With
+the world's z axis up, gravity's specific force ``g_w = (0, 0, g)`` and the field ``m_w = (0,
+cos theta, sin theta)`` (the world's y axis along its horizontal part, which fixes the heading
+gauge), the residuals are
 
     magnetometer   y_k - G Q_k^T m_w - h                                  / sigma_mag
-    accelerometer  a_k - Q_k^T g_w                                        / sigma_acc
+    accelerometer  a_k - Q_k^T g_w - b_acc                                / sigma_acc
     gyroscope      Log(Exp(-(w_k - b) dt_k) Q_k^T Q_{k+1})                / (sigma_gyro dt_k)
 
-(``w_k`` the mean of the two rate samples of the interval). With flat priors the MAP estimate
-is the maximum-likelihood one; it is found by Levenberg-Marquardt over the 16 parameters and
+(``w_k`` the mean of the two rate samples of the interval). Linear accelerations enter as
+accelerometer noise. The minimum is found by Levenberg-Marquardt over the 19 parameters and
 the 3K orientation increments (``Q_k <- Q_k Exp(d_k)``), whose normal equations are sparse
-(block tridiagonal plus a dense border). Linear accelerations enter as accelerometer noise, as
-in both papers. The start: MAG.I.C.AL. for ``G`` and ``h`` (alignment the identity), and every
-orientation from the accelerometer and that field direction (TRIAD).
+(block tridiagonal plus a dense border).
+
+Named differences from the paper's estimator (as its companion code shows it):
+
+* Priors: none (flat), so the estimate is the maximum-likelihood one. The companion code's
+  residual has no prior rows either.
+* Preintegration: one interval per sample. The paper preintegrates the gyro over several
+  samples and keeps an orientation (and an accelerometer and magnetometer sample) only at
+  every L-th sample; here every sample keeps its orientation (L = 1), so no sample is dropped.
+* Gyro bias: inside the interval's rotation, with its exact Jacobian; the paper corrects the
+  preintegrated rotation to first order in the bias change about a nominal bias.
+* Solver: Levenberg-Marquardt; the paper's code takes Gauss-Newton steps (QR). Same minimum.
+* Gravity's magnitude: known in the paper; here the median specific-force norm unless
+  ``gravity`` is given (a bias shifts that median slightly).
+* Start: MAG.I.C.AL. (review Algorithm 7, eqs. 58-65) for ``G`` and ``h`` with the alignment
+  the identity, ``theta`` from the mean dot product of the field and gravity directions, and
+  every orientation from the accelerometer and that field direction (TRIAD). The paper's code
+  starts from a magnetometer ellipsoid fit, a misalignment from the gyro and magnetometer
+  (Wu et al.'s method), a given dip angle, and orientations integrated from the gyro.
+* The IMU's other errors (scale factors, the gyro's misalignment) are not estimated.
 
 The result's ``T = G``: ``T^-1 (y - h)`` is the field in the IMU's axes, the alignment is the
-rotation ``G^-1 (G G^T)^(1/2)`` and the gyro bias is returned.
+rotation ``G^-1 (G G^T)^(1/2)`` and the gyro bias is returned; the accelerometer bias is in
+the message.
 """
 
 from __future__ import annotations
@@ -40,7 +71,8 @@ from magbench.methods.algorithms._gyro_common import check_gyro_inputs
 from magbench.methods.algorithms.magical import iterate
 from magbench.methods.registry import register
 
-N_PARAMS = 16          # vec G (9, row-major), h (3), theta (1), b (3)
+N_PARAMS = 19          # vec G (9, row-major), h (3), theta (1), b (3), b_acc (3)
+N_FIXED_ACC = 16       # the same without the accelerometer bias (``accel_bias=False``)
 
 
 def rotation_log(R: np.ndarray) -> np.ndarray:
@@ -91,8 +123,11 @@ def field_world(theta: float) -> tuple[np.ndarray, np.ndarray]:
 
 
 def residuals(Q, p, y, a, w_mid, dt, g_w, weights):
-    """Weighted residual vector (mag, accel, gyro blocks) and what the Jacobian reuses."""
+    """Weighted residual vector (mag, accel, gyro blocks) and what the Jacobian reuses.
+
+    ``p`` holds 19 parameters, or 16 when the accelerometer bias is held at zero."""
     G, h, theta, b = p[:9].reshape(3, 3), p[9:12], p[12], p[13:16]
+    b_acc = p[16:19] if p.size > N_FIXED_ACC else np.zeros(3)
     m_w, _ = field_world(theta)
     v = np.einsum("kji,j->ki", Q, m_w)
     u = np.einsum("kji,j->ki", Q, g_w)
@@ -101,7 +136,7 @@ def residuals(Q, p, y, a, w_mid, dt, g_w, weights):
     E = np.einsum("kij,kjl->kil", rotation_exp(-phi), C)          # Exp(-phi) C
     r_g = rotation_log(E)
     wm, wa, wg = weights
-    r = np.concatenate([((y - v @ G.T - h) * wm).ravel(), ((a - u) * wa).ravel(),
+    r = np.concatenate([((y - v @ G.T - h) * wm).ravel(), ((a - u - b_acc) * wa).ravel(),
                         (r_g * (wg / dt)[:, None]).ravel()])
     return r, (v, u, phi, C, r_g)
 
@@ -133,6 +168,8 @@ def jacobian(Q, p, parts, dt, weights) -> object:
     dth = -wm * (np.einsum("kji,j->ki", Q, dm_w) @ G.T)
     block(3 * k, np.full(K, n + 12), dth[:, :, None])                         # mag / theta
     block(n + 3 * k, 3 * k, -wa * skew(u))                                    # acc / d_k
+    if p.size > N_FIXED_ACC:
+        block(n + 3 * k, np.full(K, n + 16), np.broadcast_to(-wa * np.eye(3), (K, 3, 3)))
     s = (wg / dt)[:, None, None]
     Jinv = right_jacobian_inverse(r_g)
     j = np.arange(K - 1)
@@ -141,7 +178,7 @@ def jacobian(Q, p, parts, dt, weights) -> object:
     block(g0 + 3 * j, 3 * j, -s * (Jinv @ np.swapaxes(C, 1, 2)))             # gyro / d_k
     Jb = Jinv @ np.swapaxes(C, 1, 2) @ right_jacobian(-phi) * dt[:, None, None]
     block(g0 + 3 * j, np.full(K - 1, n + 13), s * Jb)                         # gyro / b
-    shape = (2 * n + 3 * (K - 1), n + N_PARAMS)
+    shape = (2 * n + 3 * (K - 1), n + p.size)
     return sparse.csr_matrix((np.concatenate(vals), (np.concatenate(rows),
                                                      np.concatenate(cols))), shape=shape)
 
@@ -162,8 +199,9 @@ def initial_state(y, a, max_iter, tol, rtol):
           needs_gyro=True, needs_accel=True)
 def fit(samples: np.ndarray, *, angular_rate: np.ndarray, time: np.ndarray,
         acceleration: np.ndarray, sigma_mag: float = 0.01, sigma_acc: float = 0.05,
-        sigma_gyro: float = 0.01, max_iter: int = 50, xtol: float = 1e-10) -> Calibration:
-    """Calibrate the magnetometer, its rotation to the IMU and the gyro bias jointly.
+        sigma_gyro: float = 0.01, accel_bias: bool = True, gravity: float | None = None,
+        max_iter: int = 50, xtol: float = 1e-10) -> Calibration:
+    """Calibrate the magnetometer, its rotation to the IMU and the IMU's biases jointly.
 
     Parameters
     ----------
@@ -176,6 +214,12 @@ def fit(samples: np.ndarray, *, angular_rate: np.ndarray, time: np.ndarray,
     sigma_mag, sigma_acc, sigma_gyro : float
         Noise of the magnetometer (in field strengths), accelerometer (in g, linear
         accelerations included) and gyro (rad/s): the residuals' weights.
+    accel_bias : bool
+        True (the paper's parameter set): the accelerometer's bias is an unknown, ``a_k -
+        Q_k^T g_w - b_acc``; False holds it at zero (the accelerometer taken as calibrated).
+    gravity : float or None
+        Gravity's magnitude in the accelerometer's unit (known in the paper); None takes the
+        median specific-force norm, which a bias shifts slightly.
     max_iter : int
         Levenberg-Marquardt iteration cap.
     xtol : float
@@ -189,9 +233,16 @@ def fit(samples: np.ndarray, *, angular_rate: np.ndarray, time: np.ndarray,
     """
     w, t = check_gyro_inputs(samples, angular_rate, time)
     a = check_acceleration(samples, acceleration)
-    g = float(np.median(np.sqrt(np.einsum("ij,ij->i", a, a))))
+    if gravity is None:
+        g = float(np.median(np.sqrt(np.einsum("ij,ij->i", a, a))))
+    elif gravity > 0:
+        g = float(gravity)
+    else:
+        raise ValueError(f"gravity must be > 0 or None, got {gravity}")
     a = a / g
     Q, p = initial_state(samples, a, 2000, 1e-24, 1e-12)
+    if accel_bias:
+        p = np.concatenate([p, np.zeros(3)])
     # In units of the field strength, so that sigma_mag means the same in any unit.
     field = float(np.cbrt(abs(np.linalg.det(p[:9].reshape(3, 3)))))
     p[:12] /= field
@@ -206,6 +257,8 @@ def fit(samples: np.ndarray, *, angular_rate: np.ndarray, time: np.ndarray,
     incl = np.degrees(-p[12])
     message = (f"Levenberg-Marquardt {'converged' if converged else 'stopped at the cap'} after "
                f"{n_iter} iterations; inclination {incl:.2f} deg")
+    if accel_bias:
+        message += f"; accelerometer bias {np.array2string(g * p[16:19], precision=4)}"
     return Calibration(G, h, n_iter, converged, message, b, alignment_rotation(G))
 
 

@@ -2,13 +2,27 @@
 Methodology for Magnetic and Inertial Sensors Calibration and Alignment", IEEE Sensors J.
 19(18), 2019): the review's MAG.I.C.AL. (Algorithm 7, eqs. 58-65) is its magnetometer part.
 
-The methodology calibrates the accelerometer with the same least-squares iteration as the
-magnetometer (the static specific force has constant norm, as the field has), then aligns the
-two sensors by the constant angle between the calibrated gravity and field directions, with
-``R`` constrained to be a rotation. Here: both sensors by Algorithm 7 (the accelerometer on
-its static rows, in its symmetric gauge, since the accelerometer's axes are the IMU's), the
-linear dip solution as the start (``_alignment_common.dip_rotation``) and Gauss-Newton over
-the rotation itself (``refine_dip_rotation``).
+Sources. The review (Papafotis, Nikitas and Sotiriadis) gives the magnetometer algorithm,
+eqs. (58)-(65); of the 2019 paper only the opening page and abstract could be read, so the
+alignment step is cited by no equation number. The abstract confirms: the same
+least-squares-based iterative algorithm calibrates the magnetometer and the accelerometer,
+the methodology then aligns their axes and calibrates the gyroscope from their joint data,
+in a 15-step sequence.
+
+Here: both sensors by Algorithm 7 (the accelerometer on its static rows, in its symmetric
+gauge, since the accelerometer's axes are the IMU's), the linear dip solution as the start
+(``_alignment_common.dip_rotation``) and Gauss-Newton over the rotation itself on ``sum_k
+(a_k^T R m_k - c)^2`` (``refine_dip_rotation``).
+
+Named differences (what the abstract leaves open is not claimed to match):
+
+* The alignment's cost and solver: the dip constraint with ``R`` kept a rotation, solved by
+  Gauss-Newton on SO(3) from the linear start; the paper's own alignment equations could
+  not be checked.
+* The gyroscope step of the methodology is not implemented (the benchmark scores the
+  magnetometer and its alignment).
+* Static rows are selected by the specific-force norm and steadiness
+  (``_alignment_common.static_rows``), not by the paper's protocol of held poses.
 """
 
 from __future__ import annotations
