@@ -78,7 +78,7 @@ from magbench.methods.api import calibrate as magbench_calibrate
 from magbench.methods.registry import get_method, methods
 from magbench.sources.logs import is_log, log_units
 from magbench.sources.recordings import Recording, read_samples
-from magbench.studies.alignment import DirectionVeto, inertial_of, lag_corrected
+from magbench.studies.alignment import DirectionVeto, inertial_of, lag_corrected, offset_check
 from magbench.studies.auto import candidate_rounds
 from magbench.studies.calibration import (
     CalibrationResult,
@@ -359,6 +359,9 @@ def run_calibrate(cfg: DictConfig, picture: PictureWorker | None = None) -> int:
         if reason:
             raise UsageError(reason.removeprefix("skipped: "))
     rec, lag = lag_corrected(rec) if inertial_of(rec).source != "none" else (rec, 0.0)
+    offsets = offset_check(rec) if inertial_of(rec).source != "none" else None
+    if offsets is not None and offsets.changed:
+        rec = rec.rows(np.flatnonzero(offsets.keep))
     veto = DirectionVeto()
     result = calibrate_recording(rec, candidates, preprocess=run.preprocess, options=options,
                                  seed=run.common["seed"],
@@ -394,7 +397,8 @@ def run_calibrate(cfg: DictConfig, picture: PictureWorker | None = None) -> int:
     cal, direction = direction_lines(result, Calibration(T, h), payload, veto, run.site, lag)
     write_text_atomic(json.dumps(payload, indent=2) + "\n", out / "calibration.json")
     written, notes = _write_exports(cal, payload, out)
-    notes = [line for line in (varying, mounting, *direction) if line] + notes
+    offset_line = offsets.line() if offsets is not None else ""
+    notes = [line for line in (offset_line, varying, mounting, *direction) if line] + notes
     write_csv_atomic(result.ranked, out / "ranking.csv")
     problem = picture.wait() if sent else ""
     if problem:

@@ -36,6 +36,13 @@ from magbench.core.geomagnetic import ExpectedField, Site, expected_field
 from magbench.core.geometry import sphere_fit
 from magbench.core.lag import attitude_rate, magnetometer_lag, shift
 from magbench.core.model import Calibration, CalibrationFailed
+from magbench.core.offsets import (
+    OffsetSegment,
+    consistent_rows,
+    gyro_orientation,
+    offset_segments,
+    window_offsets,
+)
 from magbench.core.quaternions import quat_to_matrix
 from magbench.core.rotations import span_deg
 from magbench.core.units import infer_units
@@ -51,10 +58,10 @@ from magbench.methods.api import calibrate
 from magbench.sources.recordings import Recording
 from magbench.studies.holdout import estimate, fold_indices
 
-__all__ = ["PRIMARY", "DirectionReport", "DirectionVeto", "Inertial", "align_chosen",
-           "direction_consistency", "direction_report", "direction_vetoes", "field_check",
-           "fit_alignment", "fold_direction", "inertial_of", "lag_corrected", "longest_run",
-           "primary_direction"]
+__all__ = ["PRIMARY", "DirectionReport", "DirectionVeto", "Inertial", "OffsetCheck",
+           "align_chosen", "direction_consistency", "direction_report", "direction_vetoes",
+           "field_check", "fit_alignment", "fold_direction", "inertial_of", "lag_corrected",
+           "longest_run", "offset_check", "primary_direction"]
 
 
 @dataclass(frozen=True)
@@ -455,3 +462,101 @@ def lag_corrected(rec: Recording, max_lag_s: float = 0.1) -> tuple[Recording, fl
     y = shift(rec.t, rec.y, lag)
     keep = np.isfinite(y).all(axis=1)
     return replace(rec, y=y).rows(np.flatnonzero(keep)), float(lag)
+
+
+@dataclass(frozen=True)
+class OffsetCheck:
+    """Whether the hard-iron offset stays one through a recording (:func:`offset_check`).
+
+    Attributes
+    ----------
+    keep : ndarray of bool, shape (K,)
+        Rows of the segment kept (every row when the offset does not change).
+    segments : list of OffsetSegment
+        The segments of one offset, in time order (:func:`magbench.core.offsets.
+        offset_segments`), with the offsets of the last round's calibration (field strength
+        1).
+    spans : list of (float, float)
+        Each segment's first and last time, s.
+    chosen : int
+        Index of the kept segment.
+    """
+
+    keep: np.ndarray
+    segments: list[OffsetSegment]
+    spans: list[tuple[float, float]]
+    chosen: int
+
+    @property
+    def changed(self) -> bool:
+        """More than one segment: the offset changed (or the field jumped at rest)."""
+        return len(self.segments) > 1
+
+    def line(self) -> str:
+        """One line for the printed report (empty when the offset does not change)."""
+        if not self.changed:
+            return ""
+        lo, hi = self.spans[self.chosen]
+        cuts = ", ".join(f"{b:.1f} s" for (_, b) in self.spans[:-1])
+        return (f"offset: the hard-iron offset changes within the recording (after {cuts}); "
+                f"fitted on t = {lo:.1f}-{hi:.1f} s ({int(self.keep.sum())} rows), the "
+                f"segment that turns most; one calibration cannot fit the other segments")
+
+
+def offset_check(rec: Recording, *, tol: float = 0.1, method: str = "magical",
+                 rounds: int = 3, max_fit_rows: int = 2000,
+                 window_s: float = 2.0) -> OffsetCheck | None:
+    """Find where the hard-iron offset changes within a recording and the rows of one offset.
+
+    A calibration fitted on the kept rows (all of them at first) gives the sensor-frame
+    field; each window's extra offset (:func:`magbench.core.offsets.window_offsets`, with the
+    reference attitude or, without one, the integrated gyro) cuts the recording into
+    segments of one offset, and the segment that turns most is kept; the calibration is
+    refitted on it and the recording cut again until the kept rows stay the same (a fit over
+    two offsets is a compromise that fits neither, so the first cut can be too fine).
+
+    Parameters
+    ----------
+    rec : Recording
+        In time order, with times and a gyro or attitude columns (lag removed).
+    tol : float
+        Largest offset change within a segment, as a share of the field strength.
+    method : str
+        The calibration method of each round.
+    rounds : int
+        Largest number of fit-and-cut rounds.
+    max_fit_rows : int
+        Each round fits on at most about this many rows (an even stride).
+    window_s : float
+        Window length of the offsets, s.
+
+    Returns
+    -------
+    OffsetCheck or None
+        None without times and a rate (gyro or attitude).
+    """
+    inertial = inertial_of(rec)
+    if rec.t is None:
+        return None
+    if inertial.attitude is not None:
+        orientation = quat_to_matrix(inertial.attitude)
+    elif rec.gyro is not None:
+        orientation = gyro_orientation(rec.t, rec.gyro)
+    else:
+        return None
+    keep = np.ones(rec.K, dtype=bool)
+    for _ in range(rounds):
+        rows = np.flatnonzero(keep)
+        rows = rows[::max(1, rows.size // max_fit_rows)]
+        cal = calibrate(rec.y[rows], method).safe()
+        field = symmetric_field(cal, rec.y)
+        field = field / float(np.median(np.linalg.norm(field[rows], axis=1)))
+        windows = window_offsets(rec.t, field, orientation, window_s=window_s)
+        segments = offset_segments(windows, tol)
+        new, best = consistent_rows(windows, segments, rec.K)
+        if np.array_equal(new, keep):
+            break
+        keep = new
+    spans = [(float(rec.t[windows.start[s.first]]),
+              float(rec.t[min(windows.stop[s.last], rec.K) - 1])) for s in segments]
+    return OffsetCheck(keep, segments, spans, segments.index(best))
