@@ -183,3 +183,22 @@ def test_calibrates_site_keys_are_parsed_or_refused_in_one_line():
                          ({"date": "2021-07-08"}, "give both or neither")]:
         with pytest.raises(UsageError, match=message):
             check_site(cfg(**bad))
+
+
+def test_all_means_the_methods_a_sweeps_data_can_feed():
+    """'all': magnetometer-only methods; with gyro data the gyro-aided ones too; the heading
+    study, whose data have an accelerometer, also the three alignment methods."""
+    from omegaconf import OmegaConf
+
+    from magbench.cli.config import selected_algorithms
+    from magbench.methods.registry import get_method, methods
+
+    cfg = OmegaConf.create({"algorithms": "all"})
+    plain = selected_algorithms(cfg)
+    gyro = selected_algorithms(cfg, include_gyro=True)
+    heading = selected_algorithms(cfg, include_gyro=True, include_accel=True)
+    assert plain == [m for m in methods() if get_method(m).magnetometer_only]
+    assert set(gyro) - set(plain) == {m for m in methods() if get_method(m).needs_gyro
+                                      and not get_method(m).needs_accel}
+    assert set(heading) - set(gyro) == {"dip_align", "magical_aligned", "mag_imu_map"}
+    assert heading == methods()

@@ -265,18 +265,22 @@ def plain(node: object, what: str = "") -> object:
     return OmegaConf.to_container(node, resolve=True) if OmegaConf.is_config(node) else node
 
 
-def selected_algorithms(cfg: DictConfig, include_gyro: bool = False) -> list[str]:
+def selected_algorithms(cfg: DictConfig, include_gyro: bool = False,
+                        include_accel: bool = False) -> list[str]:
     """The method names of ``algorithms=`` ('all' or a list), checked against the registry.
 
     'all' means every magnetometer-only method, plus the gyro-aided ones with
-    ``include_gyro`` (for data that have angular rate: the gyro sweep, real recordings); the
-    alignment methods, which need an accelerometer, only when named.
+    ``include_gyro`` (for data that have angular rate: the gyro sweep, real recordings) and
+    the alignment methods, which need an accelerometer, with ``include_accel`` (the heading
+    study, whose data have one); otherwise those only when named.
     """
     known = methods()
     chosen = plain(cfg.algorithms)
     if chosen == "all":
-        return [m for m in known if get_method(m).magnetometer_only
-                or (include_gyro and not get_method(m).needs_accel)]
+        def wanted(spec) -> bool:
+            return ((not spec.needs_gyro or include_gyro)
+                    and (not spec.needs_accel or include_accel))
+        return [m for m in known if wanted(get_method(m))]
     chosen = [chosen] if isinstance(chosen, str) else list(chosen or [])
     unknown = [a for a in chosen if a not in known]
     if unknown or not chosen:

@@ -62,7 +62,7 @@ def build(cfg: DictConfig, common: dict, values: dict) -> HeadingStudy:
     root, datasets = (None, [])
     if set(parts) & {"semi", "given"}:
         root, datasets = _datasets(cfg, values["datasets"])
-    algorithms = selected_algorithms(cfg, include_gyro=True)
+    algorithms = selected_algorithms(cfg, include_gyro=True, include_accel=True)
     nominal = nominal_point(cfg, 4)
     settings = {k: values[k] for k in ("distortions", "draws", "max_samples", "mount_deg",
                                        "preprocess", "tolerance", "rate_hz", "duration_s",
