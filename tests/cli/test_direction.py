@@ -90,6 +90,24 @@ def test_a_field_that_does_not_follow_the_attitude_fails_the_heading_gate(tmp_pa
     assert json.loads((tmp_path / "w" / "calibration.json").read_text())["status"] == "WARN"
 
 
+def test_an_offset_that_changes_mid_recording_warns_and_fits_one_part(tmp_path, capsys):
+    """A magnet of 0.6 field strengths stuck on the board 30 s into a 40 s recording: the
+    calibration is fitted on the first part, the status is WARN with that reason first, and
+    the samples line still counts every row of the file."""
+    path, traj = inertial_csv(tmp_path / "rec.csv")
+    frame = pd.read_csv(path)
+    frame.loc[1500:, ["mx", "my", "mz"]] += 0.6 * 45.0 * np.array([0.1, -0.2, 0.97])
+    frame.to_csv(path, index=False)
+    assert calibrate(f"file={path}", f"out={tmp_path / 'o'}", "method=magical") == 0
+    out = capsys.readouterr().out
+    data = json.loads((tmp_path / "o" / "calibration.json").read_text())
+    assert data["status"] == "WARN" and data["samples_in_file"] == len(frame)
+    assert data["fitness"]["reasons"][0].startswith(
+        "the hard-iron offset changed within the recording: calibrated on t = 0.0-")
+    assert out.startswith("WARN") and f"samples: {len(frame)} in the file" in out
+    np.testing.assert_allclose(data["h"], [3.0, -2.0, 4.0], atol=0.05)   # the first part's
+
+
 def test_gyro_and_accelerometer_alone_also_align(tmp_path, capsys):
     path, _ = inertial_csv(tmp_path / "rec.csv", attitude=False)
     assert calibrate(f"file={path}", f"out={tmp_path / 'o'}", "method=magical",

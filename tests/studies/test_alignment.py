@@ -10,6 +10,7 @@ import pytest
 
 import magbench
 from magbench.core.crb import alignment_rotation
+from magbench.core.gauge import rotation_angle_deg
 from magbench.core.geomagnetic import Site
 from magbench.core.model import Calibration, CalibrationFailed
 from magbench.core.quaternions import matrix_to_quat
@@ -162,10 +163,6 @@ def test_direction_report_sets_aside_a_fit_worse_in_direction():
     assert report.scores["sphere"]["heading_rms"] > 2.0
     assert set(report.vetoes) == {"sphere"} and "worse than magical's" in report.line("sphere")
     assert report.aligned["magical"].gauge == "heading-true"
-
-
-def rotation_angle_deg(R: np.ndarray) -> float:
-    return float(np.degrees(np.arccos(np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0))))
 
 
 def as_recording(traj, y, *, attitude: bool):

@@ -73,7 +73,7 @@ from magbench.core.files import write_csv_atomic, write_text_atomic
 from magbench.core.gauge import safe_gauge
 from magbench.core.model import Calibration
 from magbench.core.units import UNKNOWN, Units, parse_units
-from magbench.core.verdict import Gate
+from magbench.core.verdict import Gate, with_warning
 from magbench.methods.api import calibrate as magbench_calibrate
 from magbench.methods.registry import get_method, methods
 from magbench.sources.logs import is_log, log_units
@@ -352,6 +352,7 @@ def run_calibrate(cfg: DictConfig, picture: PictureWorker | None = None) -> int:
     start = time.perf_counter()
     run = _settings(cfg)
     rec = _read(run)
+    n_file = rec.K
     candidates, second = _candidates(cfg, rec.has_gyro)
     options = check_options(cfg, candidates + second)
     if run.name is not None:
@@ -377,13 +378,15 @@ def run_calibrate(cfg: DictConfig, picture: PictureWorker | None = None) -> int:
                          + "); check that the sensor was turned through many orientations "
                          "in a steady field")
     out = writable_folder(run.out, "out")
+    if offsets is not None and offsets.changed:
+        result.fitness = with_warning(result.fitness, offsets.warning())
     payload = calibration_json(result, file=str(run.path), columns=list(rec.columns),
-                               n_file=rec.K, preprocess=run.preprocess, units=run.units,
+                               n_file=n_file, preprocess=run.preprocess, units=run.units,
                                expected_field=run.expected)
     payload |= _instance_keys(rec)
     varying, corrected = _add_time_varying(result, payload, run.compensate, options)
     if payload["status"] == "FAIL":
-        _write_fail(result, payload, out, rec.K, start, [varying, _cure_line(payload)])
+        _write_fail(result, payload, out, n_file, start, [varying, _cure_line(payload)])
         return 3
     mounting = _add_mounting(result, payload, corrected)
     job = {"path": out / "calibration.png", "dpi": PICTURE_DPI,
@@ -405,7 +408,7 @@ def run_calibrate(cfg: DictConfig, picture: PictureWorker | None = None) -> int:
         print(f"magbench: note: {problem}; drawing the picture here", file=sys.stderr)
     if problem or not sent:
         draw_picture(job)
-    _report(result, payload, out, rec.K, ["calibration.json (m = A (y - b))", *written,
+    _report(result, payload, out, n_file, ["calibration.json (m = A (y - b))", *written,
                                           "ranking.csv", "calibration.png"], start, notes)
     return 0
 

@@ -47,6 +47,7 @@ __all__ = [
     "heading_error_deg",
     "magnitude_verdict",
     "turn_advice",
+    "with_warning",
 ]
 
 MAX_GAP_DEG = 100.0
@@ -295,6 +296,12 @@ def fitness(gate: Gate, *, p95_pct: float, held_out: bool, gap_deg: float, direc
               "heading error {v:.1f} deg RMS (held out, against the attitude) > {t:g} deg")
     status = "FAIL" if fails else "WARN" if warns else "PASS"
     return {"status": status, "reasons": fails + warns, "thresholds": dict(gate.__dict__)}
+
+
+def with_warning(fit: dict, reason: str) -> dict:
+    """:func:`fitness`'s result with one more warning: PASS becomes WARN, FAIL stays FAIL."""
+    status = "WARN" if fit["status"] == "PASS" else fit["status"]
+    return {**fit, "status": status, "reasons": [*fit["reasons"], reason]}
 
 
 def _expected_text(expected: float | tuple[float, float]) -> str:

@@ -492,6 +492,17 @@ class OffsetCheck:
         """More than one segment: the offset changed (or the field jumped at rest)."""
         return len(self.segments) > 1
 
+    def warning(self) -> str:
+        """The gate's reason when the offset changes (empty when it does not): the
+        calibration holds for the kept segment only."""
+        if not self.changed:
+            return ""
+        lo, hi = self.spans[self.chosen]
+        share = 100.0 * float(self.keep.mean())
+        return (f"the hard-iron offset changed within the recording: calibrated on t = "
+                f"{lo:.1f}-{hi:.1f} s only ({share:.0f} % of the rows); check that part "
+                "matches the vehicle as flown")
+
     def line(self) -> str:
         """One line for the printed report (empty when the offset does not change)."""
         if not self.changed:
