@@ -94,7 +94,7 @@ def test_an_offset_that_changes_mid_recording_warns_and_fits_one_part(tmp_path, 
     """A magnet of 0.6 field strengths stuck on the board 30 s into a 40 s recording: the
     calibration is fitted on the first part, the status is WARN with that reason first, and
     the samples line still counts every row of the file."""
-    path, traj = inertial_csv(tmp_path / "rec.csv")
+    path, _ = inertial_csv(tmp_path / "rec.csv")
     frame = pd.read_csv(path)
     frame.loc[1500:, ["mx", "my", "mz"]] += 0.6 * 45.0 * np.array([0.1, -0.2, 0.97])
     frame.to_csv(path, index=False)
