@@ -101,6 +101,25 @@ def test_map_noise_free_recovers_an_accelerometer_bias(seed):
     assert rotation_angle_deg(fixed.alignment @ R.T) > 0.01
 
 
+def test_a_mirror_image_estimate_is_refused(monkeypatch):
+    """A solver that ends at a mirrored G (det < 0, as on broad33's whole recording, two
+    hard-iron offsets) gives CalibrationFailed naming it, not an improper alignment."""
+    from magbench.methods.algorithms import mag_imu_map as mim
+
+    solve = mim._solve
+
+    def mirrored(*args):
+        Q, p, n_iter, converged = solve(*args)
+        p = p.copy()
+        p[:3] *= -1.0                                   # G's first row negated
+        return Q, p, n_iter, converged
+
+    monkeypatch.setattr(mim, "_solve", mirrored)
+    y, a, g, t, _ = manoeuvre(0)
+    with pytest.raises(magbench.CalibrationFailed, match="mirror image"):
+        map_fit(y, a, g, t)
+
+
 def test_map_noisy_rotation_error_is_within_a_few_times_its_bound():
     """RMS over 4 draws below 3x the bound's RMS (the efficiency over 50 draws is in the
     commit message)."""

@@ -254,6 +254,10 @@ def fit(samples: np.ndarray, *, angular_rate: np.ndarray, time: np.ndarray,
     G, h, b = field * p[:9].reshape(3, 3), field * p[9:12], p[13:16]
     if not np.all(np.isfinite(G)) or abs(np.linalg.det(G)) < 1e-12:
         raise CalibrationFailed("MAP: the estimate of G is singular")
+    if np.linalg.det(G) < 0:
+        raise CalibrationFailed("MAP: the estimate of G is a mirror image (det G < 0): the "
+                                "magnetometer's axes are left-handed against the IMU's (a "
+                                "swapped or negated axis), or the fit went astray")
     incl = np.degrees(-p[12])
     message = (f"Levenberg-Marquardt {'converged' if converged else 'stopped at the cap'} after "
                f"{n_iter} iterations; inclination {incl:.2f} deg")
