@@ -91,17 +91,52 @@ def test_install_size_of_a_missing_peer_is_recorded_as_unknown(monkeypatch):
     assert row["package"] == "no-such-peer-package" and np.isnan(row["added_mb"])
 
 
-def test_bench_calibrate_reads_the_commands_own_time_from_fresh_processes():
+def test_bench_calibrate_reads_the_commands_own_time_from_fresh_processes(tmp_path):
     from importlib.util import find_spec
 
-    out = bench.bench_calibrate(K=300, repeats=1)
-    ours = out[out["tool"] == "magbench calibrate"]
-    assert ours[["K", "run"]].values.tolist() == [[300, 1]]
+    # A file laid out as the real recordings are (t first): the peers read mx, my, mz by the
+    # positions of the header.
+    synthetic = pd.read_csv(bench.synthetic_recording(tmp_path / "s.csv", 300))
+    synthetic[["t", "mx", "my", "mz"]].to_csv(tmp_path / "rec.csv", index=False)
+    out = bench.bench_calibrate(path=tmp_path / "rec.csv", repeats=1)
+    ours = out[out["tool"] == bench.MAGBENCH_TOOL]
+    assert ours[["file", "K", "run"]].values.tolist() == [["rec.csv", 300, 1]]
     assert 0 < ours["command_s"].iloc[0] < ours["process_s"].iloc[0]
+    assert (out["cpu_s"] > 0).all() and out["cpu_model"].str.len().gt(0).all()
+    assert (out["cpu_count"] >= 1).all() and (out["load_1min"] >= 0).all()
     installed = [p for p, (pkg, _, _) in bench.PEER_FILE_FITS.items() if find_spec(pkg)]
-    peers = out[out["tool"] != "magbench calibrate"]
+    peers = out[out["tool"] != bench.MAGBENCH_TOOL]
     assert peers["tool"].tolist() == installed                  # one run each, in order
     assert (peers["process_s"] > 0).all() and peers["command_s"].isna().all()
+
+
+def test_rounds_won_counts_the_rounds_per_recording_and_peer():
+    times = {("a.csv", "magbench calibrate"): [0.7, 0.9, 0.8],
+             ("a.csv", "magcal.ellipsoid_fit"): [0.8, 0.85, 0.9],
+             ("b.csv", "magbench calibrate"): [1.0, 1.0, 1.0],
+             ("b.csv", "magcal.ellipsoid_fit"): [1.1, 0.9, 0.9]}
+    table = pd.DataFrame([{"file": f, "K": 10, "tool": tool, "run": run + 1, "process_s": t}
+                          for (f, tool), ts in times.items() for run, t in enumerate(ts)])
+    won = bench.rounds_won(table).set_index("file")
+    assert won.loc["a.csv", ["won", "rounds"]].tolist() == [2, 3]   # round 2: 0.9 > 0.85
+    assert won.loc["b.csv", ["won", "rounds"]].tolist() == [1, 3]
+    assert won.loc["a.csv", "magbench_median_s"] == 0.8
+    assert won.loc["b.csv", "peer_median_s"] == 0.9
+
+
+def test_the_calibrate_comparison_includes_the_real_recording_when_it_is_there(tmp_path,
+                                                                                monkeypatch):
+    calls = []
+    monkeypatch.setattr(bench, "bench_calibrate", lambda **kw: calls.append(kw) or
+                        pd.DataFrame([{"tool": "x", "K": kw.get("K")}]))
+    bench.bench_calibrate_files(repeats=2, data=tmp_path)
+    assert calls == [{"K": K, "repeats": 2} for K in bench.CALIBRATE_SIZES]
+    real = tmp_path / bench.CALIBRATE_RECORDING / "data.csv"
+    real.parent.mkdir()
+    real.write_text("t,mx,my,mz\n")
+    calls.clear()
+    bench.bench_calibrate_files(repeats=2, data=tmp_path)
+    assert calls[-1] == {"path": real, "repeats": 2} and len(calls) == 3
 
 
 def test_the_peer_script_reads_the_file_fits_and_saves(tmp_path):
@@ -114,7 +149,7 @@ def test_the_peer_script_reads_the_file_fits_and_saves(tmp_path):
                                                                      index=False)
     script = bench.PEER_SCRIPT.format(imports="", fit="c = y.mean(axis=0); M = 2 * np.eye(3)")
     subprocess.run([sys.executable, "-c", script, str(tmp_path / "f.csv"),
-                    str(tmp_path / "o.json")], check=True)
+                    str(tmp_path / "o.json"), "0,1,2"], check=True)
     saved = json.loads((tmp_path / "o.json").read_text())
     np.testing.assert_allclose(saved["c"], y.mean(axis=0), rtol=1e-12)
     assert saved["M"] == (2 * np.eye(3)).tolist()

@@ -14,6 +14,7 @@ import datetime as dt
 import difflib
 import math
 import os
+import re
 import tempfile
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -57,6 +58,7 @@ __all__ = [
     "nominal_point",
     "number",
     "plain",
+    "plain_override",
     "point_checks",
     "read_keys",
     "selected_algorithms",
@@ -88,11 +90,16 @@ def did_you_mean(word: str, choices: Sequence[str] | dict) -> str | None:
     return close[0] if close else None
 
 
-def base_config() -> dict:
-    """``conf/config.yaml`` as plain data, without its defaults list."""
+def _load_yaml(text: str) -> dict:
+    """A configuration file's text as plain data (LibYAML's loader where PyYAML has it)."""
     import yaml
 
-    data = yaml.safe_load((config_dir() / "config.yaml").read_text()) or {}
+    return yaml.load(text, Loader=getattr(yaml, "CSafeLoader", yaml.SafeLoader)) or {}
+
+
+def base_config() -> dict:
+    """``conf/config.yaml`` as plain data, without its defaults list."""
+    data = _load_yaml((config_dir() / "config.yaml").read_text())
     data.pop("defaults", None)
     return data
 
@@ -129,8 +136,17 @@ def check_override_keys(overrides: Sequence[str]) -> None:
 
 def compose_config(overrides: Sequence[str]) -> DictConfig:
     """Compose ``conf/config.yaml`` with Hydra overrides (``key=value`` strings), after
-    :func:`check_override_keys`."""
+    :func:`check_override_keys`.
+
+    Overrides of plain values (:func:`plain_override`) are applied to the configuration files
+    directly, which gives the config Hydra's compose API would give without importing Hydra;
+    any other override (another sweep, quoted or nested values, interpolations, sweeps of
+    values, ``~key``) is composed by Hydra, whose messages name what is wrong.
+    """
     check_override_keys(overrides)
+    cfg = _compose_plain(overrides)
+    if cfg is not None:
+        return cfg
     from hydra import compose, initialize_config_dir
     from hydra.errors import HydraException
     from omegaconf.errors import OmegaConfBaseException
@@ -142,6 +158,106 @@ def compose_config(overrides: Sequence[str]) -> DictConfig:
         # Hydra's messages span lines and append its search path; keep the part that helps.
         text = " ".join(str(exc).split()).split(" Config search path")[0]
         raise UsageError(text) from None
+
+
+#: Hydra's override grammar (``hydra/grammar/OverrideLexer.g4``) for the values
+#: :func:`plain_override` types itself: a value that is exactly one such token.
+_INT_UNSIGNED = r"(?:0|[1-9](?:_?[0-9])*)"
+_POINT_FLOAT = rf"(?:{_INT_UNSIGNED}\.|(?:{_INT_UNSIGNED})?\.[0-9](?:_?[0-9])*)"
+_FLOAT = re.compile(rf"[+-]?(?:(?:{_INT_UNSIGNED}|{_POINT_FLOAT})[eE][+-]?[0-9](?:_?[0-9])*"
+                    rf"|{_POINT_FLOAT}|[Ii][Nn][Ff]|[Nn][Aa][Nn])")
+_INT = re.compile(rf"[+-]?{_INT_UNSIGNED}")
+_BOOL = re.compile(r"[Tt][Rr][Uu][Ee]|[Ff][Aa][Ll][Ss][Ee]")
+_NULL = re.compile(r"[Nn][Uu][Ll][Ll]")
+#: An unquoted value Hydra reads as text: its letters, digits and unquoted characters, without
+#: '$' (interpolations), '\\' (escapes), white space, quotes, brackets, braces or commas.
+_TEXT = re.compile(r"[A-Za-z0-9_\-/+.%*@?|:]*")
+_KEY = re.compile(r"(\+\+)?([A-Za-z_][A-Za-z0-9_]*(?:\.[A-Za-z_][A-Za-z0-9_]*)*)")
+#: Top-level keys whose overrides are left to Hydra (a sweep's file, Hydra's own settings).
+_HYDRA_KEYS = ("sweep", "hydra")
+
+
+class _NotPlain(Exception):
+    """An override :func:`plain_override` leaves to Hydra."""
+
+
+def _scalar(text: str) -> object:
+    """One value as Hydra types it: null, a bool, an int, a float or text."""
+    if _NULL.fullmatch(text):
+        return None
+    if _BOOL.fullmatch(text):
+        return text.lower() == "true"
+    if _INT.fullmatch(text):
+        return int(text)
+    if _FLOAT.fullmatch(text):
+        return float(text)
+    if _TEXT.fullmatch(text):
+        return text
+    raise _NotPlain(text)
+
+
+def plain_override(override: str) -> tuple[str, bool, object]:
+    """``(key, add, value)`` of a ``[++]key=value`` override whose value is a plain scalar or a
+    flat list of them (``[mx,my,mz]``), typed as Hydra types it; ``add``: the ``++`` prefix.
+
+    Raises
+    ------
+    ValueError
+        Any other override, which is left to Hydra: a key of another form, a quoted, nested or
+        interpolated value, white space, a comma outside brackets (Hydra's sweep of values).
+    """
+    key, sep, text = override.partition("=")
+    match = _KEY.fullmatch(key)
+    if not sep or match is None or match.group(2).split(".")[0] in _HYDRA_KEYS:
+        raise ValueError(f"not a plain override: {override!r}")
+    try:
+        if text.startswith("[") and text.endswith("]"):
+            items = text[1:-1].split(",") if text != "[]" else []
+            if "" in items:
+                raise _NotPlain(text)
+            value: object = [_scalar(v) for v in items]
+        else:
+            value = _scalar(text)
+    except _NotPlain:
+        raise ValueError(f"not a plain override: {override!r}") from None
+    return match.group(2), bool(match.group(1)), value
+
+
+def _compose_plain(overrides: Sequence[str]) -> DictConfig | None:
+    """The composed config when every override is plain (:func:`plain_override`) and sets a
+    key the configuration has (or adds one under ``++``) without replacing a section; None
+    otherwise (Hydra composes it)."""
+    data = _load_yaml((config_dir() / "config.yaml").read_text())
+    for group in data.pop("defaults", None) or []:
+        # _self_ first, then the default sweep's file as the sweep section, as Hydra merges
+        # them; a sweep file with a package or defaults of its own is left to Hydra.
+        if group == "_self_":
+            continue
+        if not isinstance(group, dict) or list(group) != ["sweep"]:
+            return None
+        text = (config_dir() / "sweep" / f"{group['sweep']}.yaml").read_text()
+        data["sweep"] = _load_yaml(text)
+        if "@package" in text or "defaults" in data["sweep"]:
+            return None
+    for override in overrides:
+        try:
+            key, add, value = plain_override(override)
+        except ValueError:
+            return None
+        *parents, last = key.split(".")
+        node = data
+        for part in parents:
+            if part not in node and add:
+                node[part] = {}
+            node = node.get(part)
+            if not isinstance(node, dict):
+                return None
+        if (last not in node and not add) or isinstance(node.get(last), dict):
+            return None
+        node[last] = value
+    cfg = OmegaConf.create(data)
+    OmegaConf.set_struct(cfg, True)
+    return cfg
 
 
 def check_integer(value: object, what: str, low: int, high: int | None = None) -> int:
@@ -401,8 +517,6 @@ def _plugins(cfg: DictConfig) -> list[str]:
 
 def _scheduler_address(value: object) -> str | None:
     """A Dask scheduler address such as tcp://10.0.0.5:8786, or None."""
-    import re
-
     if value is None:
         return None
     if not isinstance(value, str) or not re.fullmatch(

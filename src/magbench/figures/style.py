@@ -15,7 +15,6 @@ from pathlib import Path
 from matplotlib.figure import Figure
 
 from magbench.core.files import atomic_path
-from magbench.methods.registry import find_method
 
 __all__ = ["METHOD_STYLE", "MethodStyle", "method_style", "new_figure", "save_figure"]
 
@@ -80,6 +79,9 @@ def method_style(name: str) -> MethodStyle:
     run) gets a spare colour and marker (:func:`_spare_index`), the same in every figure and
     distinct from every other registered method's.
     """
+    # Here, not at import: calibrate's picture process draws no method and starts faster.
+    from magbench.methods.registry import find_method
+
     spec = find_method(name)
     label = name if spec is None else spec.label
     family = "extra" if spec is None else "gyro" if spec.needs_gyro else spec.family

@@ -94,31 +94,40 @@ def _parallel_lines(par: pd.DataFrame) -> list[str]:
 
 
 def calibrate_lines(cal: pd.DataFrame) -> list[str]:
-    """The file-to-correction table of ``calibrate.csv`` (markdown lines), with the rounds in
-    which ``magbench calibrate`` took less time than each peer (the tools take turns, so a
-    round is a side-by-side comparison)."""
+    """The file-to-correction tables of ``calibrate.csv`` (markdown lines), one per recording,
+    with the rounds in which ``magbench calibrate`` took less time than each peer (the tools
+    take turns, so a round is a side-by-side comparison; :func:`magbench.studies.speed.\
+rounds_won`) and the machine and load they ran on, where recorded."""
+    from magbench.studies.speed import MAGBENCH_TOOL, rounds_won
+
     if "tool" not in cal:                      # written before the peers were timed
-        cal = cal.assign(tool="magbench calibrate")
-    K = int(cal["K"].iloc[0])
-    ours = cal[cal["tool"] == "magbench calibrate"].set_index("run")["process_s"]
-    lines = ["", f"From file to correction on a {K}-sample recording: each tool in a fresh "
-             "interpreter, one warm-up run each, then the tools take turns; median of the runs "
-             "(`calibrate.csv`). "
+        cal = cal.assign(tool=MAGBENCH_TOOL)
+    if "file" not in cal:                      # written before the real recording was timed
+        cal = cal.assign(file="synthetic")
+    won = {(r.file, r.K, r.peer): f"{r.won} of {r.rounds}"
+           for r in rounds_won(cal).itertuples(index=False)}
+    lines = ["", "From file to correction: each tool in a fresh interpreter, one warm-up run "
+             "each, then the tools take turns; median of the runs (`calibrate.csv`). "
              "`magbench calibrate` runs its default settings: outlier screen, candidates "
-             "fitted on all samples and on each half, the choice, the intervals with their "
-             "bootstrap check, JSON, C header, ArduPilot parameters, ranking and the picture. "
+             "fitted on all samples and on interleaved time blocks, the choice, the intervals "
+             "with their bootstrap check, JSON, C header, ranking and the picture. "
              "A peer's process is the least a user of it runs: read the file, one fit, save "
-             "the matrix and offset.", "",
-             "| tool | runs | whole process (s) | inside the command (s) | "
-             "rounds magbench was faster |",
-             "|---|---:|---:|---:|---:|"]
-    for tool, runs in cal.groupby("tool", sort=False):
-        inside = runs["command_s"].median()
-        if tool == "magbench calibrate" or "run" not in runs:
-            faster = "-"
-        else:
-            ahead = ours.reindex(runs["run"]).to_numpy() < runs["process_s"].to_numpy()
-            faster = f"{int(ahead.sum())} of {len(runs)}"
-        lines.append(f"| {tool} | {len(runs)} | {format_number(runs['process_s'].median(), 3)} "
-                     f"| {'-' if pd.isna(inside) else format_number(inside, 3)} | {faster} |")
+             "the matrix and offset."]
+    for (name, K), table in cal.groupby(["file", "K"], sort=False):
+        lines += ["", f"{name}, {K} samples:", "",
+                  "| tool | runs | whole process (s) | inside the command (s) | "
+                  "rounds magbench was faster |",
+                  "|---|---:|---:|---:|---:|"]
+        for tool, runs in table.groupby("tool", sort=False):
+            inside = runs["command_s"].median()
+            faster = won.get((name, K, tool), "-") if "run" in runs else "-"
+            lines.append(f"| {tool} | {len(runs)} | "
+                         f"{format_number(runs['process_s'].median(), 3)} "
+                         f"| {'-' if pd.isna(inside) else format_number(inside, 3)} "
+                         f"| {faster} |")
+        if "cpu_model" in table and "load_1min" in table:
+            lines += ["", f"Machine: {table['cpu_model'].iloc[0]}, "
+                      f"{int(table['cpu_count'].iloc[0])} CPUs; 1-minute load average "
+                      f"{format_number(table['load_1min'].min(), 2)} to "
+                      f"{format_number(table['load_1min'].max(), 2)} as the rounds started."]
     return lines

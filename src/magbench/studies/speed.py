@@ -33,9 +33,9 @@ from magbench.studies.real import DEFAULT_MAX_SAMPLES
 from magbench.studies.review import ReviewStudy
 from magbench.studies.times import times_path
 
-__all__ = ["SIZES", "bench_calibrate", "bench_calls", "bench_first_calls", "bench_parallel",
-           "bench_peers", "format_reproduce_times", "peer_install_size", "reproduce_times",
-           "run_bench"]
+__all__ = ["SIZES", "bench_calibrate", "bench_calibrate_files", "bench_calls",
+           "bench_first_calls", "bench_parallel", "bench_peers", "format_reproduce_times",
+           "peer_install_size", "reproduce_times", "rounds_won", "run_bench", "synthetic_recording"]
 
 SIZES = (50, 150, 300, 1000, 3000, 10000)
 
@@ -344,11 +344,13 @@ def bench_parallel(trials: int = 250, algorithms: Sequence[str] | None = None,
 
 #: The peers' side of the end-to-end comparison: what a user of each library runs on a file
 #: (read it, fit, save the correction), as a fresh interpreter like ``magbench calibrate``.
-#: ``{fit}`` must leave the correction's matrix in ``M`` and offset in ``c``.
+#: ``{fit}`` must leave the correction's matrix in ``M`` and offset in ``c``. Its arguments:
+#: the CSV file, the JSON file to write and the 0-based positions of mx, my, mz ("1,2,3").
 PEER_SCRIPT = """import json, sys
 import numpy as np
 {imports}
-y = np.loadtxt(sys.argv[1], delimiter=",", skiprows=1, usecols=(0, 1, 2))
+y = np.loadtxt(sys.argv[1], delimiter=",", skiprows=1,
+               usecols=[int(c) for c in sys.argv[3].split(",")])
 {fit}
 json.dump({{"M": np.asarray(M).tolist(), "c": np.asarray(c).ravel().tolist()}},
           open(sys.argv[2], "w"))
@@ -366,58 +368,127 @@ PEER_FILE_FITS = {  # peer -> (package, imports, fit lines)
         "M, c = p['transform_matrix'], p['center']"),
 }
 
+#: The tool whose rounds against each peer are counted.
+MAGBENCH_TOOL = "magbench calibrate"
 
-def _timed_run(command: list[str], env: dict) -> tuple[float, str]:
-    """Wall time and stdout of one run of ``command``."""
-    start = time.perf_counter()
+
+def _timed_run(command: list[str], env: dict) -> tuple[float, float, str]:
+    """Wall time, CPU time (user + system of the process and the processes it waited for)
+    and stdout of one run of ``command``."""
+    import resource
+
+    def children() -> float:
+        usage = resource.getrusage(resource.RUSAGE_CHILDREN)
+        return usage.ru_utime + usage.ru_stime
+
+    cpu, start = children(), time.perf_counter()
     done = subprocess.run(command, env=env, capture_output=True, text=True, check=True)
-    return time.perf_counter() - start, done.stdout
+    return time.perf_counter() - start, children() - cpu, done.stdout
 
 
-def bench_calibrate(K: int = 10_000, repeats: int = 9, seed: int = 0) -> pd.DataFrame:
-    """Wall time from file to written correction: ``python -m magbench calibrate`` with the
-    default settings (picture included) and each installed peer library, on one ``K``-sample
-    synthetic recording with a counts-sized offset.
-
-    Every run is a fresh interpreter: ``process_s`` is the whole process (interpreter,
-    imports, configuration, reading, fitting, writing); ``command_s`` what ``calibrate`` itself
-    reports (reading, fitting, choosing, writing and drawing). A peer's process is the least a
-    user of it runs (:data:`PEER_SCRIPT`): NumPy's ``loadtxt``, one fit, the matrix and offset
-    saved as JSON; no choice, verdict, exports or picture. Each tool runs once as a warm-up
-    (filling the numba and bytecode caches), then the tools take turns ``repeats`` times, so
-    that a machine that slows down mid-way slows every tool alike.
-    """
-    from importlib.util import find_spec
-
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join(p for p in sys.path if p)}
+def synthetic_recording(path: Path, K: int, seed: int = 0) -> Path:
+    """Write a ``K``-sample synthetic recording (``mx, my, mz, t``) with a counts-sized offset
+    and scale, as a magnetometer logger would, to ``path``; returns ``path``."""
     rng = np.random.default_rng(seed)
     m = rng.standard_normal((K, 3))
     m /= np.linalg.norm(m, axis=1)[:, None]
     y = m @ np.array([[520.0, 20.0, -8.0], [0.0, 470.0, 15.0], [0.0, 0.0, 610.0]]).T
     y += np.array([900.0, -350.0, 120.0]) + 3.0 * rng.standard_normal((K, 3))
+    pd.DataFrame(y, columns=["mx", "my", "mz"]).assign(t=np.arange(K) * 0.01).to_csv(
+        path, index=False)
+    return path
+
+
+def bench_calibrate(K: int = 10_000, repeats: int = 10, seed: int = 0,
+                    path: Path | str | None = None) -> pd.DataFrame:
+    """Wall time from file to written correction: ``python -m magbench calibrate`` with the
+    default settings (picture included) and each installed peer library, on the CSV file
+    ``path`` (a header naming ``mx, my, mz``) or, without one, on a ``K``-sample synthetic
+    recording (:func:`synthetic_recording`).
+
+    Every run is a fresh interpreter: ``process_s`` is the whole process (interpreter,
+    imports, configuration, reading, fitting, writing), ``cpu_s`` its CPU time with its child
+    processes' (magbench's picture process), ``command_s`` what ``calibrate`` itself reports
+    (reading, fitting, choosing, writing and drawing). A peer's process is the least a user of
+    it runs (:data:`PEER_SCRIPT`): NumPy's ``loadtxt``, one fit, the matrix and offset saved
+    as JSON; no choice, verdict, exports or picture. Each tool runs once as a warm-up (filling
+    the numba and bytecode caches: ``PYTHONDONTWRITEBYTECODE`` is unset for the runs, as an
+    installed package has its bytecode), then the tools take turns ``repeats`` times, so that
+    a machine that slows down mid-way slows every tool alike; ``load_1min`` is the load
+    average as each round starts, ``cpu_model`` and ``cpu_count`` the machine's.
+    """
+    from importlib.util import find_spec
+
+    from magbench.engine.record import cpu_model
+
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(p for p in sys.path if p)}
+    env.pop("PYTHONDONTWRITEBYTECODE", None)
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
-        path = Path(tmp) / "synthetic.csv"
-        pd.DataFrame(y, columns=["mx", "my", "mz"]).assign(t=np.arange(K) * 0.01).to_csv(
-            path, index=False)
-        tools = {"magbench calibrate": [sys.executable, "-m", "magbench", "calibrate",
-                                        f"file={path}", f"out={Path(tmp) / 'out'}",
-                                        "progress=false", "overwrite=true"]}
+        if path is None:
+            path, name = synthetic_recording(Path(tmp) / "synthetic.csv", K, seed), "synthetic"
+        else:
+            path = Path(path)
+            name = f"{path.parent.name}/{path.name}" if path.name == "data.csv" else path.name
+        with open(path) as handle:
+            header = [c.strip() for c in handle.readline().split(",")]
+            K = sum(1 for line in handle if line.strip())
+        usecols = ",".join(str(header.index(c)) for c in ("mx", "my", "mz"))
+        tools = {MAGBENCH_TOOL: [sys.executable, "-m", "magbench", "calibrate",
+                                 f"file={path}", f"out={Path(tmp) / 'out'}",
+                                 "progress=false", "overwrite=true"]}
         for peer, (package, imports, fit) in PEER_FILE_FITS.items():
             if find_spec(package) is not None:
                 script = PEER_SCRIPT.format(imports=imports, fit=fit)
                 tools[peer] = [sys.executable, "-c", script, str(path),
-                               str(Path(tmp) / "peer.json")]
+                               str(Path(tmp) / "peer.json"), usecols]
         for command in tools.values():
             _timed_run(command, env)                              # warm-up
+        machine = {"cpu_model": cpu_model(), "cpu_count": os.cpu_count()}
         for run in range(1, repeats + 1):
+            load = os.getloadavg()[0]
             for tool, command in tools.items():
-                wall, stdout = _timed_run(command, env)
+                wall, cpu, stdout = _timed_run(command, env)
                 reported = (float(stdout.rsplit("(in ", 1)[1].split(" s)")[0])
-                            if tool == "magbench calibrate" else np.nan)
-                rows.append({"tool": tool, "K": K, "run": run, "process_s": wall,
-                             "command_s": reported})
+                            if tool == MAGBENCH_TOOL else np.nan)
+                rows.append({"tool": tool, "file": name, "K": K, "run": run,
+                             "process_s": wall, "cpu_s": cpu, "command_s": reported,
+                             "load_1min": load, **machine})
     return pd.DataFrame(rows)
+
+
+def rounds_won(table: pd.DataFrame) -> pd.DataFrame:
+    """Per recording and peer of a :func:`bench_calibrate` table: the rounds in which
+    ``magbench calibrate`` took less wall time than the peer, the rounds run and both
+    medians."""
+    table = table if "file" in table else table.assign(file="synthetic")
+    rows = []
+    for (name, K), runs in table.groupby(["file", "K"], sort=False):
+        ours = runs[runs["tool"] == MAGBENCH_TOOL].set_index("run")["process_s"]
+        for tool, peer in runs[runs["tool"] != MAGBENCH_TOOL].groupby("tool", sort=False):
+            ahead = ours.reindex(peer["run"]).to_numpy() < peer["process_s"].to_numpy()
+            rows.append({"file": name, "K": K, "peer": tool, "won": int(ahead.sum()),
+                         "rounds": len(peer), "magbench_median_s": ours.median(),
+                         "peer_median_s": peer["process_s"].median()})
+    return pd.DataFrame(rows)
+
+
+#: The recordings of the file-to-correction comparison: a real one from ``$MAGBENCH_DATA``
+#: (skipped when absent) and synthetic ones of these sizes.
+CALIBRATE_RECORDING = "qmc5883l_filtered"
+CALIBRATE_SIZES = (10_000, 100_000)
+
+
+def bench_calibrate_files(repeats: int = 10, data: Path | str | None = None) -> pd.DataFrame:
+    """:func:`bench_calibrate` on each synthetic size of :data:`CALIBRATE_SIZES` and on the real
+    recording :data:`CALIBRATE_RECORDING` of ``data`` (default ``$MAGBENCH_DATA``) when it is
+    there, in one table (``file`` tells them apart)."""
+    tables = [bench_calibrate(K=K, repeats=repeats) for K in CALIBRATE_SIZES]
+    folder = data if data is not None else os.environ.get("MAGBENCH_DATA")
+    real = Path(folder) / CALIBRATE_RECORDING / "data.csv" if folder else None
+    if real is not None and real.is_file():
+        tables.insert(0, bench_calibrate(path=real, repeats=repeats))
+    return pd.concat(tables, ignore_index=True)
 
 
 def malloc_thresholds() -> str:
@@ -463,11 +534,13 @@ def run_bench(results_dir: Path | str, names: Sequence[str] | None = None,
         write_csv_atomic(accuracy, folder / "peer_accuracy.csv")
         write_csv_atomic(summarize_peer_accuracy(accuracy), folder / "peer_accuracy_summary.csv")
     write_csv_atomic(peer_install_size(), folder / "peer_install.csv")
-    write_csv_atomic(cal := bench_calibrate(), folder / "calibrate.csv")
+    write_csv_atomic(cal := bench_calibrate_files(), folder / "calibrate.csv")
     if progress:
-        for tool, runs in cal.groupby("tool", sort=False):
-            progress(f"file to correction on {runs['K'].iloc[0]} samples, {tool}: median "
-                     f"{runs['process_s'].median():.2f} s for the whole process")
+        for row in rounds_won(cal).itertuples(index=False):
+            progress(f"file to correction, {row.file} ({row.K} samples): magbench calibrate "
+                     f"median {row.magbench_median_s:.2f} s, {row.peer} "
+                     f"{row.peer_median_s:.2f} s; magbench faster in {row.won} of "
+                     f"{row.rounds} rounds")
     if parallel_trials:
         write_csv_atomic(bench_parallel(parallel_trials, names), folder / "parallel.csv")
     return folder
