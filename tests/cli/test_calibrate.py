@@ -236,6 +236,7 @@ def test_nan_rows_give_a_warning_line_and_are_dropped(tmp_path, capsys):
     (["file={rec}", "field_strength=48uT"], "field_strength=48uT has a unit but the file's unit"),
     (["file={rec}", "instance=1"], "instance=1 was given but rec.csv has no instance column"),
     (["file={rec}", "overwrite=maybe"], "overwrite must be true or false"),
+    (["file={rec}", "picture=maybe"], "picture must be true or false"),
 ])
 def test_errors_are_one_line_with_status_2(args, message, tmp_path, capsys):
     rec = save(tmp_path / "rec.csv", recording())
@@ -252,6 +253,21 @@ def test_errors_are_one_line_with_status_2(args, message, tmp_path, capsys):
     assert err.startswith("magbench: error: ") and message in err
     assert err.count("\n") == 1 and "Traceback" not in err
     assert not (tmp_path / "o").exists()
+
+
+def test_picture_false_writes_the_same_correction_without_the_picture(tmp_path, capsys):
+    rec = save(tmp_path / "rec.csv", recording())
+    assert calibrate(f"file={rec}", f"out={tmp_path / 'a'}", "bootstrap=0") == 0
+    capsys.readouterr()
+    assert main(["calibrate", "progress=false", f"file={rec}", f"out={tmp_path / 'b'}",
+                 "bootstrap=0", "picture=false"]) == 0
+    wrote = capsys.readouterr().out.splitlines()[-1]
+    assert "calibration.png" not in wrote and "ranking.csv" in wrote
+    assert (tmp_path / "a" / "calibration.png").exists()
+    assert not (tmp_path / "b" / "calibration.png").exists()
+    first, second = (json.loads((tmp_path / f / "calibration.json").read_text())
+                     for f in "ab")
+    assert first["A"] == second["A"] and first["b"] == second["b"]
 
 
 def test_long_recordings_are_thinned_and_say_so(tmp_path, capsys):

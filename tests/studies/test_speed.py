@@ -104,8 +104,10 @@ def test_bench_calibrate_reads_the_commands_own_time_from_fresh_processes(tmp_pa
     assert 0 < ours["command_s"].iloc[0] < ours["process_s"].iloc[0]
     assert (out["cpu_s"] > 0).all() and out["cpu_model"].str.len().gt(0).all()
     assert (out["cpu_count"] >= 1).all() and (out["load_1min"] >= 0).all()
+    quick = out[out["tool"] == bench.MAGBENCH_NO_PICTURE]
+    assert len(quick) == 1 and 0 < quick["command_s"].iloc[0] < quick["process_s"].iloc[0]
     installed = [p for p, (pkg, _, _) in bench.PEER_FILE_FITS.items() if find_spec(pkg)]
-    peers = out[out["tool"] != bench.MAGBENCH_TOOL]
+    peers = out[~out["tool"].isin(bench.MAGBENCH_TOOLS)]
     assert peers["tool"].tolist() == installed                  # one run each, in order
     assert (peers["process_s"] > 0).all() and peers["command_s"].isna().all()
 
@@ -114,10 +116,14 @@ def test_rounds_won_counts_the_rounds_per_recording_and_peer():
     times = {("a.csv", "magbench calibrate"): [0.7, 0.9, 0.8],
              ("a.csv", "magcal.ellipsoid_fit"): [0.8, 0.85, 0.9],
              ("b.csv", "magbench calibrate"): [1.0, 1.0, 1.0],
-             ("b.csv", "magcal.ellipsoid_fit"): [1.1, 0.9, 0.9]}
+             ("b.csv", "magcal.ellipsoid_fit"): [1.1, 0.9, 0.9],
+             ("b.csv", "magbench calibrate picture=false"): [0.5, 0.5, 0.95]}
     table = pd.DataFrame([{"file": f, "K": 10, "tool": tool, "run": run + 1, "process_s": t}
                           for (f, tool), ts in times.items() for run, t in enumerate(ts)])
-    won = bench.rounds_won(table).set_index("file")
+    every = bench.rounds_won(table)
+    quick = every[every["magbench"] == bench.MAGBENCH_NO_PICTURE]
+    assert quick[["file", "won", "rounds"]].values.tolist() == [["b.csv", 2, 3]]
+    won = every[every["magbench"] == bench.MAGBENCH_TOOL].set_index("file")
     assert won.loc["a.csv", ["won", "rounds"]].tolist() == [2, 3]   # round 2: 0.9 > 0.85
     assert won.loc["b.csv", ["won", "rounds"]].tolist() == [1, 3]
     assert won.loc["a.csv", "magbench_median_s"] == 0.8

@@ -56,6 +56,7 @@ from magbench.cli.config import (
     check_out_calibration,
     check_site,
     check_units,
+    picture_wanted,
     writable_folder,
 )
 from magbench.cli.direction import direction_lines, mark_vetoes
@@ -391,7 +392,7 @@ def run_calibrate(cfg: DictConfig, picture: PictureWorker | None = None) -> int:
     mounting = _add_mounting(result, payload, corrected)
     job = {"path": out / "calibration.png", "dpi": PICTURE_DPI,
            "compress_level": PICTURE_COMPRESSION, "kwargs": _picture_arguments(result, payload)}
-    sent = picture is not None and picture.send(job)
+    sent = run.picture and picture is not None and picture.send(job)
     # After the picture is handed over, so that its drawing and the refits overlap.
     result.bootstrap = payload["bootstrap"] = bootstrap_check(
         result, run.n_boot, preprocess=run.preprocess, options=options,
@@ -406,10 +407,11 @@ def run_calibrate(cfg: DictConfig, picture: PictureWorker | None = None) -> int:
     problem = picture.wait() if sent else ""
     if problem:
         print(f"magbench: note: {problem}; drawing the picture here", file=sys.stderr)
-    if problem or not sent:
+    if run.picture and (problem or not sent):
         draw_picture(job)
     _report(result, payload, out, n_file, ["calibration.json (m = A (y - b))", *written,
-                                          "ranking.csv", "calibration.png"], start, notes)
+                                          "ranking.csv"]
+            + (["calibration.png"] if run.picture else []), start, notes)
     return 0
 
 
@@ -431,6 +433,7 @@ class _Run:
     site: object
     out: Path
     name: str | None
+    picture: bool = True
 
 
 def _settings(cfg: DictConfig) -> _Run:
@@ -460,7 +463,7 @@ def _settings(cfg: DictConfig) -> _Run:
                 check_integer(cfg.get("bootstrap", 50), "bootstrap", 0, 10_000),
                 check_gate(cfg), check_columns(cfg), units, check_field_strength(cfg, units),
                 check_instance(cfg), check_compensate(cfg), check_site(cfg), out,
-                None if name is None else str(name))
+                None if name is None else str(name), picture_wanted(cfg))
 
 
 def _read(run: _Run) -> Recording:

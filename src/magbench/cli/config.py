@@ -526,6 +526,11 @@ def _scheduler_address(value: object) -> str | None:
     return value
 
 
+def picture_wanted(cfg: DictConfig) -> bool:
+    """``calibrate``'s ``picture`` key: whether to draw ``calibration.png``."""
+    return _flag(cfg.get("picture", True), "picture")
+
+
 def _flag(value: object, key: str) -> bool:
     if not isinstance(value, bool):
         raise UsageError(f"{key} must be true or false, got {value!r}")

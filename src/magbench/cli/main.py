@@ -92,8 +92,8 @@ COMMANDS: dict[str, tuple[Callable[..., int], str, str, tuple[str, ...]]] = {
                   "python -m magbench calibrate file=data.csv",
                   ("file", "method", "candidates", "columns", "out", "preprocess",
                    "max_samples", "compensate", "bootstrap", "seed", "units", "field_strength",
-                   "location", "date", "gate", "instance", "overwrite", "options",
-                   "call_timeout_s", "plugins")),
+                   "location", "date", "gate", "instance", "overwrite", "picture",
+                   "options", "call_timeout_s", "plugins")),
     "apply": (_apply, "correct a recording with a saved calibration.json (m = A (y - b))",
               "python -m magbench apply calibration=cal/calibration.json file=flight.csv "
               "out=flight-corrected.csv", ("calibration", "file", "columns", "instance", "out",
@@ -308,7 +308,8 @@ def _main(argv: Sequence[str] | None) -> int:
         return 2
     # Started first, so that the picture process imports matplotlib while this one loads the
     # configuration and fits; closed (stopped, if it was never given a picture) at the end.
-    picture = _start_picture() if command == "calibrate" else None
+    picture = (_start_picture() if command == "calibrate"
+               and not any(a.lstrip("+").lower() == "picture=false" for a in args) else None)
     try:
         return _dispatch(command, args, picture)
     finally:

@@ -104,13 +104,17 @@ rounds_won`) and the machine and load they ran on, where recorded."""
         cal = cal.assign(tool=MAGBENCH_TOOL)
     if "file" not in cal:                      # written before the real recording was timed
         cal = cal.assign(file="synthetic")
-    won = {(r.file, r.K, r.peer): f"{r.won} of {r.rounds}"
-           for r in rounds_won(cal).itertuples(index=False)}
+    won: dict = {}
+    for r in rounds_won(cal).itertuples(index=False):
+        won.setdefault((r.file, r.K, r.peer), []).append(
+            f"{r.won} of {r.rounds}" + ("" if r.magbench == MAGBENCH_TOOL else
+                                        " (picture=false)"))
     lines = ["", "From file to correction: each tool in a fresh interpreter, one warm-up run "
              "each, then the tools take turns; median of the runs (`calibrate.csv`). "
              "`magbench calibrate` runs its default settings: outlier screen, candidates "
              "fitted on all samples and on interleaved time blocks, the choice, the intervals "
-             "with their bootstrap check, JSON, C header, ranking and the picture. "
+             "with their bootstrap check, JSON, C header, ranking and the picture "
+             "(`picture=false`: all but the picture). "
              "A peer's process is the least a user of it runs: read the file, one fit, save "
              "the matrix and offset."]
     for (name, K), table in cal.groupby(["file", "K"], sort=False):
@@ -120,7 +124,7 @@ rounds_won`) and the machine and load they ran on, where recorded."""
                   "|---|---:|---:|---:|---:|"]
         for tool, runs in table.groupby("tool", sort=False):
             inside = runs["command_s"].median()
-            faster = won.get((name, K, tool), "-") if "run" in runs else "-"
+            faster = "; ".join(won.get((name, K, tool), ["-"])) if "run" in runs else "-"
             lines.append(f"| {tool} | {len(runs)} | "
                          f"{format_number(runs['process_s'].median(), 3)} "
                          f"| {'-' if pd.isna(inside) else format_number(inside, 3)} "

@@ -368,8 +368,11 @@ PEER_FILE_FITS = {  # peer -> (package, imports, fit lines)
         "M, c = p['transform_matrix'], p['center']"),
 }
 
-#: The tool whose rounds against each peer are counted.
+#: The tool whose rounds against each peer are counted, and the same without the picture
+#: (``picture=false``: the correction and its files only).
 MAGBENCH_TOOL = "magbench calibrate"
+MAGBENCH_NO_PICTURE = "magbench calibrate picture=false"
+MAGBENCH_TOOLS = (MAGBENCH_TOOL, MAGBENCH_NO_PICTURE)
 
 
 def _timed_run(command: list[str], env: dict) -> tuple[float, float, str]:
@@ -434,9 +437,9 @@ def bench_calibrate(K: int = 10_000, repeats: int = 10, seed: int = 0,
             header = [c.strip() for c in handle.readline().split(",")]
             K = sum(1 for line in handle if line.strip())
         usecols = ",".join(str(header.index(c)) for c in ("mx", "my", "mz"))
-        tools = {MAGBENCH_TOOL: [sys.executable, "-m", "magbench", "calibrate",
-                                 f"file={path}", f"out={Path(tmp) / 'out'}",
-                                 "progress=false", "overwrite=true"]}
+        ours = [sys.executable, "-m", "magbench", "calibrate", f"file={path}",
+                f"out={Path(tmp) / 'out'}", "progress=false", "overwrite=true"]
+        tools = {MAGBENCH_TOOL: ours, MAGBENCH_NO_PICTURE: [*ours, "picture=false"]}
         for peer, (package, imports, fit) in PEER_FILE_FITS.items():
             if find_spec(package) is not None:
                 script = PEER_SCRIPT.format(imports=imports, fit=fit)
@@ -450,7 +453,7 @@ def bench_calibrate(K: int = 10_000, repeats: int = 10, seed: int = 0,
             for tool, command in tools.items():
                 wall, cpu, stdout = _timed_run(command, env)
                 reported = (float(stdout.rsplit("(in ", 1)[1].split(" s)")[0])
-                            if tool == MAGBENCH_TOOL else np.nan)
+                            if tool in MAGBENCH_TOOLS else np.nan)
                 rows.append({"tool": tool, "file": name, "K": K, "run": run,
                              "process_s": wall, "cpu_s": cpu, "command_s": reported,
                              "load_1min": load, **machine})
@@ -458,18 +461,23 @@ def bench_calibrate(K: int = 10_000, repeats: int = 10, seed: int = 0,
 
 
 def rounds_won(table: pd.DataFrame) -> pd.DataFrame:
-    """Per recording and peer of a :func:`bench_calibrate` table: the rounds in which
-    ``magbench calibrate`` took less wall time than the peer, the rounds run and both
-    medians."""
+    """Per recording, magbench variant (:data:`MAGBENCH_TOOLS`) and peer of a
+    :func:`bench_calibrate` table: the rounds in which the variant took less wall time than
+    the peer, the rounds run and both medians."""
     table = table if "file" in table else table.assign(file="synthetic")
     rows = []
     for (name, K), runs in table.groupby(["file", "K"], sort=False):
-        ours = runs[runs["tool"] == MAGBENCH_TOOL].set_index("run")["process_s"]
-        for tool, peer in runs[runs["tool"] != MAGBENCH_TOOL].groupby("tool", sort=False):
-            ahead = ours.reindex(peer["run"]).to_numpy() < peer["process_s"].to_numpy()
-            rows.append({"file": name, "K": K, "peer": tool, "won": int(ahead.sum()),
-                         "rounds": len(peer), "magbench_median_s": ours.median(),
-                         "peer_median_s": peer["process_s"].median()})
+        peers = runs[~runs["tool"].isin(MAGBENCH_TOOLS)]
+        for variant in MAGBENCH_TOOLS:
+            ours = runs[runs["tool"] == variant].set_index("run")["process_s"]
+            if ours.empty:
+                continue
+            for tool, peer in peers.groupby("tool", sort=False):
+                ahead = ours.reindex(peer["run"]).to_numpy() < peer["process_s"].to_numpy()
+                rows.append({"file": name, "K": K, "magbench": variant, "peer": tool,
+                             "won": int(ahead.sum()), "rounds": len(peer),
+                             "magbench_median_s": ours.median(),
+                             "peer_median_s": peer["process_s"].median()})
     return pd.DataFrame(rows)
 
 
