@@ -277,3 +277,19 @@ def test_a_3_deg_mount_on_broad_is_recovered_by_the_calibrate_path(name):
     A0, _ = _calibrate_path(name, kept.rec.y / kept.strength, kept)
     applied = _rotation_of(A0 @ np.linalg.inv(d.T))
     assert rotation_angle_deg(_rotation_of(A) @ applied.T) < 0.5
+
+
+def test_the_joint_fit_gets_the_rows_that_turn_the_most():
+    """A rest, a slow turn and a fast turn, with a gap in the kept rows: the window is the
+    fast turn's, not the first rows of the longest run; with no turn at all, the first."""
+    from magbench.studies.alignment import most_turning_run
+
+    t = np.arange(1000) * 0.01
+    gyro = np.zeros((1000, 3))
+    gyro[300:500, 2] = 0.2
+    gyro[700:1000, 0] = 2.0
+    keep = np.ones(1000, bool)
+    keep[650] = False
+    np.testing.assert_array_equal(most_turning_run(keep, t, gyro, 200), np.arange(700, 900))
+    np.testing.assert_array_equal(most_turning_run(keep, t, gyro, 500), np.arange(651, 1000))
+    np.testing.assert_array_equal(most_turning_run(keep, t, 0 * gyro, 100), np.arange(100))

@@ -61,7 +61,7 @@ from magbench.studies.holdout import estimate, fold_indices
 __all__ = ["PRIMARY", "DirectionReport", "DirectionVeto", "Inertial", "OffsetCheck",
            "align_chosen", "direction_consistency", "direction_report", "direction_vetoes",
            "field_check", "fit_alignment", "fold_direction", "inertial_of", "lag_corrected",
-           "longest_run", "offset_check", "primary_direction"]
+           "most_turning_run", "offset_check", "primary_direction"]
 
 
 @dataclass(frozen=True)
@@ -422,25 +422,36 @@ class DirectionVeto:
         return self.column, [math.nan if n in self.vetoes else 1.0 for n in names]
 
 
-def longest_run(keep: np.ndarray, limit: int) -> np.ndarray:
-    """Indices of the longest run of consecutive ``True`` rows, at most ``limit`` of them."""
+def most_turning_run(keep: np.ndarray, t: np.ndarray, gyro: np.ndarray,
+                     limit: int) -> np.ndarray:
+    """Indices of at most ``limit`` consecutive ``True`` rows of ``keep`` that turn the most
+    (the largest sum of ``|gyro| dt``): a joint fit's gyro chain needs consecutive rows, and
+    a rest before take-off or between moves fixes no rotation. Of equal windows, the first."""
+    K = len(keep)
+    turn = np.zeros(K)                  # the turn from row k to row k + 1, at row k's rate
+    turn[:-1] = np.linalg.norm(gyro[:-1], axis=1) * np.diff(t)
+    turned = np.concatenate([[0.0], np.cumsum(np.nan_to_num(turn))])
     edges = np.flatnonzero(np.diff(np.concatenate([[0], keep.astype(int), [0]])))
-    starts, stops = edges[::2], edges[1::2]
-    if not starts.size:
-        return np.arange(0)
-    k = int(np.argmax(stops - starts))
-    return np.arange(starts[k], min(stops[k], starts[k] + limit))
+    best = (-1.0, 0, 0)
+    for start, stop in zip(edges[::2], edges[1::2], strict=True):
+        n = min(limit, stop - start)
+        first = np.arange(start, stop - n + 1)
+        total = turned[first + n - 1] - turned[first]
+        j = int(np.flatnonzero(total >= total.max() - 1e-9 * abs(total.max()))[0])
+        if total[j] > best[0] + 1e-9 * abs(best[0]):
+            best = (float(total[j]), int(first[j]), n)
+    return np.arange(best[1], best[1] + best[2])
 
 
 def align_chosen(cal: Calibration, rec: Recording, keep: np.ndarray,
                  **map_options: object) -> tuple[Calibration, str]:
     """The chosen calibration made heading-true on the recording's kept rows (every kept row
-    for an attitude or accelerometer; the longest run of consecutive kept rows, up to
-    :data:`MAX_JOINT_ROWS`, for the gyro+accelerometer fit, whose gyro chain needs them)."""
+    for an attitude or accelerometer; for the gyro+accelerometer fit, whose gyro chain needs
+    consecutive rows, the :data:`MAX_JOINT_ROWS` of them that turn the most)."""
     inertial = inertial_of(rec)
     rows = np.flatnonzero(keep)
     if inertial.source == "gyro+accelerometer":
-        rows = longest_run(keep, MAX_JOINT_ROWS)
+        rows = most_turning_run(keep, rec.t, rec.gyro, MAX_JOINT_ROWS)
         map_options = {"sigma_acc": 0.2, "sigma_gyro": 0.05, **map_options}
     return fit_alignment(cal, rec.y[rows], inertial.rows(rows), **map_options)
 
