@@ -447,12 +447,15 @@ def align_chosen(cal: Calibration, rec: Recording, keep: np.ndarray,
                  **map_options: object) -> tuple[Calibration, str]:
     """The chosen calibration made heading-true on the recording's kept rows (every kept row
     for an attitude or accelerometer; for the gyro+accelerometer fit, whose gyro chain needs
-    consecutive rows, the :data:`MAX_JOINT_ROWS` of them that turn the most)."""
+    consecutive rows, the :data:`MAX_JOINT_ROWS` of them that turn the most). The joint fit
+    takes hand-held noise levels and the accelerometer as calibrated (a flight controller's
+    firmware calibrates it; a free bias soaks up linear accelerations)."""
     inertial = inertial_of(rec)
     rows = np.flatnonzero(keep)
     if inertial.source == "gyro+accelerometer":
         rows = most_turning_run(keep, rec.t, rec.gyro, MAX_JOINT_ROWS)
-        map_options = {"sigma_acc": 0.2, "sigma_gyro": 0.05, **map_options}
+        map_options = {"sigma_acc": 0.2, "sigma_gyro": 0.05, "accel_bias": False,
+                       **map_options}
     return fit_alignment(cal, rec.y[rows], inertial.rows(rows), **map_options)
 
 

@@ -259,11 +259,32 @@ def fit(samples: np.ndarray, *, angular_rate: np.ndarray, time: np.ndarray,
                                 "magnetometer's axes are left-handed against the IMU's (a "
                                 "swapped or negated axis), or the fit went astray")
     incl = np.degrees(-p[12])
+    dip = data_dip_deg(G, h, samples, a)
+    if abs(incl - dip) > MAX_DIP_DISAGREEMENT_DEG:
+        raise CalibrationFailed(f"MAP: the fitted inclination {incl:.1f} deg is "
+                                f"{abs(incl - dip):.0f} deg from the data's own dip angle "
+                                f"under the fitted G ({dip:.1f} deg): a wrong local minimum "
+                                "(fast linear accelerations?)")
     message = (f"Levenberg-Marquardt {'converged' if converged else 'stopped at the cap'} after "
                f"{n_iter} iterations; inclination {incl:.2f} deg")
     if accel_bias:
         message += f"; accelerometer bias {np.array2string(g * p[16:19], precision=4)}"
     return Calibration(G, h, n_iter, converged, message, b, alignment_rotation(G))
+
+
+#: Largest gap (deg) between the fitted inclination and the median angle between the specific
+#: force and the field the fitted ``G`` gives: linear accelerations bias the latter by up to
+#: about 20 deg on hand-held motion; a fit in the wrong basin is 40 deg or more away.
+MAX_DIP_DISAGREEMENT_DEG = 30.0
+
+
+def data_dip_deg(G: np.ndarray, h: np.ndarray, y: np.ndarray, a: np.ndarray) -> float:
+    """The field's dip below the horizontal (deg) that the samples show under ``G`` and ``h``:
+    the median over samples of the angle between the field ``G^-1 (y - h)`` and the specific
+    force ``a`` (up at rest), as 90 deg minus it."""
+    m = unit_rows(np.linalg.solve(G, (y - h).T).T)
+    cos = np.einsum("ij,ij->i", m, unit_rows(a))
+    return float(np.degrees(np.arcsin(-np.median(cos))))
 
 
 def _solve(Q, p, y, a, w_mid, dt, g_w, weights, max_iter, xtol):
