@@ -639,3 +639,20 @@ def test_an_ardupilot_logs_rotation_is_relative_so_it_is_not_written():
     assert rotation is None and "ROTATION_YAW_270 is on top of the current setting" in line
     assert _export_rotation({"file": "a.csv", "mounting_rotation": {"id": None}}) == (None, "")
     assert _export_rotation({"file": "a.csv"}) == (None, "")
+
+
+def test_an_offset_that_follows_the_current_is_fitted_not_cut(tmp_path, capsys):
+    """A flight log whose offset moves with the battery current (4 mGauss/A): the
+    time-varying terms model it, so the offset check does not cut the recording, and the
+    status carries no 'offset changed' warning."""
+    from tests.studies.test_flight import simulated_ulog
+
+    log = simulated_ulog(tmp_path / "flight.ulg", 0, seed=3, seconds=60.0,
+                         motor=np.array([0.004, -0.002, 0.003]))
+    assert calibrate(f"file={log}", f"out={tmp_path / 'o'}", "bootstrap=0",
+                     "picture=false") == 0
+    out = capsys.readouterr().out
+    data = json.loads((tmp_path / "o" / "calibration.json").read_text())
+    assert "\noffset:" not in out
+    assert not any("offset changed" in r for r in data["fitness"]["reasons"])
+    assert data["time_varying"]["kept"] and data["samples_used"] > 1100

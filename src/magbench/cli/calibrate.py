@@ -361,7 +361,10 @@ def run_calibrate(cfg: DictConfig, picture: PictureWorker | None = None) -> int:
         if reason:
             raise UsageError(reason.removeprefix("skipped: "))
     rec, lag = lag_corrected(rec) if inertial_of(rec).source != "none" else (rec, 0.0)
-    offsets = offset_check(rec) if inertial_of(rec).source != "none" else None
+    # An offset that follows the current, throttle or temperature is what the time-varying
+    # terms fit: only without such a regressor is a changed offset a cut.
+    offsets = (offset_check(rec) if inertial_of(rec).source != "none"
+               and not usable_regressors(rec, run.compensate) else None)
     if offsets is not None and offsets.changed:
         rec = rec.rows(np.flatnonzero(offsets.keep))
     veto = DirectionVeto()
