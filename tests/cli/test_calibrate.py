@@ -592,6 +592,7 @@ def test_an_offset_only_fit_never_prints_a_zero_interval_for_A(tmp_path, capsys)
     ("gate.fail_error_pct=-1", "gate.fail_error_pct must be >= 0"),
     ("gate.warn_error_pct=20", "gate.warn_error_pct must not exceed gate.fail_error_pct"),
     ("gate.fail_directions=x", "gate.fail_directions must be an integer"),
+    ("gate.warn_heading_deg=40", "gate.warn_heading_deg must not exceed gate.fail_heading_deg"),
     ("+gate.bogus=1", "gate.bogus"),
 ])
 def test_bad_gate_keys_exit_2_in_one_line(arg, message, tmp_path, capsys):
