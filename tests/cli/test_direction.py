@@ -108,6 +108,23 @@ def test_an_offset_that_changes_mid_recording_warns_and_fits_one_part(tmp_path, 
     np.testing.assert_allclose(data["h"], [3.0, -2.0, 4.0], atol=0.05)   # the first part's
 
 
+def test_a_calibration_of_a_minority_of_the_recording_is_not_written(tmp_path, capsys):
+    """The magnet on from 13 s to 27 s of 40 s: three states, none of them half of the
+    recording; the kept third is not what the vehicle mostly was, so FAIL, exit 3."""
+    path, _ = inertial_csv(tmp_path / "rec.csv")
+    frame = pd.read_csv(path)
+    frame.loc[650:1349, ["mx", "my", "mz"]] += 0.6 * 45.0 * np.array([0.1, -0.2, 0.97])
+    frame.to_csv(path, index=False)
+    assert calibrate(f"file={path}", f"out={tmp_path / 'o'}") == 3
+    data = json.loads((tmp_path / "o" / "calibration.json").read_text())
+    assert data["status"] == "FAIL" and "record again" in data["fitness"]["reasons"][0]
+    assert not (tmp_path / "o" / "calibration.h").exists()
+    # MAG.I.C.AL. alone does not converge on the kept third: the one line says why it was cut.
+    assert calibrate(f"file={path}", f"out={tmp_path / 'm'}", "method=magical") == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "the hard-iron offset changed within the recording" in err
+
+
 def test_gyro_and_accelerometer_alone_also_align(tmp_path, capsys):
     path, _ = inertial_csv(tmp_path / "rec.csv", attitude=False)
     assert calibrate(f"file={path}", f"out={tmp_path / 'o'}", "method=magical",

@@ -74,7 +74,7 @@ from magbench.core.files import write_csv_atomic, write_text_atomic
 from magbench.core.gauge import safe_gauge
 from magbench.core.model import Calibration
 from magbench.core.units import UNKNOWN, Units, parse_units
-from magbench.core.verdict import Gate, with_warning
+from magbench.core.verdict import Gate, with_reason
 from magbench.methods.api import calibrate as magbench_calibrate
 from magbench.methods.registry import get_method, methods
 from magbench.sources.logs import is_log, log_units
@@ -380,10 +380,15 @@ def run_calibrate(cfg: DictConfig, picture: PictureWorker | None = None) -> int:
                          + ("no out-of-sample score: name one with method=NAME, or record "
                             "longer" if not run.name else "see the table")
                          + "); check that the sensor was turned through many orientations "
-                         "in a steady field")
+                         "in a steady field"
+                         + ("; " + offsets.warning() if offsets is not None and offsets.changed
+                            else ""))
     out = writable_folder(run.out, "out")
     if offsets is not None and offsets.changed:
-        result.fitness = with_warning(result.fitness, offsets.warning())
+        # A calibration of a minority of the recording describes a state the vehicle
+        # mostly was not in: it is not written.
+        result.fitness = with_reason(result.fitness, offsets.warning(),
+                                     fail=offsets.kept_share < 0.5)
     payload = calibration_json(result, file=str(run.path), columns=list(rec.columns),
                                n_file=n_file, preprocess=run.preprocess, units=run.units,
                                expected_field=run.expected)

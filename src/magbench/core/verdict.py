@@ -47,7 +47,7 @@ __all__ = [
     "heading_error_deg",
     "magnitude_verdict",
     "turn_advice",
-    "with_warning",
+    "with_reason",
 ]
 
 MAX_GAP_DEG = 100.0
@@ -298,8 +298,11 @@ def fitness(gate: Gate, *, p95_pct: float, held_out: bool, gap_deg: float, direc
     return {"status": status, "reasons": fails + warns, "thresholds": dict(gate.__dict__)}
 
 
-def with_warning(fit: dict, reason: str) -> dict:
-    """:func:`fitness`'s result with one more warning: PASS becomes WARN, FAIL stays FAIL."""
+def with_reason(fit: dict, reason: str, *, fail: bool = False) -> dict:
+    """:func:`fitness`'s result with one more reason: a failing one goes first and makes it
+    FAIL; a warning goes last and makes a PASS a WARN."""
+    if fail:
+        return {**fit, "status": "FAIL", "reasons": [reason, *fit["reasons"]]}
     status = "WARN" if fit["status"] == "PASS" else fit["status"]
     return {**fit, "status": status, "reasons": [*fit["reasons"], reason]}
 

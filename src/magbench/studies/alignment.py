@@ -506,16 +506,22 @@ class OffsetCheck:
         """More than one segment: the offset changed (or the field jumped at rest)."""
         return len(self.segments) > 1
 
+    @property
+    def kept_share(self) -> float:
+        """The share of the rows in the kept segment."""
+        return float(self.keep.mean())
+
     def warning(self) -> str:
         """The gate's reason when the offset changes (empty when it does not): the
         calibration holds for the kept segment only."""
         if not self.changed:
             return ""
         lo, hi = self.spans[self.chosen]
-        share = 100.0 * float(self.keep.mean())
         return (f"the hard-iron offset changed within the recording: calibrated on t = "
-                f"{lo:.1f}-{hi:.1f} s only ({share:.0f} % of the rows); check that part "
-                "matches the vehicle as flown")
+                f"{lo:.1f}-{hi:.1f} s only ({100 * self.kept_share:.0f} % of the rows); "
+                + ("check that part matches the vehicle as flown" if self.kept_share >= 0.5
+                   else "most of the recording is in another state: record again with the "
+                        "vehicle as flown"))
 
     def line(self) -> str:
         """One line for the printed report (empty when the offset does not change)."""
