@@ -293,3 +293,25 @@ def test_the_joint_fit_gets_the_rows_that_turn_the_most():
     np.testing.assert_array_equal(most_turning_run(keep, t, gyro, 200), np.arange(700, 900))
     np.testing.assert_array_equal(most_turning_run(keep, t, gyro, 500), np.arange(651, 1000))
     np.testing.assert_array_equal(most_turning_run(keep, t, 0 * gyro, 100), np.arange(100))
+
+
+def test_a_frozen_attitude_does_not_cut_the_recording():
+    """An attitude column stuck at its first value sees every window's field move: without
+    the span check the offset check cut a good recording to 7 %. It falls back to the gyro,
+    and without one it does not run."""
+    import pandas as pd
+
+    from magbench.sources.recordings import Recording
+    from magbench.studies.alignment import offset_check
+
+    traj = simulate(np.random.default_rng(8), rate_hz=50.0, duration_s=40.0, T=T,
+                    h=np.array([0.03, -0.02, 0.04]), mount=MOUNT, mag_noise=0.005,
+                    gyro_noise=0.005, accel_noise=0.05)
+    frozen = pd.DataFrame(np.tile(matrix_to_quat(traj.R[:1]), (len(traj.t), 1)),
+                          columns=["qw", "qx", "qy", "qz"])
+    with_gyro = Recording("frozen", traj.y, traj.t, traj.angular_rate, n_rows=len(traj.t),
+                          extra=frozen)
+    check = offset_check(with_gyro)
+    assert check is not None and not check.changed and check.keep.all()
+    without = Recording("frozen", traj.y, traj.t, None, n_rows=len(traj.t), extra=frozen)
+    assert offset_check(without) is None

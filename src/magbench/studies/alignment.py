@@ -564,13 +564,20 @@ def offset_check(rec: Recording, *, tol: float = 0.1, method: str = "magical",
     Returns
     -------
     OffsetCheck or None
-        None without times and a rate (gyro or attitude).
+        None without times and a rate (gyro, or an attitude that turns through at least
+        :data:`MIN_ATTITUDE_SPAN_DEG`).
     """
     inertial = inertial_of(rec)
     if rec.t is None:
         return None
-    if inertial.attitude is not None:
-        orientation = quat_to_matrix(inertial.attitude)
+    attitude = inertial.attitude
+    if attitude is not None:
+        finite = np.isfinite(attitude).all(axis=1)
+        if not finite.any() or span_deg(quat_to_matrix(attitude[finite])) < \
+                MIN_ATTITUDE_SPAN_DEG:
+            attitude = None            # frozen or unrelated: it fixes no rotation (wahba)
+    if attitude is not None:
+        orientation = quat_to_matrix(attitude)
     elif rec.gyro is not None:
         orientation = gyro_orientation(rec.t, rec.gyro)
     else:
