@@ -360,12 +360,15 @@ def run_calibrate(cfg: DictConfig, picture: PictureWorker | None = None) -> int:
         reason = applicability(run.name, rec)
         if reason:
             raise UsageError(reason.removeprefix("skipped: "))
-    rec, lag = lag_corrected(rec) if inertial_of(rec).source != "none" else (rec, 0.0)
+    has_inertial = inertial_of(rec).source != "none"
+    rec, lag = lag_corrected(rec) if has_inertial else (rec, 0.0)
     # An offset that follows the current, throttle or temperature is what the time-varying
     # terms fit: only without such a regressor is a changed offset a cut.
-    offsets = (offset_check(rec) if inertial_of(rec).source != "none"
-               and not usable_regressors(rec, run.compensate) else None)
-    if offsets is not None and offsets.changed:
+    offsets = (offset_check(rec)
+               if has_inertial and not usable_regressors(rec, run.compensate) else None)
+    if offsets is not None and not offsets.changed:
+        offsets = None
+    if offsets is not None:
         rec = rec.rows(np.flatnonzero(offsets.keep))
     veto = DirectionVeto()
     result = calibrate_recording(rec, candidates, preprocess=run.preprocess, options=options,
@@ -381,10 +384,9 @@ def run_calibrate(cfg: DictConfig, picture: PictureWorker | None = None) -> int:
                             "longer" if not run.name else "see the table")
                          + "); check that the sensor was turned through many orientations "
                          "in a steady field"
-                         + ("; " + offsets.warning() if offsets is not None and offsets.changed
-                            else ""))
+                         + ("; " + offsets.warning() if offsets is not None else ""))
     out = writable_folder(run.out, "out")
-    if offsets is not None and offsets.changed:
+    if offsets is not None:
         # A calibration of a minority of the recording describes a state the vehicle
         # mostly was not in: it is not written.
         result.fitness = with_reason(result.fitness, offsets.warning(),
@@ -441,7 +443,7 @@ class _Run:
     site: object
     out: Path
     name: str | None
-    picture: bool = True
+    picture: bool
 
 
 def _settings(cfg: DictConfig) -> _Run:

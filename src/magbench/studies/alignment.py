@@ -58,10 +58,26 @@ from magbench.methods.api import calibrate
 from magbench.sources.recordings import Recording
 from magbench.studies.holdout import estimate, fold_indices
 
-__all__ = ["PRIMARY", "DirectionReport", "DirectionVeto", "Inertial", "OffsetCheck",
-           "align_chosen", "direction_consistency", "direction_report", "direction_vetoes",
-           "field_check", "fit_alignment", "fold_direction", "inertial_of", "lag_corrected",
-           "most_turning_run", "offset_check", "primary_direction"]
+__all__ = [
+    "PRIMARY",
+    "DirectionReport",
+    "DirectionVeto",
+    "Inertial",
+    "OffsetCheck",
+    "align_chosen",
+    "attitude_turn_deg",
+    "direction_consistency",
+    "direction_report",
+    "direction_vetoes",
+    "field_check",
+    "fit_alignment",
+    "fold_direction",
+    "inertial_of",
+    "lag_corrected",
+    "most_turning_run",
+    "offset_check",
+    "primary_direction",
+]
 
 
 @dataclass(frozen=True)
@@ -103,6 +119,13 @@ def symmetric_field(cal: Calibration, y: np.ndarray) -> np.ndarray:
 MIN_ATTITUDE_SPAN_DEG = 30.0
 
 
+def attitude_turn_deg(attitude: np.ndarray) -> float:
+    """How far an attitude stream (``(K, 4)`` quaternions, NaN rows allowed) turns: the largest
+    angle between its first finite row and any other, deg (0 without a finite row)."""
+    ok = np.isfinite(attitude).all(axis=1)
+    return span_deg(quat_to_matrix(attitude[ok])) if ok.any() else 0.0
+
+
 def wahba_alignment(m: np.ndarray, attitude: np.ndarray, n_iter: int = 10) -> np.ndarray:
     """The rotation ``R`` with ``R m_k`` nearest ``Q_k^T m_w`` for the best world direction
     ``m_w``: alternate the mean world direction and Wahba's solution (SVD).
@@ -110,12 +133,12 @@ def wahba_alignment(m: np.ndarray, attitude: np.ndarray, n_iter: int = 10) -> np
     Raises :class:`CalibrationFailed` when the attitude turns through less than
     :data:`MIN_ATTITUDE_SPAN_DEG`: the reference directions are then nearly one, which fixes
     no rotation (a frozen or wrong attitude stream beside a magnetometer that turned)."""
-    ok = np.isfinite(attitude).all(axis=1)
-    Q, u = quat_to_matrix(attitude[ok]), unit_rows(m[ok])
-    turned = span_deg(Q) if len(Q) else 0.0
+    turned = attitude_turn_deg(attitude)
     if turned < MIN_ATTITUDE_SPAN_DEG:
         raise CalibrationFailed(f"the attitude turned through {turned:.0f} deg (< "
                                 f"{MIN_ATTITUDE_SPAN_DEG:g}): it cannot fix the rotation")
+    ok = np.isfinite(attitude).all(axis=1)
+    Q, u = quat_to_matrix(attitude[ok]), unit_rows(m[ok])
     R = np.eye(3)
     for _ in range(n_iter):
         m_w = mean_direction(np.einsum("kij,kj->ki", Q, u @ R.T))
@@ -571,12 +594,7 @@ def offset_check(rec: Recording, *, tol: float = 0.1, method: str = "magical",
     if rec.t is None:
         return None
     attitude = inertial.attitude
-    if attitude is not None:
-        finite = np.isfinite(attitude).all(axis=1)
-        if not finite.any() or span_deg(quat_to_matrix(attitude[finite])) < \
-                MIN_ATTITUDE_SPAN_DEG:
-            attitude = None            # frozen or unrelated: it fixes no rotation (wahba)
-    if attitude is not None:
+    if attitude is not None and attitude_turn_deg(attitude) >= MIN_ATTITUDE_SPAN_DEG:
         orientation = quat_to_matrix(attitude)
     elif rec.gyro is not None:
         orientation = gyro_orientation(rec.t, rec.gyro)
