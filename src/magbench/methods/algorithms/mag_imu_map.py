@@ -273,8 +273,8 @@ def fit(samples: np.ndarray, *, angular_rate: np.ndarray, time: np.ndarray,
 
 
 #: Largest gap (deg) between the fitted inclination and the median angle between the specific
-#: force and the field the fitted ``G`` gives: linear accelerations bias the latter by up to
-#: about 20 deg on hand-held motion; a fit in the wrong basin is 40 deg or more away.
+#: force and the field the fitted ``G`` gives: linear accelerations bias the latter on
+#: hand-held motion, a fit in the wrong basin lies well beyond (evidence: docs/decisions.md).
 MAX_DIP_DISAGREEMENT_DEG = 30.0
 
 
