@@ -287,11 +287,38 @@ def data_dip_deg(G: np.ndarray, h: np.ndarray, y: np.ndarray, a: np.ndarray) -> 
     return float(np.degrees(np.arcsin(-np.median(cos))))
 
 
+def bordered_solve(H, rhs: np.ndarray, n: int, damping: np.ndarray) -> np.ndarray:
+    """Solve ``(H + diag(damping)) x = rhs`` for a symmetric ``H`` whose leading ``n x n``
+    block is block tridiagonal (3x3 blocks, so banded with 5 off-diagonals) and whose last rows
+    and columns are dense: a banded Cholesky of the leading block and the Schur complement of
+    the border (``O(n)``; a general sparse LU fills in the border and pivots).
+
+    Falls back to the general sparse solve if the leading block is not positive definite.
+    """
+    from scipy import sparse
+    from scipy.linalg import LinAlgError, cho_factor, cho_solve, cho_solve_banded, cholesky_banded
+
+    H = sparse.csc_matrix(H)
+    try:
+        band = np.zeros((6, n))
+        A = H[:n, :n]
+        for k in range(6):                          # upper form: row 5 - k holds offset k
+            band[5 - k, k:] = A.diagonal(k)
+        band[5] += damping[:n]
+        factor = cholesky_banded(band)
+        E = H[:n, n:].toarray()
+        D = H[n:, n:].toarray() + np.diag(damping[n:])
+        X = cho_solve_banded((factor, False), np.column_stack([E, rhs[:n]]))
+        schur = D - E.T @ X[:, :-1]
+        border = cho_solve(cho_factor(schur), rhs[n:] - E.T @ X[:, -1])
+        return np.concatenate([X[:, -1] - X[:, :-1] @ border, border])
+    except LinAlgError:
+        from scipy.sparse.linalg import spsolve
+        return spsolve(H + sparse.diags(damping), rhs)
+
+
 def _solve(Q, p, y, a, w_mid, dt, g_w, weights, max_iter, xtol):
     """Levenberg-Marquardt on the joint problem; returns ``Q, p, iterations, converged``."""
-    from scipy import sparse
-    from scipy.sparse.linalg import spsolve
-
     K = Q.shape[0]
     r, parts = residuals(Q, p, y, a, w_mid, dt, g_w, weights)
     cost, lam = float(r @ r), 1e-6
@@ -300,7 +327,7 @@ def _solve(Q, p, y, a, w_mid, dt, g_w, weights, max_iter, xtol):
         H = (J.T @ J).tocsc()
         grad = J.T @ r
         while True:
-            step = spsolve(H + lam * sparse.diags(H.diagonal() + 1e-12), -grad)
+            step = bordered_solve(H, -grad, 3 * K, lam * (H.diagonal() + 1e-12))
             Q_new = Q @ rotation_exp(step[:3 * K].reshape(K, 3))
             p_new = p + step[3 * K:]
             r_new, parts_new = residuals(Q_new, p_new, y, a, w_mid, dt, g_w, weights)
