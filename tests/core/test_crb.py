@@ -60,3 +60,20 @@ def test_magical_is_efficient_at_low_noise():
         EJ.append(efficient_expected_J(d.T, d.m, point.sigma))
     assert np.mean(sq) == pytest.approx(np.mean(bounds), rel=0.15)
     assert np.mean(Js) == pytest.approx(np.mean(EJ), rel=0.1)
+
+
+def test_a_given_covariance_gives_exactly_the_bound_computed_here():
+    """A trial computes the covariance once and hands it to both summaries: the numbers are
+    the same to the bit, and the covariance given is the one used."""
+    from magbench.core.crb import crb_covariance
+
+    data = make_dataset(np.random.default_rng(3), Point())
+    C = crb_covariance(data.T, data.m, 0.005)
+    assert crb_mse(data.T, data.h, data.m, 0.005, covariance=C) == crb_mse(
+        data.T, data.h, data.m, 0.005)
+    assert efficient_expected_J(data.T, data.m, 0.005, covariance=C) == efficient_expected_J(
+        data.T, data.m, 0.005)
+    assert crb_mse(data.T, data.h, data.m, 0.005, covariance=4 * C).total == pytest.approx(
+        4 * crb_mse(data.T, data.h, data.m, 0.005).total, rel=1e-12)
+    assert efficient_expected_J(data.T, data.m, 0.005, covariance=4 * C) == pytest.approx(
+        2 * efficient_expected_J(data.T, data.m, 0.005), rel=1e-12)

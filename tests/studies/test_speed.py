@@ -62,21 +62,30 @@ def test_reproduce_times_add_up_and_read_the_calls_time(tmp_path):
     (tmp_path / "gamma").mkdir()
     pd.DataFrame({"algorithm": ["a", "b", "a"], "time_s": [1.0, 2.0, 0.5]}).to_csv(
         tmp_path / "gamma" / "trials_times.csv", index=False)
+    (tmp_path / "heading").mkdir()
+    pd.DataFrame({"algorithm": ["a"], "time_s": [0.25]}).to_csv(
+        tmp_path / "heading" / "heading_trials_times.csv", index=False)
+    pd.DataFrame({"algorithm": ["a", "b"], "spent_s": [0.75, 0.5]}).to_csv(
+        tmp_path / "heading" / "timing.csv", index=False)
     steps = [{"step": "start-up", "wall_s": 1.0, "cpu_s": 1.0, "load_1min": 0.1},
              {"step": "gamma", "wall_s": 3.0, "cpu_s": 5.0, "load_1min": 0.2},
-             {"step": "report", "wall_s": 6.0, "cpu_s": 6.0, "load_1min": 0.3}]
+             {"step": "report", "wall_s": 6.0, "cpu_s": 6.0, "load_1min": 0.3},
+             {"step": "heading", "wall_s": 1.0, "cpu_s": 2.0, "load_1min": 0.3}]
     table = bench.reproduce_times(steps, tmp_path, {"cpu_model": "X", "n_jobs": 2})
-    assert list(table["step"]) == ["start-up", "gamma", "report", "total"]
+    assert list(table["step"]) == ["start-up", "gamma", "report", "heading", "total"]
+    # any trials table's sidecar and the timing pass's calls count as calls
+    assert table.iloc[3]["method_s"] == 1.5
     total = table.iloc[-1]
-    assert (total["wall_s"], total["cpu_s"], total["method_s"]) == (10.0, 12.0, 3.5)
+    assert (total["wall_s"], total["cpu_s"], total["method_s"]) == (11.0, 14.0, 5.0)
     gamma = table.iloc[1]
     assert gamma["method_s"] == 3.5 and gamma["overhead_cpu_s"] == 1.5
-    assert gamma["cpu_per_wall"] == pytest.approx(5 / 3) and gamma["share_wall"] == 0.3
+    assert gamma["cpu_per_wall"] == pytest.approx(5 / 3)
+    assert gamma["share_wall"] == pytest.approx(3 / 11)
     assert np.isnan(table.iloc[2]["method_s"])          # the report times no calls
     assert set(table["cpu_model"]) == {"X"} and list(table["load_1min"][:3]) == [0.1, 0.2, 0.3]
     text = bench.format_reproduce_times(table)
-    assert text.splitlines()[2].split() == ["gamma", "3.0", "5.0", "1.67", "3.5", "30%"]
-    assert text.endswith("make reproduce: 0 min 10 s wall")
+    assert text.splitlines()[2].split() == ["gamma", "3.0", "5.0", "1.67", "3.5", "27%"]
+    assert text.endswith("make reproduce: 0 min 11 s wall")
 
 
 def test_requirement_closure_follows_requirements_but_not_extras():

@@ -161,7 +161,8 @@ def crb_covariance(T: np.ndarray, m: np.ndarray, sigma: float) -> np.ndarray:
     return parameter_covariance(T, m, sigma, "full")
 
 
-def crb_mse(T_true: np.ndarray, h_true: np.ndarray, m: np.ndarray, sigma: float) -> CRB:
+def crb_mse(T_true: np.ndarray, h_true: np.ndarray, m: np.ndarray, sigma: float, *,
+            covariance: np.ndarray | None = None) -> CRB:
     """Cramer-Rao bound on ``E[||dh||^2 + ||dT||_F^2]`` (the squared parts of J, eq. 74).
 
     Parameters
@@ -174,6 +175,9 @@ def crb_mse(T_true: np.ndarray, h_true: np.ndarray, m: np.ndarray, sigma: float)
         The dataset's true unit directions.
     sigma : float
         Noise standard deviation.
+    covariance : ndarray, shape (12, 12), optional
+        :func:`crb_covariance` of these arguments, if the caller has it already (a sweep's
+        trial needs it twice).
 
     Returns
     -------
@@ -182,7 +186,8 @@ def crb_mse(T_true: np.ndarray, h_true: np.ndarray, m: np.ndarray, sigma: float)
         :func:`crb_covariance`.
     """
     del h_true
-    diag = np.diag(crb_covariance(T_true, m, sigma))
+    C = crb_covariance(T_true, m, sigma) if covariance is None else covariance
+    diag = np.diag(C)
     T_part, h_part = float(diag[:9].sum()), float(diag[9:].sum())
     return CRB(T_part + h_part, h_part, T_part)
 
@@ -192,15 +197,17 @@ def _standard_draws() -> np.ndarray:
     return np.random.default_rng(_DRAW_SEED).standard_normal((_N_DRAWS, 12))
 
 
-def efficient_expected_J(T_true: np.ndarray, m: np.ndarray, sigma: float) -> float:
+def efficient_expected_J(T_true: np.ndarray, m: np.ndarray, sigma: float, *,
+                         covariance: np.ndarray | None = None) -> float:
     """``E[J] = E[||dh|| + ||dT||_F]`` (eq. 74) of an efficient unbiased estimator.
 
     The error of an estimator that attains the bound is Gaussian with covariance
     :func:`crb_covariance` (asymptotically, as maximum likelihood is); the expectation is
     computed over a fixed set of 4000 draws (relative error about 0.3 %). This is the
     number to set beside the review's rho (78), a mean of J, not of J squared.
+    ``covariance``: :func:`crb_covariance` of these arguments, if the caller has it already.
     """
-    C = crb_covariance(T_true, m, sigma)
+    C = crb_covariance(T_true, m, sigma) if covariance is None else covariance
     if not np.all(np.isfinite(C)):
         return float("inf")
     w, V = np.linalg.eigh(C)

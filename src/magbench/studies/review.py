@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from magbench.core.crb import crb_mse, efficient_expected_J
+from magbench.core.crb import crb_covariance, crb_mse, efficient_expected_J
 from magbench.core.files import read_csv_columns, write_csv_atomic
 from magbench.core.intervals import bootstrap_paired_ratio
 from magbench.core.metrics import accuracy_cost, summarize, trivial_cost
@@ -184,8 +184,9 @@ def trial_rows(point: Point, trial: int, seed: int, algorithms: Sequence[str],
     data = make_dataset(rng(seed, point.key, trial), point)
     J0 = trivial_cost(data.T, data.h)
     # Cramer-Rao bound on E[J_h^2 + J_T^2] and E[J] of an efficient estimator (core/crb.py).
-    bound = {"crb": crb_mse(data.T, data.h, data.m, point.sigma).total,
-             "crb_J": efficient_expected_J(data.T, data.m, point.sigma)}
+    C = crb_covariance(data.T, data.m, point.sigma)
+    bound = {"crb": crb_mse(data.T, data.h, data.m, point.sigma, covariance=C).total,
+             "crb_J": efficient_expected_J(data.T, data.m, point.sigma, covariance=C)}
     base = {**{c: getattr(point, c) for c in POINT_COLUMNS},
             "trial": int(trial), "seed": int(seed)}
     truth = truth_columns(data.T, data.h)

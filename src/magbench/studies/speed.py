@@ -31,10 +31,10 @@ from magbench.sources.synthetic import Point, make_dataset
 from magbench.studies.peer_accuracy import peer_accuracy, summarize_peer_accuracy
 from magbench.studies.real import DEFAULT_MAX_SAMPLES
 from magbench.studies.review import ReviewStudy
-from magbench.studies.times import times_path
 
 __all__ = ["SIZES", "bench_calibrate", "bench_calibrate_files", "bench_calls",
-           "bench_first_calls", "bench_parallel", "bench_peers", "format_reproduce_times",
+           "bench_first_calls", "bench_parallel", "bench_peers", "calls_seconds",
+           "format_reproduce_times",
            "peer_install_size", "reproduce_times", "rounds_won", "run_bench", "synthetic_recording"]
 
 SIZES = (50, 150, 300, 1000, 3000, 10000)
@@ -568,9 +568,9 @@ def reproduce_times(steps: Sequence[Mapping[str, object]], results_dir: Path | s
         :func:`magbench.engine.record.cpu_seconds`); other keys (the load average, say) are
         kept as columns.
     results_dir : path
-        Where the sweeps wrote their tables: ``method_s``, the sum of the timed calibration
-        calls (column ``time_s`` of ``<step>/trials_times.csv``), is read from there; NaN for steps
-        without one (the report, the Wu-Shi study).
+        Where the sweeps wrote their tables: ``method_s``, the seconds spent in calibration
+        calls (:func:`calls_seconds` of ``<results_dir>/<step>``), is read from there; NaN for
+        steps without any (the report).
     machine : mapping, optional
         Columns repeated on every row (CPU model, core count, workers, commit).
 
@@ -588,14 +588,7 @@ def reproduce_times(steps: Sequence[Mapping[str, object]], results_dir: Path | s
     table = pd.DataFrame([dict(row) for row in steps])
     if table.empty:
         table = pd.DataFrame(columns=["step", "wall_s", "cpu_s"])
-    method = []
-    for step in table["step"]:
-        path = times_path(Path(results_dir) / str(step) / "trials.csv")
-        try:
-            method.append(float(pd.read_csv(path, usecols=["time_s"])["time_s"].sum()))
-        except (OSError, ValueError):  # no such table, or one without timed calls
-            method.append(np.nan)
-    table["method_s"] = method
+    table["method_s"] = [calls_seconds(Path(results_dir) / str(step)) for step in table["step"]]
     total = {"step": "total", "wall_s": table["wall_s"].sum(), "cpu_s": table["cpu_s"].sum(),
              "method_s": table["method_s"].sum(min_count=1)}
     table = pd.concat([table, pd.DataFrame([total])], ignore_index=True)
@@ -607,6 +600,22 @@ def reproduce_times(steps: Sequence[Mapping[str, object]], results_dir: Path | s
     first = ["step", "wall_s", "cpu_s", "cpu_per_wall", "method_s", "overhead_cpu_s",
              "share_wall"]
     return table[first + [c for c in table.columns if c not in first]]
+
+
+def calls_seconds(folder: Path) -> float:
+    """Seconds a step spent in calibration calls: every ``*_times.csv`` sidecar of its trials
+    tables (the studies' timed calls) plus its timing pass's calls (``spent_s`` of
+    ``timing.csv``); NaN when the folder holds neither (the report)."""
+    parts = [(path, "time_s") for path in sorted(folder.glob("*_times.csv"))]
+    parts += [(folder / "timing.csv", "spent_s")] if (folder / "timing.csv").exists() else []
+    total, found = 0.0, False
+    for path, column in parts:
+        try:
+            total += float(pd.read_csv(path, usecols=[column])[column].sum())
+            found = True
+        except (OSError, ValueError):  # unreadable, or a table without that column
+            continue
+    return total if found else np.nan
 
 
 def format_reproduce_times(table: pd.DataFrame) -> str:

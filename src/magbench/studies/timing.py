@@ -65,7 +65,8 @@ TIMING_FILE = "timing.csv"
 DATASETS, REPEATS = 3, 3
 #: Time spent per (dataset, method) at the least: fast methods get more than REPEATS calls.
 MIN_TIME_S = 0.003
-TIMING_COLUMNS = POINT_COLUMNS + ["algorithm", "calls", "failed_calls", "tau_s", "tau_all_s",
+TIMING_COLUMNS = POINT_COLUMNS + ["algorithm", "calls", "failed_calls", "spent_s", "tau_s",
+                                  "tau_all_s",
                                   "ok_datasets", "median_s", "q25_s",
                                   "q75_s", "min_s", "wall_median_s", "speed_hz", "datasets",
                                   "cpu_model", "fingerprint", "measured"]
@@ -215,7 +216,8 @@ def _tau(calls: Sequence[_Calls]) -> dict:
     good = [v for v, c in zip(per_dataset, calls, strict=True) if c.fine]
     tau = float(np.mean(good)) if good else np.nan
     x = np.concatenate([c.cpu for c in calls])
-    return {"calls": x.size, "failed_calls": sum(c.failed for c in calls), "tau_s": tau,
+    return {"calls": x.size, "failed_calls": sum(c.failed for c in calls),
+            "spent_s": float(x.sum()), "tau_s": tau,
             "tau_all_s": float(np.mean(per_dataset)), "ok_datasets": len(good),
             "median_s": float(np.median(per_dataset)), "q25_s": float(np.quantile(x, 0.25)),
             "q75_s": float(np.quantile(x, 0.75)), "min_s": float(x.min()),
