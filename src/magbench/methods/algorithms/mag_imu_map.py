@@ -29,7 +29,7 @@ gauge), the residuals are
 (``w_k`` the mean of the two rate samples of the interval). Linear accelerations enter as
 accelerometer noise. The minimum is found by Levenberg-Marquardt over the 19 parameters and
 the 3K orientation increments (``Q_k <- Q_k Exp(d_k)``), whose normal equations are sparse
-(block tridiagonal plus a dense border).
+(block tridiagonal plus a dense border) and are solved as such (:func:`bordered_solve`).
 
 Named differences from the paper's estimator (as its companion code shows it):
 
