@@ -596,7 +596,7 @@ def _add_time_varying(result: CalibrationResult, payload: dict, wanted: list[str
     line = (head + f"held-out mean squared norm residual {choice.static_out:.3g} static, "
             f"{choice.varying_out:.3g} with the terms: {verdict}; C per unit of u (file "
             f"units): {terms}")
-    corrected = choice.fit.apply(rec.y, rec.extra[names].to_numpy(float)) if choice.kept \
+    corrected = choice.fit.apply(rec.y, rec.stack(names)) if choice.kept \
         else None
     return line, corrected
 

@@ -382,12 +382,10 @@ MAX_JOINT_ROWS = 3000
 def inertial_of(rec: Recording) -> Inertial:
     """The inertial streams of a recording: its times and gyro, and the attitude
     (``qw..qz``) and accelerometer (``ax..az``) columns it holds in ``extra``."""
-    extra = rec.extra
-
     def columns(names: list[str]) -> np.ndarray | None:
-        if extra is None or not all(c in extra for c in names):
+        if rec.extra is None or not all(c in rec.extra for c in names):
             return None
-        return extra[names].to_numpy(float)
+        return rec.stack(names)
 
     attitude = columns(ATTITUDE_COLUMNS)
     if attitude is not None:
