@@ -69,6 +69,13 @@ INSTANCE_COLUMNS = ("I", "instance", "Instance", "inst", "device_id", "sensor_id
 _DECIMAL_COMMA = re.compile(r"^\s*[-+]?\d+,\d+(?:[eE][-+]?\d+)?\s*$")
 
 
+def _as_columns(arrays: Sequence[np.ndarray]) -> np.ndarray:
+    """Arrays of one length as the columns of one float array, each column contiguous in
+    memory (the layout pandas' ``to_numpy`` gave): BLAS and NumPy may sum in another order
+    over another layout, and the results must stay the same to the last bit."""
+    return np.array([np.asarray(a, dtype=float) for a in arrays]).T
+
+
 @dataclass(frozen=True)
 class Recording:
     """Magnetometer samples of one recording, in the units they were recorded in.
@@ -125,7 +132,8 @@ class Recording:
 
     def stack(self, names: Sequence[str]) -> np.ndarray:
         """The ``extra`` columns ``names`` as one float array of shape (K, len(names))."""
-        return np.column_stack([np.asarray(self.extra[n], dtype=float) for n in names])
+        return _as_columns([self.extra[n] for n in names])
+
 
     def thinned(self, max_samples: int | None) -> Recording:
         """Every ``s``-th sample, ``s = ceil(K / max_samples)``; unchanged if already small."""
@@ -447,8 +455,8 @@ def _read_columns(path: Path, layout: dict, wanted: dict[int, str], where: _Wher
     """
     positions = sorted(wanted)
     plain = _plain_table(path, layout, where.sniffed)
-    if plain is not None:
-        return plain[:, positions], set()
+    if plain is not None:                # laid out as the pandas path's table below
+        return np.ascontiguousarray(plain[:, positions]), set()
     import pandas as pd
 
     chunks: list[np.ndarray] = []
@@ -920,13 +928,13 @@ def log_recording(path: Path | str, instance: object = None, *, min_samples: int
     table = {c: np.asarray(v, dtype=float) for c, v in log.columns(chosen).items()}
     gyro_cols = list(GYRO_COLUMNS)
     if all(c in table for c in gyro_cols):
-        missing = np.isnan(np.column_stack([table[c] for c in gyro_cols])).any(axis=1)
+        missing = np.isnan(_as_columns([table[c] for c in gyro_cols])).any(axis=1)
         if missing.any():
             warnings.warn(f"{path.name}: dropped {int(missing.sum())} of {len(missing)} "
                           "compass samples with no gyro sample around them (outside the gyro "
                           "stream or in a gap of it)", UserWarning, stacklevel=2)
             table = {c: v[~missing] for c, v in table.items()}
-    y = np.column_stack([table[c] for c in MAG_COLUMNS])
+    y = _as_columns([table[c] for c in MAG_COLUMNS])
     if not np.isfinite(y).all():
         raise ValueError(f"{path.name}: the compass stream holds non-finite values")
     what = f"the compass samples of {path.name} (instance {chosen})"
@@ -936,7 +944,7 @@ def log_recording(path: Path | str, instance: object = None, *, min_samples: int
                          f"least {min_samples} are needed")
     extra = {c: table[c] for c in EXTRA_COLUMNS if c in table}
     rec = Recording(path.stem, y, table["t"],
-                    np.column_stack([table[c] for c in gyro_cols])
+                    _as_columns([table[c] for c in gyro_cols])
                     if all(c in table for c in gyro_cols) else None,
                     n_rows=len(y), columns=MAG_COLUMNS,
                     instance=("instance", str(chosen)),
