@@ -31,9 +31,8 @@ def test_extract_writes_the_aligned_table_that_calibrate_reads_back(tmp_path, ca
 
     with pytest.warns(UserWarning, match="dropped 6 of 116 rows"):
         rec = read_samples(out, check=False)
-    assert rec.has_gyro and list(rec.extra.columns) == ["ax", "ay", "az", "qw", "qx", "qy",
-                                                         "qz", "current", "throttle",
-                                                         "temperature"]
+    assert rec.has_gyro and list(rec.extra) == ["ax", "ay", "az", "qw", "qx", "qy", "qz",
+                                                 "current", "throttle", "temperature"]
 
 
 def test_extract_errors_are_one_line(tmp_path, capsys):

@@ -6,7 +6,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from magbench.core.files import read_csv_columns, write_csv_atomic
+from magbench.core.files import read_csv_columns, write_csv_atomic, write_records_csv
 
 
 @pytest.fixture
@@ -39,3 +39,18 @@ def test_write_is_atomic_and_compresses_gz(tmp_path, table):
     write_csv_atomic(table, tmp_path / "t.csv.gz")
     assert (tmp_path / "t.csv.gz").read_bytes()[:2] == b"\x1f\x8b"
     assert not list(tmp_path.glob(".tmp-*"))
+
+
+def test_records_are_written_as_pandas_writes_their_table(tmp_path):
+    # calibrate's ranking.csv: ints, floats by repr, NaN, a nullable rank, bools (numpy's too),
+    # text that needs quoting.
+    records = [{"rank": 1, "algorithm": "fang", "K": 1854, "J_r": 1 / 3, "tiny": 1e-300,
+                "big": 1e16, "whole": 3.0, "nan": np.nan, "ok": True, "scored": np.bool_(True),
+                "p95": np.float64(5.906275100477975), "note": "a, b \"c\"", "error": ""},
+               {"rank": None, "algorithm": "sphere", "K": 12, "J_r": -0.0, "tiny": 2.5e-7,
+                "big": np.inf, "whole": np.nan, "nan": np.nan, "ok": False,
+                "scored": np.bool_(False), "p95": np.nan, "note": " lead\nline", "error": "x"}]
+    write_records_csv(records, tmp_path / "ours.csv")
+    frame = pd.DataFrame(records).astype({"rank": "Int64"})
+    frame.to_csv(tmp_path / "pandas.csv", index=False)
+    assert (tmp_path / "ours.csv").read_bytes() == (tmp_path / "pandas.csv").read_bytes()

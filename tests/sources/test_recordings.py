@@ -6,6 +6,7 @@ from __future__ import annotations
 import bz2
 import gzip
 import lzma
+import warnings
 
 import numpy as np
 import pandas as pd
@@ -243,3 +244,68 @@ def test_read_inertial_keeps_missing_attitude_and_drops_rows_without_samples(tmp
     (tmp_path / "bad.csv").write_text("mx,my,mz\n1,2,3\n")
     with pytest.raises(ValueError, match="needs columns t"):
         read_inertial(tmp_path / "bad.csv")
+
+
+_ROWS = [[0.0, 6202, 682.5, -4812], [0.02, 1 / 3, 2.5e-7, 1e5], [0.04, -0.0, 17.0, 3.25]]
+_PLAIN = "t,mx,my,mz,gx,gy,gz,qw\n" + "".join(
+    f"{t!r},{x!r},{y!r},{z!r},0.1,-0.2,{0.3 * i!r},{'nan' if i else 1.0}\n"
+    for i, (t, x, y, z) in enumerate(_ROWS * 4))
+
+
+@pytest.mark.parametrize(("text", "by_numpy"), [
+    (_PLAIN, True),
+    (_PLAIN.replace("\n", "\r\n"), True),                        # Windows line ends
+    (_PLAIN.replace("0.1,", " 0.1 ,"), True),                    # padded numbers
+    (_PLAIN.replace("0.04,", "NaN,", 1).replace(",nan\n", ",NAN\n", 1), True),
+    (_PLAIN.replace("\n0.02,", "\n\n0.02,", 1), True),           # a blank line
+    (_PLAIN.replace(",", ";"), True),
+    (_PLAIN.replace("t,mx", "t , mx"), True),                   # padded names
+    (_PLAIN.split("\n", 1)[1], True),                           # no header: by position
+    (_PLAIN.replace("0.04,", "inf,", 1), False),                # pandas' own spellings
+    (_PLAIN.replace("0.04,", "-nan,", 1), False),
+    (_PLAIN.replace("0.04,", "NA,", 1), False),
+    (_PLAIN.replace("0.04,", ",", 1), False),                   # an empty cell
+    (_PLAIN.replace("0.04,", '"0.04",', 1), False),
+    (_PLAIN.replace("\n0.02,", "\n  \n0.02,", 1), False),
+    (_PLAIN.replace("0.1,-0.2", "0.1,x", 1), False),
+    (_PLAIN.replace("t,mx,my", "t,mx,mx", 1), False),           # duplicate names
+    (_PLAIN.replace(",qw\n", ",qw,extra\n", 1), False),         # a header wider than rows
+    ("# logger notes\n" + _PLAIN, False),
+])
+def test_numpy_reads_a_plain_file_as_pandas_does(tmp_path, monkeypatch, text, by_numpy):
+    # The pandas-free reader takes only what both parsers read alike: the same samples,
+    # columns and warnings (or the same error) either way.
+    path = tmp_path / "rec.csv"
+    path.write_bytes(text.encode())
+    columns = None if text.startswith("t") else [1, 2, 3]
+    used = []
+    plain = recordings._plain_table
+    monkeypatch.setattr(recordings, "_plain_table",
+                        lambda *a: used.append(plain(*a) is not None) or plain(*a))
+
+    def read():
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            try:
+                rec = read_samples(path, columns, check=False)
+            except ValueError as exc:
+                return str(exc), []
+        return rec, [str(w.message) for w in caught]
+
+    fast, fast_warnings = read()
+    monkeypatch.setattr(recordings, "PLAIN_MAX_BYTES", -1)
+    slow, slow_warnings = read()
+    assert (used[:1] == [True]) is by_numpy and True not in used[1:]
+    assert fast_warnings == slow_warnings
+    if isinstance(slow, str):
+        assert fast == slow
+        return
+    for name in ("y", "t", "gyro"):
+        np.testing.assert_array_equal(getattr(fast, name), getattr(slow, name))
+        # The same memory layout too: NumPy and BLAS may sum in another order over another.
+        assert getattr(getattr(fast, name), "strides", None) == \
+            getattr(getattr(slow, name), "strides", None)
+    assert (fast.columns, fast.n_rows, list(fast.extra or {})) == \
+        (slow.columns, slow.n_rows, list(slow.extra or {}))
+    for name, values in (slow.extra or {}).items():
+        np.testing.assert_array_equal(fast.extra[name], values)

@@ -166,14 +166,12 @@ def test_direction_report_sets_aside_a_fit_worse_in_direction():
 
 
 def as_recording(traj, y, *, attitude: bool):
-    import pandas as pd
-
     from magbench.sources.recordings import Recording
     cols = dict(zip(["ax", "ay", "az"], traj.acceleration.T, strict=True))
     if attitude:
         cols |= dict(zip(["qw", "qx", "qy", "qz"], matrix_to_quat(traj.R).T, strict=True))
     return Recording("switched", y, traj.t, traj.angular_rate, n_rows=len(y),
-                     extra=pd.DataFrame(cols))
+                     extra=cols)
 
 
 @pytest.mark.parametrize("attitude", [True, False])
@@ -215,16 +213,13 @@ BROAD_ALIGNMENT_DEG = {"broad03_slowrot_C": 1.05, "broad21_fastcombined": 0.35,
 def _calibrate_path(name: str, y: np.ndarray, kept) -> tuple[np.ndarray, bool]:
     """The heading-true matrix ``A`` of calibrate's path on ``y`` (the recording's inertial
     streams beside it) and whether the offset check cut the recording."""
-    import pandas as pd
-
     from magbench.sources.recordings import Recording
     from magbench.studies.alignment import align_chosen, lag_corrected, offset_check
     from magbench.studies.calibration import calibrate_recording, estimate
 
     k = kept.rec
-    extra = pd.DataFrame(dict(zip(["ax", "ay", "az", "qw", "qx", "qy", "qz"],
-                                  np.column_stack([k.acceleration, k.attitude]).T,
-                                  strict=True)))
+    extra = dict(zip(["ax", "ay", "az", "qw", "qx", "qy", "qz"],
+                     np.column_stack([k.acceleration, k.attitude]).T, strict=True))
     rec, _ = lag_corrected(Recording(name, y, k.t, k.gyro, n_rows=k.K, extra=extra))
     check = offset_check(rec)
     rec = rec.rows(np.flatnonzero(check.keep))
@@ -299,16 +294,14 @@ def test_a_frozen_attitude_does_not_cut_the_recording():
     """An attitude column stuck at its first value sees every window's field move: without
     the span check the offset check cut a good recording to 7 %. It falls back to the gyro,
     and without one it does not run."""
-    import pandas as pd
-
     from magbench.sources.recordings import Recording
     from magbench.studies.alignment import offset_check
 
     traj = simulate(np.random.default_rng(8), rate_hz=50.0, duration_s=40.0, T=T,
                     h=np.array([0.03, -0.02, 0.04]), mount=MOUNT, mag_noise=0.005,
                     gyro_noise=0.005, accel_noise=0.05)
-    frozen = pd.DataFrame(np.tile(matrix_to_quat(traj.R[:1]), (len(traj.t), 1)),
-                          columns=["qw", "qx", "qy", "qz"])
+    frozen = dict(zip(["qw", "qx", "qy", "qz"],
+                      np.tile(matrix_to_quat(traj.R[:1]), (len(traj.t), 1)).T, strict=True))
     with_gyro = Recording("frozen", traj.y, traj.t, traj.angular_rate, n_rows=len(traj.t),
                           extra=frozen)
     check = offset_check(with_gyro)

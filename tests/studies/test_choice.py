@@ -3,12 +3,12 @@
 from __future__ import annotations
 
 import numpy as np
-import pandas as pd
 import pytest
 
 from magbench.studies.choice import (
     TIE_RTOL,
     allowed,
+    annotate,
     choose,
     eligibility,
     find_tie,
@@ -22,11 +22,16 @@ T_COLUMNS = {f"T_{i}{j}": float(i == j) for i in range(3) for j in range(3)}
 
 def table(rows):
     """Candidates as fold_summary gives them: (name, mean held-out J_r, worst fold, n_iter)."""
-    return pd.DataFrame([{"algorithm": a, "J_r_out": m, "J_r_worst": w, "n_iter": it,
-                          "meaningful": True, "ok": True, "error": "", "coverage": 1.0,
-                          "coverage_sphere": 1.0, "J_r_sphere_in": 1.0, "J_r_in": m,
-                          **T_COLUMNS, **{f"h_{i}": 0.0 for i in range(3)}}
-                         for a, m, w, it in rows])
+    return [{"algorithm": a, "J_r_out": m, "J_r_worst": w, "n_iter": it,
+             "meaningful": True, "ok": True, "error": "", "coverage": 1.0,
+             "coverage_sphere": 1.0, "J_r_sphere_in": 1.0, "J_r_in": m,
+             **T_COLUMNS, **{f"h_{i}": 0.0 for i in range(3)}}
+            for a, m, w, it in rows]
+
+
+def by_name(rows):
+    """The rows by method name."""
+    return {r["algorithm"]: r for r in rows}
 
 
 def run(rows, gap=20.0, refuse=None):
@@ -46,13 +51,13 @@ def test_the_sphere_wins_when_it_is_better_out_of_sample():
     # a band: the full models extrapolate badly, the sphere fit holds
     out = run([("fang", 3.0, 6.0, 0), ("ellipsoid", 3.2, 7.0, 0), ("sphere", 1.0, 1.5, 0)])
     assert out.chosen["algorithm"] == "sphere"
-    assert out.ranked["algorithm"].tolist()[0] == "sphere"
+    assert out.ranked[0]["algorithm"] == "sphere"
 
 
 def test_on_a_cap_the_sphere_competes_with_the_cap_robust_full_models():
     out = run([("ellipsoid", 0.5, 0.6, 0), ("fang", 1.0, 1.2, 0), ("sphere", 0.9, 1.0, 0)],
               gap=120.0)
-    assert not out.ranked.set_index("algorithm").loc["ellipsoid", "eligible"]
+    assert not by_name(out.ranked)["ellipsoid"]["eligible"]
     assert out.chosen["algorithm"] == "sphere"
     assert allowed("magical", 120.0) and not allowed("fang", 150.0)
 
@@ -63,23 +68,25 @@ def test_a_gyro_aided_fit_must_beat_the_best_magnetometer_fit(gyro, chosen):
     assert out.chosen["algorithm"] == chosen
     if chosen == "fang":
         assert "must beat the best magnetometer-only fit (fang)" in \
-            out.ranked.set_index("algorithm").loc["sar_ls", "note"]
+            by_name(out.ranked)["sar_ls"]["note"]
 
 
 def test_each_step_alone():
-    t = eligibility(__import__("magbench.studies.choice", fromlist=["annotate"]).annotate(
-        table([("fang", 1.0, 1.0, 0), ("magical", np.nan, np.nan, 30)]), {}), 20.0)
-    assert t.set_index("algorithm").loc["magical", "note"].startswith("no out-of-sample")
+    t = eligibility(annotate(table([("fang", 1.0, 1.0, 0), ("magical", np.nan, np.nan, 30)]),
+                             {}), 20.0)
+    assert by_name(t)["magical"]["note"].startswith("no out-of-sample")
     ranked = rank(gyro_rule(t))
-    assert ranked["rank"].tolist()[0] == 1 and pd.isna(ranked["rank"].tolist()[1])
+    assert [r["rank"] for r in ranked] == [1, None]
     tied = find_tie(ranked)
-    assert tied["tie"].tolist() == [True, False]
+    assert [r["tie"] for r in tied] == [True, False]
     out, chosen = pick(tied, refuse=lambda r: "no")
-    assert chosen is None and out["note"].iloc[0] == "refused: no"
+    assert chosen is None and out[0]["note"] == "refused: no"
 
 
 def test_an_extra_score_joins_the_tie():
-    t = table([("fang", 1.0, 1.0, 0), ("sphere", 1.0, 1.0, 0)]).assign(direction=[0.1, 0.5])
+    t = [{**r, "direction": d} for r, d in zip(table([("fang", 1.0, 1.0, 0),
+                                                      ("sphere", 1.0, 1.0, 0)]), [0.1, 0.5],
+                                               strict=True)]
     plain = choose(t, {}, 20.0)
     extra = choose(t, {}, 20.0, scores=("J_r_out", "J_r_worst", "direction"))
     assert plain.chosen["algorithm"] == "sphere" and extra.chosen["algorithm"] == "fang"
@@ -89,11 +96,12 @@ def test_a_refused_fit_passes_the_choice_to_the_next_of_the_tie():
     out = run([("fang", 1.0, 1.0, 0), ("ellipsoid", 1.0, 1.0, 0)],
               refuse=lambda r: "test refusal" if r["algorithm"] == "fang" else "")
     assert out.chosen["algorithm"] == "ellipsoid"
-    assert out.ranked.set_index("algorithm").loc["fang", "note"] == "refused: test refusal"
+    assert by_name(out.ranked)["fang"]["note"] == "refused: test refusal"
 
 
 def test_the_choice_does_not_depend_on_fit_times():
     rows = [("fang", 1.0, 1.0, 0), ("ellipsoid", 1.01, 1.0, 0), ("twostep", 1.0, 1.0, 3)]
-    chosen = {choose(table(rows).assign(time_s=times), {}, 20.0).chosen["algorithm"]
+    chosen = {choose([{**r, "time_s": t} for r, t in zip(table(rows), times, strict=True)], {},
+                     20.0).chosen["algorithm"]
               for times in ([1e-3, 2e-3, 3e-3], [3e-3, 2e-3, 1e-3])}
     assert chosen == {"fang"}            # closed form first, then the better held out

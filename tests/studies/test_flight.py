@@ -6,7 +6,6 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-import pandas as pd
 
 import magbench
 from magbench.core.mounting import AUTO_ROTATIONS, MIN_CONFIDENCE, ROTATIONS, rotation_matrix
@@ -68,12 +67,12 @@ def test_every_standard_rotation_is_found_from_a_simulated_log(tmp_path):
 
 def test_refuses_when_the_logged_attitude_does_not_change(tmp_path):
     rec = read_samples(simulated_ulog(tmp_path / "r2.ulg", 2, seconds=15.0))
-    frozen = rec.extra.copy()
-    frozen[["qw", "qx", "qy", "qz"]] = frozen[["qw", "qx", "qy", "qz"]].iloc[0].to_numpy()
+    frozen = {c: np.full(rec.K, v[0]) if c in ("qw", "qx", "qy", "qz") else v
+              for c, v in rec.extra.items()}
     A, b = magbench.calibrate(rec.y, "fang").correction()
     found = mounting_rotation(type(rec)(**{**rec.__dict__, "extra": frozen}), A, b)
     assert found.rotation is None and found.confidence < MIN_CONFIDENCE
     assert "turned through 0 deg" in found.reason
     # Neither attitude nor accelerometer: nothing to say.
-    assert mounting_rotation(type(rec)(**{**rec.__dict__, "extra": pd.DataFrame(
-        {"current": np.zeros(rec.K)})}), A, b) is None
+    assert mounting_rotation(type(rec)(**{**rec.__dict__, "extra": {
+        "current": np.zeros(rec.K)}}), A, b) is None

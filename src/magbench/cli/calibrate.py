@@ -40,7 +40,6 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-import pandas as pd
 from omegaconf import DictConfig, OmegaConf
 
 from magbench.cli.config import (
@@ -70,7 +69,7 @@ from magbench.core.exports import (
     firmware_files,
     to_json_dict,
 )
-from magbench.core.files import write_csv_atomic, write_text_atomic
+from magbench.core.files import write_records_csv, write_text_atomic
 from magbench.core.gauge import safe_gauge
 from magbench.core.model import Calibration
 from magbench.core.units import UNKNOWN, Units, parse_units
@@ -171,7 +170,7 @@ def calibration_json(result: CalibrationResult, *, file: str, columns: list, n_f
         "status": status, "fitness": result.fitness, **correction,
         "file": file, "method": row["algorithm"], "label": get_method(row["algorithm"]).label,
         "model": get_method(row["algorithm"]).model, "choice": result.how, "tie": result.tie,
-        "candidates": {"fitted": sorted(set(result.trials["algorithm"])),
+        "candidates": {"fitted": sorted({r["algorithm"] for r in result.trials}),
                        "not_fitted": result.not_fitted,
                        "second_round": result.second_round or None},
         "removed": {"rotation_deg": gauge.rotation_deg, "mirrored": gauge.mirrored,
@@ -304,15 +303,16 @@ def _fmt(x: float, width: int = 11, spec: str = ".3g") -> str:
     return f"{x:{width}{spec}}" if np.isfinite(x) else f"{'-':>{width}}"
 
 
-def _table(ranked: pd.DataFrame) -> str:
+def _table(ranked: list[dict]) -> str:
     lines = [f"{'rank':>4}  {'method':<12}{'model':<9}{'J_r in':>9}{'J_r out':>9}"
              f"{'worst':>9}{'p95 %':>7}  note"]
-    for r in ranked.itertuples(index=False):
-        rank = "-" if pd.isna(r.rank) else str(r.rank)
-        note = ("tie; " if r.tie else "") + (r.note or "")
-        lines.append(f"{rank:>4}  {r.algorithm:<12}{r.model:<9}{_fmt(r.J_r_in, 9, '.2e')}"
-                     f"{_fmt(r.J_r_out, 9, '.2e')}{_fmt(r.J_r_worst, 9, '.2e')}"
-                     f"{_fmt(r.p95_out_pct, 7, '.2f')}  {note.rstrip('; ')[:48]}")
+    for r in ranked:
+        rank = "-" if r["rank"] is None else str(r["rank"])
+        note = ("tie; " if r["tie"] else "") + (r["note"] or "")
+        lines.append(f"{rank:>4}  {r['algorithm']:<12}{r['model']:<9}"
+                     f"{_fmt(r['J_r_in'], 9, '.2e')}{_fmt(r['J_r_out'], 9, '.2e')}"
+                     f"{_fmt(r['J_r_worst'], 9, '.2e')}{_fmt(r['p95_out_pct'], 7, '.2f')}  "
+                     f"{note.rstrip('; ')[:48]}")
     return "\n".join(lines)
 
 
@@ -413,7 +413,7 @@ def run_calibrate(cfg: DictConfig, picture: PictureWorker | None = None) -> int:
     written, notes = _write_exports(cal, payload, out)
     offset_line = offsets.line() if offsets is not None else ""
     notes = [line for line in (offset_line, varying, mounting, *direction) if line] + notes
-    write_csv_atomic(result.ranked, out / "ranking.csv")
+    write_records_csv(result.ranked, out / "ranking.csv")
     problem = picture.wait() if sent else ""
     if problem:
         print(f"magbench: note: {problem}; drawing the picture here", file=sys.stderr)
@@ -596,7 +596,7 @@ def _add_time_varying(result: CalibrationResult, payload: dict, wanted: list[str
     line = (head + f"held-out mean squared norm residual {choice.static_out:.3g} static, "
             f"{choice.varying_out:.3g} with the terms: {verdict}; C per unit of u (file "
             f"units): {terms}")
-    corrected = choice.fit.apply(rec.y, rec.extra[names].to_numpy(float)) if choice.kept \
+    corrected = choice.fit.apply(rec.y, rec.stack(names)) if choice.kept \
         else None
     return line, corrected
 

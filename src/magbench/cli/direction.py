@@ -7,7 +7,6 @@ import datetime as dt
 import math
 
 import numpy as np
-import pandas as pd
 
 from magbench.core.direction import dip_angles, rest_mask, world_field
 from magbench.core.exports import to_json_dict
@@ -20,15 +19,16 @@ from magbench.studies.calibration import CalibrationResult
 __all__ = ["direction_lines", "mark_vetoes", "measured_inclination"]
 
 
-def mark_vetoes(ranked: pd.DataFrame, veto: DirectionVeto) -> None:
+def mark_vetoes(ranked: list[dict], veto: DirectionVeto) -> None:
     """The ranking's note of each candidate the direction set aside (in place), and its
     held-out heading as a column when one was measured."""
     if not veto.scores:
         return
-    ranked["heading_out_deg"] = [veto.scores.get(str(n), math.nan) for n in ranked["algorithm"]]
-    for i, name in ranked["algorithm"].items():
-        if str(name) in veto.vetoes:
-            ranked.loc[i, "note"] = f"set aside: {veto.vetoes[str(name)]}"
+    for row in ranked:
+        name = str(row["algorithm"])
+        row["heading_out_deg"] = veto.scores.get(name, math.nan)
+        if name in veto.vetoes:
+            row["note"] = f"set aside: {veto.vetoes[name]}"
 
 
 def measured_inclination(cal: Calibration, rec, keep: np.ndarray) -> float | None:

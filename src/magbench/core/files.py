@@ -7,17 +7,22 @@ place (atomic on POSIX), so a killed run leaves either the old file or the new o
 from __future__ import annotations
 
 import contextlib
+import csv
 import hashlib
+import math
+import numbers
 import os
-from collections.abc import Iterator, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
+
+import numpy as np
 
 if TYPE_CHECKING:
     import pandas as pd
 
-__all__ = ["CHUNK_ROWS", "atomic_path", "file_sha256", "read_csv_columns", "write_csv_atomic",
-           "write_text_atomic"]
+__all__ = ["CHUNK_ROWS", "atomic_path", "csv_cell", "file_sha256", "read_csv_columns",
+           "write_csv_atomic", "write_records_csv", "write_text_atomic"]
 
 #: Rows parsed at a time by :func:`read_csv_columns`: the parser's buffers (every column of
 #: the chunk, as text and as values) stay at a few hundred MB whatever the file's length.
@@ -42,6 +47,33 @@ def write_csv_atomic(frame: pd.DataFrame, path: Path | str) -> None:
     with atomic_path(path) as tmp:
         compression = "gzip" if str(path).endswith(".gz") else None
         frame.to_csv(tmp, index=False, compression=compression)
+
+
+def csv_cell(value: object) -> str:
+    """One value as ``pandas.DataFrame.to_csv`` writes it in a column of its type: floats by
+    ``repr``, NaN and None empty, booleans ``True``/``False``, integers and text as they are."""
+    if value is None:
+        return ""
+    if isinstance(value, bool | np.bool_):
+        return str(bool(value))
+    if isinstance(value, numbers.Integral):
+        return str(int(value))
+    if isinstance(value, numbers.Real):
+        x = float(value)
+        return "" if math.isnan(x) else repr(x)
+    return str(value)
+
+
+def write_records_csv(records: Sequence[Mapping[str, object]], path: Path | str) -> None:
+    """Write rows of equal keys as CSV to ``path`` atomically, with the bytes
+    ``pandas.DataFrame(records).to_csv(path, index=False)`` writes (each value by
+    :func:`csv_cell`; a column holding integers and NaN would be floats there, so such a
+    column must hold floats here). Without pandas: ``calibrate`` does not import it."""
+    columns = list(records[0]) if records else []
+    with atomic_path(path) as tmp, open(tmp, "w", newline="", encoding="utf-8") as handle:
+        writer = csv.writer(handle, lineterminator=os.linesep)
+        writer.writerow(columns)
+        writer.writerows([csv_cell(r.get(c)) for c in columns] for r in records)
 
 
 def write_text_atomic(text: str, path: Path | str) -> None:

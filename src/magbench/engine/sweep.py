@@ -38,8 +38,6 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import IO
 
-import pandas as pd
-
 from magbench.core.files import atomic_path, file_sha256, write_csv_atomic, write_text_atomic
 from magbench.engine.isolation import die_with_parent, run_isolated, watch_calls
 from magbench.engine.plugins import load_plugins
@@ -388,6 +386,10 @@ class _Parts:
                 path.unlink(missing_ok=True)
 
     def write(self, start: int, stop: int, rows: dict[str, list[dict]]) -> None:
+        # pandas here only: the CLI imports this module for its errors, and ``calibrate``
+        # must not pay pandas' import (~0.2 s).
+        import pandas as pd
+
         sums: dict[str, object] = {"fingerprint": self.fingerprint}
         for table, (_, columns) in self.study.tables.items():
             path = self.path(start, stop, table)

@@ -52,12 +52,15 @@ import tempfile
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
-import pandas as pd
 
 from magbench.core.quaternions import matrix_to_quat
 from magbench.core.rotations import euler_zyx_to_matrix
+
+if TYPE_CHECKING:     # DataFlash logs and table() only: calibrate of a CSV needs no pandas
+    import pandas as pd
 
 __all__ = ["EXTRA_COLUMNS", "GAP_INTERVALS", "LOG_COLUMNS", "LOG_SUFFIXES", "MIN_LOG_SAMPLES",
            "FlightLog", "align", "is_log", "log_units", "rate_hz", "read_log"]
@@ -175,7 +178,14 @@ class FlightLog:
         return pool[0]
 
     def table(self, instance: int) -> pd.DataFrame:
-        """The compass ``instance`` and every other stream on its times (module notes)."""
+        """The compass ``instance`` and every other stream on its times (module notes): the
+        :meth:`columns` as a DataFrame."""
+        import pandas as pd
+
+        return pd.DataFrame(self.columns(instance))
+
+    def columns(self, instance: int) -> dict[str, np.ndarray]:
+        """The columns of :meth:`table` (name -> array), without pandas."""
         mag = self.mags[instance]
         out = {"t": mag.t, "mx": mag.values[:, 0], "my": mag.values[:, 1],
                "mz": mag.values[:, 2]}
@@ -187,7 +197,7 @@ class FlightLog:
         if mag.values.shape[1] > 3 and np.isfinite(mag.values[:, 3]).any():
             extra["temperature"] = mag.values[:, 3]       # the compass's own, preferred
         out.update((c, extra[c]) for c in LOG_COLUMNS if c in extra)
-        return pd.DataFrame(out)
+        return out
 
 
 def _instance_number(value: object, name: str) -> int | None:
@@ -377,6 +387,8 @@ def _frame(rows: list[dict], instance_key: str | None = None,
     """The rows as a table, restricted to ``instance`` when they carry an instance field."""
     if not rows:
         return None
+    import pandas as pd
+
     frame = pd.DataFrame(rows)
     key = next((k for k in (instance_key, "I", "Inst", "Instance") if k and k in frame), None)
     if key is not None:
@@ -385,6 +397,8 @@ def _frame(rows: list[dict], instance_key: str | None = None,
 
 
 def _read_dataflash(path: Path) -> FlightLog:
+    import pandas as pd
+
     rows = _dataflash_rows(path)
     mags: dict[int, Stream] = {}
     frame = pd.DataFrame(rows["MAG"]) if rows["MAG"] else None

@@ -25,10 +25,10 @@ from __future__ import annotations
 
 import datetime as dt
 import math
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
-import pandas as pd
 
 from magbench.core.direction import direction_score, mean_direction, world_field
 from magbench.core.gauge import safe_gauge
@@ -382,12 +382,10 @@ MAX_JOINT_ROWS = 3000
 def inertial_of(rec: Recording) -> Inertial:
     """The inertial streams of a recording: its times and gyro, and the attitude
     (``qw..qz``) and accelerometer (``ax..az``) columns it holds in ``extra``."""
-    extra = rec.extra
-
     def columns(names: list[str]) -> np.ndarray | None:
-        if extra is None or not all(c in extra for c in names):
+        if rec.extra is None or not all(c in rec.extra for c in names):
             return None
-        return extra[names].to_numpy(float)
+        return rec.stack(names)
 
     attitude = columns(ATTITUDE_COLUMNS)
     if attitude is not None:
@@ -396,17 +394,17 @@ def inertial_of(rec: Recording) -> Inertial:
     return Inertial(rec.t, rec.gyro, columns(ACCEL_COLUMNS), attitude)
 
 
-def fold_direction(trials: pd.DataFrame, work: Recording, name: str,
+def fold_direction(trials: Sequence[Mapping], work: Recording, name: str,
                    inertial: Inertial) -> float:
     """Held-out heading RMS (deg) of ``name`` over the folds of ``trials``: each fold's fit is
     aligned by the attitude on its training rows and scored on its test rows, against the
     training rows' world direction; NaN unless every fold's fit is usable."""
-    rows = trials[(trials["algorithm"] == name) & (trials["fit_on"] != "all")]
-    if len(rows) < 2 or not rows["usable"].astype(bool).all():
+    rows = [r for r in trials if r["algorithm"] == name and r["fit_on"] != "all"]
+    if len(rows) < 2 or not all(bool(r["usable"]) for r in rows):
         return math.nan
     squares = []
     for f, test in enumerate(fold_indices(work.K, len(rows))):
-        T, h = estimate(rows[rows["fit_on"] == f"fold{f}"].iloc[0])
+        T, h = estimate(next(r for r in rows if r["fit_on"] == f"fold{f}"))
         train = np.setdiff1d(np.arange(work.K), test)
         try:
             aligned, _ = fit_alignment(Calibration(T, h), work.y[train], inertial.rows(train))
@@ -433,9 +431,9 @@ class DirectionVeto:
         self.scores: dict[str, float] = {}
         self.vetoes: dict[str, str] = {}
 
-    def __call__(self, summary: pd.DataFrame, trials: pd.DataFrame,
+    def __call__(self, summary: Sequence[Mapping], trials: Sequence[Mapping],
                  work: Recording) -> tuple[str, list[float]]:
-        names = [str(n) for n in summary["algorithm"]]
+        names = [str(r["algorithm"]) for r in summary]
         inertial = inertial_of(work)
         if inertial.source != "attitude":
             return self.column, [1.0] * len(names)

@@ -11,9 +11,9 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
-import pandas as pd
 
 from magbench.core.geometry import check_geometry
 from magbench.core.model import Calibration, as_samples
@@ -28,7 +28,11 @@ from magbench.studies.calibration import (
     calibrate_recording,
     estimate,
 )
+from magbench.studies.choice import ranking_frame
 from magbench.studies.real import DEFAULT_MAX_SAMPLES
+
+if TYPE_CHECKING:     # the ranking table only: calibrate imports this module, not pandas
+    import pandas as pd
 
 __all__ = ["AutoCalibration", "calibrate_auto", "candidate_rounds"]
 
@@ -83,7 +87,8 @@ class AutoCalibration:
     warnings : list of str
         Every warning, in order.
     ranking : DataFrame
-        The ranked candidates (the table ``calibrate`` prints).
+        The ranked candidates (the table ``calibrate`` prints; ``result.ranked`` holds the
+        same rows as records).
     result : CalibrationResult
         Everything the study found.
     """
@@ -173,4 +178,4 @@ def calibrate_auto(samples: object, *, time: object = None, angular_rate: object
         method = str(result.chosen["algorithm"])
     return AutoCalibration(cal, method, status, reason, result.verdict, result.intervals,
                            result.how, list(result.tie), list(result.warnings),
-                           result.ranked, result)
+                           ranking_frame(result.ranked), result)

@@ -39,11 +39,10 @@ writes). :func:`calibrate_recording` runs these steps, each a small function:
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
-import pandas as pd
 
 from magbench.core.gauge import safe_gauge
 from magbench.core.geometry import band_half_width, direction_cells
@@ -86,8 +85,9 @@ __all__ = ["FIRST_ROUND", "ROBUST_ON_CAPS", "THIN_GAP_DEG", "CalibrationResult",
 FIRST_ROUND = ("sphere", "twostep_hi", "diagonal", "ellipsoid", "fang", "twostep", "wu_shi_nm")
 #: The method whose objective (Wu and Shi's (11)) is K times J_r (81).
 J_R_MINIMISER = "wu_shi_nm"
-#: ``extra(summary, trials, work) -> (column, values)``: a further score for the choice.
-ExtraScore = Callable[[pd.DataFrame, pd.DataFrame, Recording], tuple[str, Sequence[float]]]
+#: ``extra(summary, trials, work) -> (column, values)``: a further score for the choice
+#: (``summary`` and ``trials`` are lists of records, :mod:`magbench.studies.holdout`).
+ExtraScore = Callable[[list[dict], list[dict], Recording], tuple[str, Sequence[float]]]
 
 
 @dataclass
@@ -103,7 +103,7 @@ class CalibrationResult:
     stride: int
     work: Recording
     coverage: dict
-    trials: pd.DataFrame
+    trials: list[dict]
     choice: Choice
     directions: int = 0
     band_deg: float = 90.0
@@ -135,11 +135,11 @@ class CalibrationResult:
         return self.screen.thinned
 
     @property
-    def ranked(self) -> pd.DataFrame:
+    def ranked(self) -> list[dict]:
         return self.choice.ranked
 
     @property
-    def chosen(self) -> pd.Series | None:
+    def chosen(self) -> dict | None:
         return self.choice.chosen
 
     @property
@@ -161,13 +161,13 @@ def prepare(rec: Recording, current: Screen, max_samples: int | None) -> tuple[R
 
 
 def fit_round(work: Recording, names: Sequence[str], *, preprocess: str, options: dict,
-              seed: int, call_timeout_s: float | None) -> pd.DataFrame:
+              seed: int, call_timeout_s: float | None) -> list[dict]:
     """Every method of ``names`` on all of ``work`` and on each fold (module notes, step 2)."""
     return evaluate_folds(work, list(names), preprocess, options=options, seed=seed,
                           call_timeout_s=call_timeout_s)
 
 
-def second_round_reason(tie: Sequence[str], chosen: pd.Series | None, gap_deg: float,
+def second_round_reason(tie: Sequence[str], chosen: Mapping | None, gap_deg: float,
                         first: Sequence[str]) -> str:
     """Why the second round of candidates must be fitted, or "" (module notes, step 2)."""
     if chosen is None:
@@ -181,15 +181,16 @@ def second_round_reason(tie: Sequence[str], chosen: pd.Series | None, gap_deg: f
     return ""
 
 
-def _rank_trials(trials: pd.DataFrame, work: Recording, gap_deg: float, centre: np.ndarray,
+def _rank_trials(trials: list[dict], work: Recording, gap_deg: float, centre: np.ndarray,
                  extra: ExtraScore | None = None) -> Choice:
     summary = fold_summary(trials)
     scores = SCORES
     if extra is not None:
         column, values = extra(summary, trials, work)
-        summary = summary.assign(**{column: values})
+        summary = [{**r, column: v} for r, v in zip(summary, values, strict=True)]
         scores = (*SCORES, column)
-    corrected = {a: held_out_corrected(trials, work, a) for a in summary["algorithm"]}
+    corrected = {r["algorithm"]: held_out_corrected(trials, work, r["algorithm"])
+                 for r in summary}
     return choose(summary, corrected, gap_deg, scores=scores,
                   refuse=lambda row: refusal_reason(*estimate(row), work.y, centre))
 
@@ -198,17 +199,18 @@ def _named_choice(choice: Choice, work: Recording, centre: np.ndarray) -> Choice
     """One named method: its fit on all samples when it has no held-out score."""
     if choice.chosen is not None:
         return Choice(choice.ranked, choice.chosen, f"named: {choice.chosen['algorithm']}")
-    row = choice.ranked.iloc[0]
+    row = choice.ranked[0]
     reason = refusal_reason(*estimate(row), work.y, centre) if np.isfinite(row["T_00"]) else \
         "no estimate"
     if bool(row["meaningful"]) and not reason:
-        return Choice(choice.ranked, row, f"named: {row['algorithm']} (no out-of-sample score)")
+        return Choice(choice.ranked, dict(row),
+                      f"named: {row['algorithm']} (no out-of-sample score)")
     return choice
 
 
 def _fit_and_choose(work: Recording, centre: np.ndarray, names: list[str], later: list[str],
                     gap: float, named: bool, fit: dict, extra: ExtraScore | None = None
-                    ) -> tuple[pd.DataFrame, Choice, str]:
+                    ) -> tuple[list[dict], Choice, str]:
     """One round of fitting and choosing (module notes, steps 2-3): the first round's
     candidates, then the second round's when :func:`second_round_reason` gives a reason (also
     returned, "" otherwise)."""
@@ -217,14 +219,14 @@ def _fit_and_choose(work: Recording, centre: np.ndarray, names: list[str], later
     choice = _rank_trials(trials, work, limit, centre, extra)
     reason = second_round_reason(choice.tie, choice.chosen, gap, names) if later else ""
     if reason:
-        trials = pd.concat([trials, fit_round(work, later, **fit)], ignore_index=True)
+        trials = trials + fit_round(work, later, **fit)
         choice = _rank_trials(trials, work, limit, centre, extra)
     if named:
         choice = _named_choice(choice, work, centre)
     return trials, choice, reason
 
 
-def retrim(rec: Recording, current: Screen, chosen: pd.Series) -> Screen:
+def retrim(rec: Recording, current: Screen, chosen: Mapping) -> Screen:
     """The screen redone on the chosen fit's norm residuals (module notes, step 4)."""
     T, h = estimate(chosen)
     r = np.linalg.norm(np.linalg.solve(T, (rec.y - h).T), axis=0) - 1.0

@@ -1,6 +1,6 @@
 """calibrate's choice among fitted candidates: eligibility, ranking, the tie, the pick.
 
-Each step is a small function of the candidates' table (one row per method, from
+Each step is a small function of the candidates' table (one record per method, from
 :func:`magbench.studies.holdout.fold_summary`), so each can be tested and another score can
 join the choice:
 
@@ -28,17 +28,21 @@ offset-only models compete and win when they are better there.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Mapping, Sequence
 
 import numpy as np
-import pandas as pd
 
 from magbench.core.crb import MODEL_PARAMETERS
 from magbench.core.verdict import MAX_GAP_DEG, field_error_pct
 from magbench.methods.registry import get_method
 
 __all__ = ["ROBUST_ON_CAPS", "SCORES", "THIN_GAP_DEG", "TIE_RTOL", "Choice", "allowed",
-           "annotate", "choose", "eligibility", "find_tie", "gyro_rule", "pick", "rank"]
+           "annotate", "choose", "eligibility", "find_tie", "gyro_rule", "pick", "rank",
+           "ranking_frame"]
+
+#: A candidate's row: a plain record (column -> value), so that ``calibrate`` needs no pandas.
+Row = dict
 
 #: Largest uncovered cap (deg) up to which a full model may be chosen (only the ones robust on
 #: caps, :data:`ROBUST_ON_CAPS`, beyond :data:`~magbench.core.verdict.MAX_GAP_DEG`).
@@ -64,129 +68,141 @@ def allowed(name: str, gap_deg: float) -> bool:
     return gap_deg <= THIN_GAP_DEG and name in ROBUST_ON_CAPS
 
 
-def annotate(summary: pd.DataFrame, corrected: Mapping[str, np.ndarray | None]
-             ) -> pd.DataFrame:
+def annotate(summary: Sequence[Mapping], corrected: Mapping[str, np.ndarray | None]
+             ) -> list[Row]:
     """``summary`` with ``model``, ``gyro``, ``p95_out_pct`` and ``worst_out_pct`` (held-out
     field errors of :func:`magbench.studies.holdout.held_out_corrected`, NaN without)."""
-    out = summary.copy()
-    out["model"] = [get_method(a).model for a in out["algorithm"]]
-    out["gyro"] = [get_method(a).needs_gyro for a in out["algorithm"]]
-    errors = [field_error_pct(corrected[a]) if corrected.get(a) is not None else None
-              for a in out["algorithm"]]
-    out["p95_out_pct"] = [np.percentile(e, 95) if e is not None else np.nan for e in errors]
-    out["worst_out_pct"] = [e.max() if e is not None else np.nan for e in errors]
+    out = []
+    for row in summary:
+        name = row["algorithm"]
+        e = field_error_pct(corrected[name]) if corrected.get(name) is not None else None
+        out.append({**row, "model": get_method(name).model, "gyro": get_method(name).needs_gyro,
+                    "p95_out_pct": np.percentile(e, 95) if e is not None else np.nan,
+                    "worst_out_pct": e.max() if e is not None else np.nan})
     return out
 
 
-def _why_not(r) -> str:
-    if isinstance(r.error, str) and r.error:
-        return r.error
-    if not r.coverage >= 0.5 * r.coverage_sphere:
-        return (f"degenerate: calibrated directions cover {r.coverage:.2f} of the sphere, the "
-                f"sphere fit's {r.coverage_sphere:.2f}")
-    return f"J_r above twice the sphere fit's ({r.J_r_sphere_in:.3g})"
+def _why_not(r: Mapping) -> str:
+    if isinstance(r["error"], str) and r["error"]:
+        return r["error"]
+    if not r["coverage"] >= 0.5 * r["coverage_sphere"]:
+        return (f"degenerate: calibrated directions cover {r['coverage']:.2f} of the sphere, "
+                f"the sphere fit's {r['coverage_sphere']:.2f}")
+    return f"J_r above twice the sphere fit's ({r['J_r_sphere_in']:.3g})"
 
 
-def eligibility(table: pd.DataFrame, gap_deg: float, scores: Sequence[str] = SCORES
-                ) -> pd.DataFrame:
-    """``table`` with ``eligible`` and ``note`` (why not); ``scored``: every score finite."""
-    out = table.copy()
-    scored = np.all([np.isfinite(out[s].astype(float)) for s in scores], axis=0)
-    notes, eligible = [], []
-    for r, has in zip(out.itertuples(index=False), scored, strict=True):
+def eligibility(table: Sequence[Mapping], gap_deg: float, scores: Sequence[str] = SCORES
+                ) -> list[Row]:
+    """``table`` with ``scored``, ``eligible`` and ``note`` (why not); ``scored``: every score
+    finite and the fit meaningful."""
+    out = []
+    for r in table:
+        has = all(math.isfinite(float(r[s])) for s in scores)
         note = ""
-        if not r.meaningful:
+        if not r["meaningful"]:
             note = _why_not(r)
         elif not has:
             note = "no out-of-sample score (a fold's fit failed or was degenerate)"
-        elif not allowed(r.algorithm, gap_deg):
-            note = (f"not chosen: a {r.model} model is not trusted with a {gap_deg:.0f} deg "
+        elif not allowed(r["algorithm"], gap_deg):
+            note = (f"not chosen: a {r['model']} model is not trusted with a {gap_deg:.0f} deg "
                     "gap in coverage")
-        notes.append(note)
-        eligible.append(not note)
-    return out.assign(scored=scored & out["meaningful"].astype(bool), eligible=eligible,
-                      note=notes)
+        out.append({**r, "scored": has and bool(r["meaningful"]), "eligible": not note,
+                    "note": note})
+    return out
 
 
-def _beats(a: pd.Series, b: pd.Series, scores: Sequence[str]) -> bool:
+def _beats(a: Mapping, b: Mapping, scores: Sequence[str]) -> bool:
     """``a`` better than ``b`` beyond the tie on every score."""
     return all(a[s] * (1 + TIE_RTOL) < b[s] for s in scores)
 
 
-def gyro_rule(table: pd.DataFrame, scores: Sequence[str] = SCORES) -> pd.DataFrame:
+def gyro_rule(table: Sequence[Mapping], scores: Sequence[str] = SCORES) -> list[Row]:
     """Gyro-aided methods stay eligible only when they beat the best magnetometer-only one."""
-    out = table.copy()
-    mag = out[out["eligible"] & ~out["gyro"].astype(bool)]
-    if mag.empty:
+    out = [dict(r) for r in table]
+    mag = [r for r in out if r["eligible"] and not r["gyro"]]
+    if not mag:
         return out
-    best = mag.sort_values(scores[0], kind="stable").iloc[0]
-    for i in out.index[out["eligible"] & out["gyro"].astype(bool)]:
-        if not _beats(out.loc[i], best, scores):
-            out.loc[i, "eligible"] = False
-            out.loc[i, "note"] = (f"not chosen: a gyro-aided fit must beat the best "
-                                  f"magnetometer-only fit ({best['algorithm']}) out of sample")
+    best = min(mag, key=lambda r: r[scores[0]])         # the first of equals, as a stable sort
+    for r in out:
+        if r["eligible"] and r["gyro"] and not _beats(r, best, scores):
+            r["eligible"] = False
+            r["note"] = (f"not chosen: a gyro-aided fit must beat the best "
+                         f"magnetometer-only fit ({best['algorithm']}) out of sample")
     return out
 
 
-def rank(table: pd.DataFrame, scores: Sequence[str] = SCORES) -> pd.DataFrame:
+def _group(r: Mapping) -> int:
+    """Eligible, scored, meaningful, converged, the rest: 0 to 4."""
+    for g, key in enumerate(("eligible", "scored", "meaningful", "ok")):
+        if r[key]:
+            return g
+    return 4
+
+
+def rank(table: Sequence[Mapping], scores: Sequence[str] = SCORES) -> list[Row]:
     """Eligible first by ``scores[0]``, then scored, then meaningful, then the rest; ``rank``
-    numbers the eligible ones."""
-    group = np.where(table["eligible"], 0, np.where(table["scored"], 1, np.where(
-        table["meaningful"].astype(bool), 2, np.where(table["ok"].astype(bool), 3, 4))))
-    out = (table.assign(_g=group, _k=table[scores[0]].astype(float).fillna(np.inf))
-           .sort_values(["_g", "_k"], kind="stable").reset_index(drop=True))
-    n = int((out["_g"] == 0).sum())
-    out.insert(0, "rank", pd.array([i + 1 if i < n else pd.NA for i in range(len(out))],
-                                   dtype="Int64"))
-    return out.drop(columns=["_g", "_k"])
+    numbers the eligible ones (None for the others)."""
+    def key(r: Mapping) -> tuple[int, float]:
+        x = float(r[scores[0]])
+        return _group(r), math.inf if math.isnan(x) else x
+
+    ordered = sorted(table, key=key)                    # stable: ties keep the table's order
+    n = sum(1 for r in ordered if r["eligible"])
+    return [{"rank": i + 1 if i < n else None, **r} for i, r in enumerate(ordered)]
 
 
-def find_tie(ranked: pd.DataFrame, scores: Sequence[str] = SCORES) -> pd.DataFrame:
+def find_tie(ranked: Sequence[Mapping], scores: Sequence[str] = SCORES) -> list[Row]:
     """``ranked`` with ``tie``: eligible methods within :data:`TIE_RTOL` of the best (the
     first eligible row) on every score."""
-    out = ranked.assign(tie=False)
-    eligible = out.index[out["eligible"]]
-    if len(eligible) == 0:
-        return out
-    best = out.loc[eligible[0]]
-    for i in eligible:
-        out.loc[i, "tie"] = all(out.loc[i, s] <= (1 + TIE_RTOL) * best[s] for s in scores)
+    out = [{**r, "tie": False} for r in ranked]
+    eligible = [r for r in out if r["eligible"]]
+    for r in eligible:
+        r["tie"] = all(r[s] <= (1 + TIE_RTOL) * eligible[0][s] for s in scores)
     return out
 
 
-def pick(ranked: pd.DataFrame, refuse: Callable[[pd.Series], str] | None = None
-         ) -> tuple[pd.DataFrame, pd.Series | None]:
-    """The simplest of the tie not refused, else the next eligible one (module notes, 6)."""
-    out = ranked.copy()
-    tie = out[out["tie"]].assign(_p=lambda d: [MODEL_PARAMETERS[m] for m in d["model"]],
-                                 _it=lambda d: d["n_iter"] > 0)
-    order = tie.sort_values(["_p", "_it"], kind="stable").drop(columns=["_p", "_it"])
-    rest = out[out["eligible"] & ~out["tie"]]
-    for i, r in pd.concat([order, rest]).iterrows():
-        reason = refuse(r) if refuse else ""
+def pick(ranked: Sequence[Mapping], refuse: Callable[[Row], str] | None = None
+         ) -> tuple[list[Row], Row | None]:
+    """The simplest of the tie not refused, else the next eligible one (module notes, 6);
+    the chosen row is a copy."""
+    out = [dict(r) for r in ranked]
+    tie = sorted((r for r in out if r["tie"]),
+                 key=lambda r: (MODEL_PARAMETERS[r["model"]], r["n_iter"] > 0))
+    rest = [r for r in out if r["eligible"] and not r["tie"]]
+    for r in tie + rest:
+        reason = refuse(dict(r)) if refuse else ""
         if not reason:
-            return out, r
-        out.loc[i, "note"] = f"refused: {reason}"
+            return out, dict(r)
+        r["note"] = f"refused: {reason}"
     return out, None
 
 
 class Choice:
-    """What :func:`choose` decided: the ranked table, the tie, the chosen row and how."""
+    """What :func:`choose` decided: the ranked rows, the tie, the chosen row and how."""
 
-    def __init__(self, ranked: pd.DataFrame, chosen: pd.Series | None, how: str):
+    def __init__(self, ranked: list[Row], chosen: Row | None, how: str):
         self.ranked, self.chosen, self.how = ranked, chosen, how
 
     @property
     def tie(self) -> list[str]:
-        return self.ranked.loc[self.ranked["tie"], "algorithm"].tolist()
+        return [r["algorithm"] for r in self.ranked if r["tie"]]
 
 
-def _how(ranked: pd.DataFrame, chosen: pd.Series | None) -> str:
+def ranking_frame(ranked: Sequence[Mapping]) -> object:
+    """The ranked rows as a pandas DataFrame (``rank`` a nullable integer), for a program
+    that wants the table; ``calibrate`` itself writes them without pandas."""
+    import pandas as pd
+
+    frame = pd.DataFrame(list(ranked))
+    return frame.astype({"rank": "Int64"}) if "rank" in frame else frame
+
+
+def _how(ranked: Sequence[Mapping], chosen: Mapping | None) -> str:
     if chosen is None:
-        return "no method has an out-of-sample score" if not ranked["eligible"].any() else \
-            "every eligible method was refused"
-    tie = ranked.loc[ranked["tie"], "algorithm"].tolist()
-    best = ranked[ranked["eligible"]].iloc[0]["algorithm"]
+        return "no method has an out-of-sample score" if not any(r["eligible"] for r in ranked) \
+            else "every eligible method was refused"
+    tie = [r["algorithm"] for r in ranked if r["tie"]]
+    best = next(r for r in ranked if r["eligible"])["algorithm"]
     if chosen["algorithm"] not in tie:
         return f"every method of the tie was refused; chosen {chosen['algorithm']}, the next"
     if len(tie) == 1:
@@ -195,14 +211,14 @@ def _how(ranked: pd.DataFrame, chosen: pd.Series | None) -> str:
             f"{TIE_RTOL:.0%}); chosen {chosen['algorithm']}, the simplest")
 
 
-def choose(summary: pd.DataFrame, corrected: Mapping[str, np.ndarray | None], gap_deg: float,
-           *, refuse: Callable[[pd.Series], str] | None = None,
+def choose(summary: Sequence[Mapping], corrected: Mapping[str, np.ndarray | None],
+           gap_deg: float, *, refuse: Callable[[Row], str] | None = None,
            scores: Sequence[str] = SCORES) -> Choice:
     """Annotate, judge eligibility, apply the gyro rule, rank, tie and pick (module notes).
 
     Parameters
     ----------
-    summary : DataFrame
+    summary : sequence of dict
         :func:`magbench.studies.holdout.fold_summary` (plus any extra score columns).
     corrected : mapping
         Each method's held-out corrected samples (None without).

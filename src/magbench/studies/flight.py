@@ -48,13 +48,13 @@ def mounting_rotation(rec: Recording, A: np.ndarray, b: np.ndarray,
     m = (rec.y - b) @ np.asarray(A).T if corrected is None else np.asarray(corrected)
     base = base & np.isfinite(m).all(axis=1)
     if all(c in rec.extra for c in QUATERNION):
-        q = rec.extra[QUATERNION].to_numpy(float)
+        q = rec.stack(QUATERNION)
         use = base & np.isfinite(q).all(axis=1)
         if use.sum() >= 2:
             unit = q[use] / np.linalg.norm(q[use], axis=1, keepdims=True)   # nearly unit
             return detect_mounting(m[use], attitude=quat_to_matrix(unit))
     if all(c in rec.extra for c in ACCEL):
-        a = rec.extra[ACCEL].to_numpy(float)
+        a = rec.stack(ACCEL)
         use = base & np.isfinite(a).all(axis=1)
         if use.sum() >= 2:
             return detect_mounting(m[use], accel=a[use])
@@ -80,7 +80,7 @@ def _survey_regressors(rec: Recording) -> tuple[list[str], list[str]]:
     for name in REGRESSORS if rec.extra is not None else ():
         if name not in rec.extra or (name == "throttle" and "current" in used):
             continue
-        values = rec.extra[name].to_numpy(float)
+        values = np.asarray(rec.extra[name], dtype=float)
         finite = values[np.isfinite(values)]
         if finite.size < MIN_REGRESSOR_SHARE * rec.K:
             left_out.append(f"{name} (values in {100 * finite.size / rec.K:.0f} % of the "
@@ -126,6 +126,6 @@ def time_varying_terms(rec: Recording, names: list[str], static_fit: StaticFit,
         If the recording lacks one of ``names``.
     """
     check_regressors(rec, names)
-    u = rec.extra[names].to_numpy(float)
+    u = rec.stack(names)
     use = np.isfinite(u).all(axis=1) & (np.ones(rec.K, bool) if keep is None else keep)
     return held_out_choice(rec.y[use], u[use], static_fit)

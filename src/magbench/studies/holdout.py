@@ -12,13 +12,12 @@ on average but loses badly on one part of the recording is seen.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 
 import numpy as np
-import pandas as pd
 
 from magbench.sources.recordings import Recording
-from magbench.studies.real import evaluate_recording, recording_summary
+from magbench.studies.real import evaluate_recording, summary_records
 
 __all__ = ["BLOCKS_PER_FOLD", "N_FOLDS", "estimate", "evaluate_folds", "fold_indices",
            "fold_summary", "held_out_corrected"]
@@ -29,8 +28,8 @@ N_FOLDS = 3
 BLOCKS_PER_FOLD = 4
 
 
-def estimate(row: pd.Series) -> tuple[np.ndarray, np.ndarray]:
-    """``T`` and ``h`` of a row of the real-data tables."""
+def estimate(row: Mapping) -> tuple[np.ndarray, np.ndarray]:
+    """``T`` and ``h`` of a row of the real-data tables (a record or a pandas row)."""
     T = np.array([[row[f"T_{i}{j}"] for j in range(3)] for i in range(3)], dtype=float)
     return T, np.array([row[f"h_{i}"] for i in range(3)], dtype=float)
 
@@ -53,42 +52,54 @@ def _splits(rec: Recording, tests: list[np.ndarray]) -> list[tuple]:
 
 def evaluate_folds(rec: Recording, algorithms: Sequence[str], preprocess: str, *,
                    options: dict | None = None, seed: int = 0,
-                   call_timeout_s: float | None = None) -> pd.DataFrame:
+                   call_timeout_s: float | None = None) -> list[dict]:
     """Rows of :func:`magbench.studies.real.evaluate_recording` with the fits of
     :func:`fold_indices` (``fit_on`` ``all`` and ``fold0``, ``fold1``, ...)."""
     if rec.K < 2 * N_FOLDS:
         tests: list[np.ndarray] = []
     else:
         tests = fold_indices(rec.K)
-    return pd.DataFrame(evaluate_recording(rec, algorithms, [preprocess], options=options,
-                                           seed=seed, call_timeout_s=call_timeout_s,
-                                           splits=_splits(rec, tests)))
+    return evaluate_recording(rec, algorithms, [preprocess], options=options, seed=seed,
+                              call_timeout_s=call_timeout_s, splits=_splits(rec, tests))
 
 
-def fold_summary(trials: pd.DataFrame) -> pd.DataFrame:
-    """One row per method: :func:`~magbench.studies.real.recording_summary` of the fit on all
-    samples, with ``J_r_out`` the mean over the folds of the held-out J_r and ``J_r_worst``
-    the largest; both NaN unless every fold's fit is usable."""
-    whole = recording_summary(trials[trials["fit_on"] == "all"])
-    folds = trials[trials["fit_on"] != "all"]
-    means, worst = [], []
-    for name in whole["algorithm"]:
-        rows = folds[folds["algorithm"] == name]
-        ok = len(rows) >= 2 and rows["usable"].astype(bool).all()
-        means.append(float(rows["J_r_test"].mean()) if ok else np.nan)
-        worst.append(float(rows["J_r_test"].max()) if ok else np.nan)
-    return whole.assign(J_r_out=means, J_r_worst=worst,
-                        halves_usable=np.isfinite(np.asarray(means)))
+def _fold_rows(trials: Sequence[Mapping], method: str) -> list[Mapping]:
+    """``method``'s rows of the fold fits (not the fit on all samples), in order."""
+    return [r for r in trials if r["algorithm"] == method and r["fit_on"] != "all"]
 
 
-def held_out_corrected(trials: pd.DataFrame, rec: Recording, method: str) -> np.ndarray | None:
+def _usable(rows: Sequence[Mapping]) -> bool:
+    """At least two folds, every fold's fit usable."""
+    return len(rows) >= 2 and all(bool(r["usable"]) for r in rows)
+
+
+def fold_summary(trials: Sequence[Mapping]) -> list[dict]:
+    """One record per method: :func:`~magbench.studies.real.summary_records` of the fit on
+    all samples, with ``J_r_out`` the mean over the folds of the held-out J_r and
+    ``J_r_worst`` the largest (NaN folds skipped); both NaN unless every fold's fit is
+    usable."""
+    whole = summary_records([r for r in trials if r["fit_on"] == "all"])
+    out = []
+    for row in whole:
+        rows = _fold_rows(trials, row["algorithm"])
+        scores = np.array([r["J_r_test"] for r in rows], dtype=float)
+        scores = scores[~np.isnan(scores)]
+        ok = _usable(rows) and scores.size > 0
+        mean = float(scores.mean()) if ok else np.nan
+        out.append({**row, "J_r_out": mean, "J_r_worst": float(scores.max()) if ok else np.nan,
+                    "halves_usable": bool(np.isfinite(mean))})
+    return out
+
+
+def held_out_corrected(trials: Sequence[Mapping], rec: Recording, method: str
+                       ) -> np.ndarray | None:
     """Every sample of ``rec`` corrected by ``method``'s fit on the folds it was held out of,
     in time order; None unless every fold's fit is usable."""
-    rows = trials[(trials["algorithm"] == method) & (trials["fit_on"] != "all")]
-    if len(rows) < 2 or not rows["usable"].astype(bool).all():
+    rows = _fold_rows(trials, method)
+    if not _usable(rows):
         return None
     out = np.empty((rec.K, 3))
     for f, test in enumerate(fold_indices(rec.K, len(rows))):
-        T, h = estimate(rows[rows["fit_on"] == f"fold{f}"].iloc[0])
+        T, h = estimate(next(r for r in rows if r["fit_on"] == f"fold{f}"))
         out[test] = np.linalg.solve(T, (rec.y[test] - h).T).T
     return out

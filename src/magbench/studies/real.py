@@ -43,13 +43,12 @@ from __future__ import annotations
 
 import functools
 import inspect
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import ClassVar
+from typing import TYPE_CHECKING, ClassVar
 
 import numpy as np
-import pandas as pd
 
 from magbench.core.files import file_sha256, write_csv_atomic
 from magbench.core.geometry import coverage, sphere_fit
@@ -62,9 +61,13 @@ from magbench.methods.registry import get_method, method_label
 from magbench.sources.recordings import Recording, load_recording
 from magbench.studies.times import split_times, with_times
 
+if TYPE_CHECKING:     # the sweep's summaries only: calibrate shares this module, not pandas
+    import pandas as pd
+
 __all__ = ["DEFAULT_MAX_SAMPLES", "PARTNERS", "PREPROCESSING", "REAL_ROW_COLUMNS", "RealStudy",
            "applicability", "calibrated_coverage", "evaluate_recording", "fit_recording",
-           "is_meaningful", "is_usable", "method_summary", "preprocessing", "recording_summary"]
+           "is_meaningful", "is_usable", "method_summary", "preprocessing", "recording_summary",
+           "summary_records"]
 
 DEFAULT_MAX_SAMPLES = 2000
 PREPROCESSING = ("none", "scale", "centre")
@@ -285,6 +288,8 @@ class RealStudy(Study):
 
     def summarize(self, out_dir: Path | str) -> tuple[pd.DataFrame, pd.DataFrame]:
         """Write ``real_summary.csv`` (per recording) and ``fig6_real.csv`` (per method)."""
+        import pandas as pd
+
         out_dir = Path(out_dir)
         trials = pd.read_csv(out_dir / "real_trials.csv", dtype={"error": str, "test_on": str},
                              keep_default_na=True)
@@ -314,21 +319,39 @@ def _sha256_of(path: str, size: int, mtime_ns: int) -> str:
 
 
 def recording_summary(trials: pd.DataFrame) -> pd.DataFrame:
-    """One row per (recording, preprocessing, method).
+    """One row per (recording, preprocessing, method): :func:`summary_records` as a table."""
+    import pandas as pd
+
+    return pd.DataFrame(summary_records(trials.to_dict("records")))
+
+
+def _nanmean(values: Sequence[float]) -> float:
+    """The mean of the values that are not NaN (NaN without any), as pandas' ``mean``."""
+    x = np.asarray(values, dtype=float)
+    x = x[~np.isnan(x)]
+    return float(x.mean()) if x.size else np.nan
+
+
+def summary_records(trials: Sequence[Mapping]) -> list[dict]:
+    """One record per (recording, preprocessing, method), in the order of first appearance.
 
     ``J_r_in`` is the fit on all samples; ``J_r_out`` the mean of the two half-fits' J_r on the
     other half when both half-fits gave a usable estimate (not the degenerate one; an estimate
     stopped by its iteration cap counts, since it is what a user would get), else NaN;
     ``J_r_cross`` the all-samples fit on the partner recording; ``meaningful`` the
-    all-samples fit's criterion.
+    all-samples fit's criterion. Plain records, so that ``calibrate`` needs no pandas; the
+    sweep's table is :func:`recording_summary`.
     """
     keys = ["dataset", "preprocess", "algorithm"]
+    groups: dict[tuple, list[Mapping]] = {}
+    for row in trials:
+        groups.setdefault(tuple(row[k] for k in keys), []).append(row)
     rows = []
-    for key, group in trials.groupby(keys, sort=False):
-        full = group[group["fit_on"] == "all"].iloc[0]
-        halves = group[group["fit_on"] != "all"]
-        cross = group[group["test_on"].astype(str).str.startswith("partner:")]
-        halves_ok = bool(len(halves) == 2 and halves["usable"].astype(bool).all())
+    for key, group in groups.items():
+        full = next(r for r in group if r["fit_on"] == "all")
+        halves = [r for r in group if r["fit_on"] != "all"]
+        cross = [r for r in group if str(r["test_on"]).startswith("partner:")]
+        halves_ok = bool(len(halves) == 2 and all(bool(r["usable"]) for r in halves))
         rows.append({
             **dict(zip(keys, key, strict=True)), "K": int(full["K_fit"]),
             "n_rows": int(full["n_rows"]), "stride": int(full["stride"]),
@@ -336,16 +359,17 @@ def recording_summary(trials: pd.DataFrame) -> pd.DataFrame:
             "meaningful": bool(full["meaningful"]), "error": full["error"],
             "time_s": float(full["time_s"]), "n_iter": int(full["n_iter"]),
             "J_r_in": float(full["J_r_fit"]), "J_r_sphere_in": float(full["J_r_sphere_fit"]),
-            "J_r_out": float(halves["J_r_test"].mean()) if halves_ok else np.nan,
-            "J_r_sphere_out": float(halves["J_r_sphere_test"].mean()) if len(halves) else np.nan,
+            "J_r_out": _nanmean([r["J_r_test"] for r in halves]) if halves_ok else np.nan,
+            "J_r_sphere_out": _nanmean([r["J_r_sphere_test"] for r in halves]) if halves
+            else np.nan,
             "halves_usable": halves_ok,
-            "cross_on": cross["test_on"].iloc[0][len("partner:"):] if len(cross) else "",
-            "J_r_cross": float(cross["J_r_test"].iloc[0]) if len(cross) else np.nan,
+            "cross_on": cross[0]["test_on"][len("partner:"):] if cross else "",
+            "J_r_cross": float(cross[0]["J_r_test"]) if cross else np.nan,
             "coverage": float(full["coverage_fit"]),
             "coverage_sphere": float(full["coverage_sphere_fit"]),
             **{c: float(full[c]) for c in H_COLUMNS + T_COLUMNS},
         })
-    return pd.DataFrame(rows)
+    return rows
 
 
 def method_summary(per_recording: pd.DataFrame) -> pd.DataFrame:
@@ -359,6 +383,8 @@ def method_summary(per_recording: pd.DataFrame) -> pd.DataFrame:
     ``median_ratio_out`` the medians over the same recordings of J_r over the sphere fit's J_r
     on the same data (scale-free: the means are dominated by the noisiest recordings).
     """
+    import pandas as pd
+
     rows = []
     for (how, name), g in per_recording.groupby(["preprocess", "algorithm"], sort=False):
         applicable = g[~g["skipped"].astype(bool)]
@@ -406,6 +432,8 @@ def selection_inflation(per_recording: pd.DataFrame,
         ``preprocess``, ``algorithm``, ``n_kept``, ``others_on_kept``, ``inflation``,
         ``set_by_selection``; only the methods that kept a strict, non-empty subset.
     """
+    import pandas as pd
+
     rows = []
     usable = per_recording[~per_recording["skipped"].astype(bool)]
     for (how, name), g in usable.groupby(["preprocess", "algorithm"], sort=False):

@@ -11,10 +11,12 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from pathlib import Path
-
-import pandas as pd
+from typing import TYPE_CHECKING
 
 from magbench.core.files import read_csv_columns
+
+if TYPE_CHECKING:     # with_times only: calibrate imports this module and needs no pandas
+    import pandas as pd
 
 __all__ = ["split_times", "times_path", "with_times"]
 
