@@ -317,3 +317,21 @@ def test_another_chunk_size_on_resume_warns_and_gives_the_same_rows(tmp_path):
         run_study(Toy(), cut, chunk_size=5, progress=False)
     pd.testing.assert_frame_equal(read(cut), read(tmp_path / "full"))
     assert json.loads((cut / "run.json").read_text())["units_resumed"] == 0
+
+
+def test_a_run_stopped_between_chunks_leaves_no_joblib_warning(tmp_path, monkeypatch):
+    """A Ctrl-C while a finished chunk is written stops the run with the chunks still on the
+    workers cancelled on purpose: joblib's warning about them would follow the run's one line."""
+    import warnings
+
+    from magbench.engine import sweep
+
+    def stop(self, start, stop, rows):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(sweep._Parts, "write", stop)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        with pytest.raises(KeyboardInterrupt):
+            run_study(Toy(n=40), tmp_path / "a", n_jobs=2, chunk_size=1, progress=False)
+    assert [str(w.message) for w in caught if "tasks" in str(w.message)] == []

@@ -581,8 +581,24 @@ def _run_parallel(study: Study, units: list, todo: list[tuple[int, int]], parts:
                 results = parallel(delayed(_run_chunk)(study, units[a:b], a, os.getpid(),
                                                        str(parts.marker(a, b)))
                                    for a, b in todo)
-            for start, rows in results:
-                done(start, stops[start], rows)
+            try:
+                for start, rows in results:
+                    done(start, stops[start], rows)
+            finally:
+                _close_quietly(results)
+
+
+#: joblib's warning when a results generator is closed before its end (a Ctrl-C, a failed
+#: write): the tasks it names are cancelled on purpose, and the run says what happened.
+_CANCELLED_WARNING = r"\d+ tasks (have been successfully executed|which were still being)"
+
+
+def _close_quietly(results: Iterator) -> None:
+    """Close joblib's results generator here, without its warning about cancelled tasks
+    (otherwise it is closed when collected, and warns after the run's one line)."""
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message=_CANCELLED_WARNING, category=UserWarning)
+        results.close()
 
 
 def _run_on_dask(client: object, study: Study, units: list, todo: list[tuple[int, int]],
