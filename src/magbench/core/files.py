@@ -71,12 +71,12 @@ def _csv_columns(frame: pd.DataFrame) -> list[list[str]] | None:
     cells = []
     for i in range(frame.shape[1]):
         column = frame.iloc[:, i]
-        kind = column.dtype.kind if isinstance(column.dtype, np.dtype) else "?"
-        if kind == "f" and column.dtype.itemsize == 8:
+        code = column.dtype.kind if isinstance(column.dtype, np.dtype) else "?"
+        if code == "f" and column.dtype.itemsize == 8:
             cells.append(["" if x != x else repr(x) for x in column.tolist()])
-        elif kind in "iub":
+        elif code in "iub":
             cells.append([str(x) for x in column.tolist()])
-        elif kind == "O" or str(column.dtype) in ("str", "string"):
+        elif code == "O" or str(column.dtype) in ("str", "string"):
             missing = column.isna().tolist()
             cells.append(["" if m else csv_cell(x)
                           for x, m in zip(column.tolist(), missing, strict=True)])
