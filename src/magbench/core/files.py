@@ -12,7 +12,7 @@ import hashlib
 import math
 import numbers
 import os
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Iterable, Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -50,16 +50,22 @@ def write_csv_atomic(frame: pd.DataFrame, path: Path | str) -> None:
     time ``to_csv`` takes (a sweep writes every trial row this way); any other goes to
     ``to_csv``.
     """
-    cells = None if str(path).endswith(".gz") else _csv_columns(frame)
+    gz = str(path).endswith(".gz")
+    cells = None if gz else _csv_columns(frame)
+    if cells is not None:
+        _write_rows(path, [str(c) for c in frame.columns], zip(*cells, strict=True))
+        return
     with atomic_path(path) as tmp:
-        if cells is None:
-            compression = "gzip" if str(path).endswith(".gz") else None
-            frame.to_csv(tmp, index=False, compression=compression)
-            return
-        with open(tmp, "w", newline="", encoding="utf-8") as handle:
-            writer = csv.writer(handle, lineterminator=os.linesep)
-            writer.writerow([str(c) for c in frame.columns])
-            writer.writerows(zip(*cells, strict=True))
+        frame.to_csv(tmp, index=False, compression="gzip" if gz else None)
+
+
+def _write_rows(path: Path | str, header: Sequence[str], rows: Iterable[Sequence[str]]) -> None:
+    """``header`` and ``rows`` (cells already text) as CSV to ``path`` atomically, quoted as
+    ``to_csv`` quotes (the csv module's minimal quoting, the system's line ends)."""
+    with atomic_path(path) as tmp, open(tmp, "w", newline="", encoding="utf-8") as handle:
+        writer = csv.writer(handle, lineterminator=os.linesep)
+        writer.writerow(header)
+        writer.writerows(rows)
 
 
 def _csv_columns(frame: pd.DataFrame) -> list[list[str]] | None:
@@ -106,10 +112,7 @@ def write_records_csv(records: Sequence[Mapping[str, object]], path: Path | str)
     :func:`csv_cell`; a column holding integers and NaN would be floats there, so such a
     column must hold floats here). Without pandas: ``calibrate`` does not import it."""
     columns = list(records[0]) if records else []
-    with atomic_path(path) as tmp, open(tmp, "w", newline="", encoding="utf-8") as handle:
-        writer = csv.writer(handle, lineterminator=os.linesep)
-        writer.writerow(columns)
-        writer.writerows([csv_cell(r.get(c)) for c in columns] for r in records)
+    _write_rows(path, columns, ([csv_cell(r.get(c)) for c in columns] for r in records))
 
 
 def write_text_atomic(text: str, path: Path | str) -> None:

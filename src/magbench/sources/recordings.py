@@ -134,7 +134,6 @@ class Recording:
         """The ``extra`` columns ``names`` as one float array of shape (K, len(names))."""
         return _as_columns([self.extra[n] for n in names])
 
-
     def thinned(self, max_samples: int | None) -> Recording:
         """Every ``s``-th sample, ``s = ceil(K / max_samples)``; unchanged if already small."""
         if not max_samples or self.K <= max_samples:
@@ -492,6 +491,12 @@ PLAIN_MAX_BYTES = 32 << 20
 _PLAIN_WORDS = {"e", "E", "nan", "NaN", "NAN", "Nan"}
 
 
+def _plain_layout(layout: dict, sniffed: dict) -> bool:
+    """An uncompressed file with no notes before its table and a one-character separator:
+    the layout whose header and numbers are read without pandas."""
+    return not layout["compression"] and not sniffed["skip"] and sniffed["sep"] in ",;\t"
+
+
 def _plain_table(path: Path, layout: dict, sniffed: dict) -> np.ndarray | None:
     """Every column of a small, plain file of numbers as floats (rows, columns), read by
     NumPy; None when the file is anything else, which pandas then reads (and names what is
@@ -503,8 +508,8 @@ def _plain_table(path: Path, layout: dict, sniffed: dict) -> np.ndarray | None:
     treats as missing, every row as wide as the header. Both round decimal text correctly,
     so the values are the same; NaN cells are dropped later either way.
     """
-    if (layout["compression"] or layout["decimal"] != "." or sniffed["skip"]
-            or sniffed["sep"] not in ",;\t" or path.stat().st_size > PLAIN_MAX_BYTES):
+    if (not _plain_layout(layout, sniffed) or layout["decimal"] != "."
+            or path.stat().st_size > PLAIN_MAX_BYTES):
         return None
     with open(path, newline="") as handle:
         try:
@@ -709,7 +714,7 @@ def _plain_header(path: Path, layout: dict, sniffed: dict) -> list[str] | None:
     """The header of an uncompressed file whose first line is a plain one (one-character
     separator, no quotes, distinct names that are not blank), read without pandas; None
     otherwise (pandas then reads it, renaming duplicates and blanks its own way)."""
-    if layout["compression"] or sniffed["skip"] or sniffed["sep"] not in ",;\t":
+    if not _plain_layout(layout, sniffed):
         return None
     with open(path, newline="") as handle:
         try:

@@ -34,8 +34,8 @@ from magbench.studies.review import ReviewStudy
 
 __all__ = ["SIZES", "bench_calibrate", "bench_calibrate_files", "bench_calls",
            "bench_first_calls", "bench_parallel", "bench_peers", "calls_seconds",
-           "format_reproduce_times",
-           "peer_install_size", "reproduce_times", "rounds_won", "run_bench", "synthetic_recording"]
+           "format_reproduce_times", "peer_install_size", "reproduce_times", "rounds_won",
+           "run_bench", "synthetic_recording"]
 
 SIZES = (50, 150, 300, 1000, 3000, 10000)
 
@@ -607,13 +607,13 @@ def calls_seconds(folder: Path) -> float:
     tables (the studies' timed calls) plus its timing pass's calls (``spent_s`` of
     ``timing.csv``); NaN when the folder holds neither (the report)."""
     parts = [(path, "time_s") for path in sorted(folder.glob("*_times.csv"))]
-    parts += [(folder / "timing.csv", "spent_s")] if (folder / "timing.csv").exists() else []
+    parts.append((folder / "timing.csv", "spent_s"))
     total, found = 0.0, False
     for path, column in parts:
         try:
             total += float(pd.read_csv(path, usecols=[column])[column].sum())
             found = True
-        except (OSError, ValueError):  # unreadable, or a table without that column
+        except (OSError, ValueError):  # absent, or a table without that column
             continue
     return total if found else np.nan
 

@@ -211,12 +211,12 @@ def bordered_matrix(rng: np.random.Generator, n_blocks: int, border: int) -> np.
 
 
 @pytest.mark.parametrize("indefinite", [False, True])
-def test_bordered_solve_matches_a_dense_solve(indefinite):
+def test_the_bordered_solve_matches_a_dense_solve(indefinite):
     """The banded-Cholesky-plus-Schur solve gives the dense answer; a leading block that is
     not positive definite takes the general sparse solve and still gives it."""
     from scipy import sparse
 
-    from magbench.methods.algorithms.mag_imu_map import bordered_solve
+    from magbench.methods.algorithms.mag_imu_map import BorderedSystem
 
     rng = np.random.default_rng(5)
     H = bordered_matrix(rng, 40, 19)
@@ -224,6 +224,8 @@ def test_bordered_solve_matches_a_dense_solve(indefinite):
         H[:3, :3] -= 1e3 * np.eye(3)
     damping = 1e-3 * (np.abs(np.diag(H)) + 1e-12)
     rhs = rng.standard_normal(H.shape[0])
-    x = bordered_solve(sparse.csc_matrix(H), rhs, 120, damping)
-    expected = np.linalg.solve(H + np.diag(damping), rhs)
-    assert np.allclose(x, expected, rtol=1e-9, atol=1e-12 * np.abs(expected).max())
+    system = BorderedSystem(sparse.csc_matrix(H), 120)
+    for scale in (1.0, 100.0, 1.0):        # one split, several dampings, none left behind
+        x = system.solve(rhs, scale * damping)
+        expected = np.linalg.solve(H + np.diag(scale * damping), rhs)
+        assert np.allclose(x, expected, rtol=1e-9, atol=1e-12 * np.abs(expected).max())

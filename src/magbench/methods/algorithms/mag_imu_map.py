@@ -29,7 +29,7 @@ gauge), the residuals are
 (``w_k`` the mean of the two rate samples of the interval). Linear accelerations enter as
 accelerometer noise. The minimum is found by Levenberg-Marquardt over the 19 parameters and
 the 3K orientation increments (``Q_k <- Q_k Exp(d_k)``), whose normal equations are sparse
-(block tridiagonal plus a dense border) and are solved as such (:func:`bordered_solve`).
+(block tridiagonal plus a dense border) and are solved as such (:class:`BorderedSystem`).
 
 Named differences from the paper's estimator (as its companion code shows it):
 
@@ -287,34 +287,50 @@ def data_dip_deg(G: np.ndarray, h: np.ndarray, y: np.ndarray, a: np.ndarray) -> 
     return float(np.degrees(np.arcsin(-np.median(cos))))
 
 
-def bordered_solve(H, rhs: np.ndarray, n: int, damping: np.ndarray) -> np.ndarray:
-    """Solve ``(H + diag(damping)) x = rhs`` for a symmetric ``H`` whose leading ``n x n``
-    block is block tridiagonal (3x3 blocks, so banded with 5 off-diagonals) and whose last rows
-    and columns are dense: a banded Cholesky of the leading block and the Schur complement of
-    the border (``O(n)``; a general sparse LU fills in the border and pivots).
-
-    Falls back to the general sparse solve if the leading block is not positive definite.
+class BorderedSystem:
+    """The normal equations ``H`` of the joint problem, split once for any damping: a leading
+    ``n x n`` block that is block tridiagonal (3x3 blocks, so banded with 5 off-diagonals) and a
+    dense border of the last rows and columns. :meth:`solve` takes a banded Cholesky of the
+    leading block and the Schur complement of the border (``O(n)``; a general sparse LU fills
+    in the border and pivots). Levenberg-Marquardt solves one ``H`` with several dampings.
     """
-    from scipy import sparse
-    from scipy.linalg import LinAlgError, cho_factor, cho_solve, cho_solve_banded, cholesky_banded
 
-    H = sparse.csc_matrix(H)
-    try:
-        band = np.zeros((6, n))
-        A = H[:n, :n]
+    def __init__(self, H: object, n: int) -> None:
+        from scipy import sparse
+
+        self.H, self.n = sparse.csc_matrix(H), n
+        A = self.H[:n, :n]
+        self.band = np.zeros((6, n))
         for k in range(6):                          # upper form: row 5 - k holds offset k
-            band[5 - k, k:] = A.diagonal(k)
-        band[5] += damping[:n]
-        factor = cholesky_banded(band)
-        E = H[:n, n:].toarray()
-        D = H[n:, n:].toarray() + np.diag(damping[n:])
-        X = cho_solve_banded((factor, False), np.column_stack([E, rhs[:n]]))
-        schur = D - E.T @ X[:, :-1]
-        border = cho_solve(cho_factor(schur), rhs[n:] - E.T @ X[:, -1])
-        return np.concatenate([X[:, -1] - X[:, :-1] @ border, border])
-    except LinAlgError:
-        from scipy.sparse.linalg import spsolve
-        return spsolve(H + sparse.diags(damping), rhs)
+            self.band[5 - k, k:] = A.diagonal(k)
+        self.E = self.H[:n, n:].toarray()
+        self.D = self.H[n:, n:].toarray()
+        self.diagonal = self.H.diagonal()
+
+    def solve(self, rhs: np.ndarray, damping: np.ndarray) -> np.ndarray:
+        """``(H + diag(damping))^-1 rhs``; the general sparse solve if the damped leading
+        block is not positive definite."""
+        from scipy.linalg import (
+            LinAlgError,
+            cho_factor,
+            cho_solve,
+            cho_solve_banded,
+            cholesky_banded,
+        )
+
+        n = self.n
+        try:
+            band = self.band.copy()
+            band[5] += damping[:n]
+            factor = cholesky_banded(band)
+            X = cho_solve_banded((factor, False), np.column_stack([self.E, rhs[:n]]))
+            schur = self.D + np.diag(damping[n:]) - self.E.T @ X[:, :-1]
+            border = cho_solve(cho_factor(schur), rhs[n:] - self.E.T @ X[:, -1])
+            return np.concatenate([X[:, -1] - X[:, :-1] @ border, border])
+        except LinAlgError:
+            from scipy import sparse
+            from scipy.sparse.linalg import spsolve
+            return spsolve(self.H + sparse.diags(damping), rhs)
 
 
 def _solve(Q, p, y, a, w_mid, dt, g_w, weights, max_iter, xtol):
@@ -324,10 +340,10 @@ def _solve(Q, p, y, a, w_mid, dt, g_w, weights, max_iter, xtol):
     cost, lam = float(r @ r), 1e-6
     for it in range(1, max_iter + 1):
         J = jacobian(Q, p, parts, dt, weights)
-        H = (J.T @ J).tocsc()
+        system = BorderedSystem(J.T @ J, 3 * K)
         grad = J.T @ r
         while True:
-            step = bordered_solve(H, -grad, 3 * K, lam * (H.diagonal() + 1e-12))
+            step = system.solve(-grad, lam * (system.diagonal + 1e-12))
             Q_new = Q @ rotation_exp(step[:3 * K].reshape(K, 3))
             p_new = p + step[3 * K:]
             r_new, parts_new = residuals(Q_new, p_new, y, a, w_mid, dt, g_w, weights)
@@ -337,7 +353,7 @@ def _solve(Q, p, y, a, w_mid, dt, g_w, weights, max_iter, xtol):
             lam *= 10.0
             if lam > 1e8:
                 # No step lowers the cost: a minimum if the gradient is at rounding level.
-                scale = np.sqrt(H.diagonal().sum() * cost) or 1.0
+                scale = np.sqrt(system.diagonal.sum() * cost) or 1.0
                 return Q, p, it, bool(np.linalg.norm(grad) <= 1e-6 * scale)
         Q, p, r, parts, cost, lam = Q_new, p_new, r_new, parts_new, new, max(lam / 10.0, 1e-9)
         if np.max(np.abs(step[3 * K:])) <= xtol:
