@@ -387,7 +387,7 @@ class _Parts:
 
     def write(self, start: int, stop: int, rows: dict[str, list[dict]]) -> None:
         # pandas here only: the CLI imports this module for its errors, and ``calibrate``
-        # must not pay pandas' import (~0.2 s).
+        # must not pay pandas' import.
         import pandas as pd
 
         sums: dict[str, object] = {"fingerprint": self.fingerprint}

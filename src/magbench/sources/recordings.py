@@ -450,7 +450,7 @@ def _read_columns(path: Path, layout: dict, wanted: dict[int, str], where: _Wher
     not turn into numbers (text, padded spaces) goes through :func:`_numeric`, which accepts
     what the text reader accepts and names the first bad cell. A small file of plain numbers
     is read by NumPy instead (:func:`_plain_table`), which gives the same values without
-    importing pandas (a fifth of ``calibrate``'s time).
+    importing pandas (whose import ``calibrate`` avoids).
     """
     positions = sorted(wanted)
     plain = _plain_table(path, layout, where.sniffed)
