@@ -284,3 +284,107 @@ def test_an_extra_score_can_decide_the_choice():
                                 extra=penalise)
     assert extra.chosen["algorithm"] != loser
     assert all("direction_deg" in r for r in extra.ranked)
+
+
+def _spiral_track(K: int, band_deg: float = 90.0) -> np.ndarray:
+    """Field directions of a sensor turned smoothly in time: pole to pole in 12 turns, or,
+    with ``band_deg`` < 90, round and round within +-``band_deg`` of the xy-plane."""
+    s = np.linspace(0.0, 1.0, K)
+    if band_deg >= 90:
+        theta, phi = np.arccos(1 - 2 * s), 2 * np.pi * 12 * s
+        return np.column_stack([np.sin(theta) * np.cos(phi), np.sin(theta) * np.sin(phi),
+                                np.cos(theta)])
+    el, phi = np.radians(band_deg) * np.sin(2 * np.pi * 17 * s), 2 * np.pi * 6 * s
+    return np.column_stack([np.cos(el) * np.cos(phi), np.cos(el) * np.sin(phi), np.sin(el)])
+
+
+def test_on_a_band_the_sphere_fit_generalises_and_the_full_model_is_not_chosen():
+    from magbench.studies.auto import candidate_rounds
+
+    T = np.array([[50.5, 0.4, 0.0], [0.0, 49.6, 0.3], [0.0, 0.0, 50.2]])
+    h = np.array([30.0, -12.0, 8.0])
+    gen = np.random.default_rng(0)
+    y = _spiral_track(500, band_deg=8) @ T.T + h + 3.0 * gen.standard_normal((500, 3))
+    first, second = candidate_rounds(False, "auto")
+    result = calibrate_recording(Recording("band", y, t=np.arange(500) * 0.05, n_rows=500),
+                                 first, second_round=second, bootstrap=0)
+    assert get_method(result.chosen["algorithm"]).model in ("sphere", "bias")
+    # on the whole sphere, where the compass is used, the choice beats the full models that
+    # minimise J_r on the band (the first round's), and most full models
+    sphere = fibonacci_sphere(2000) @ T.T + h + 3.0 * gen.standard_normal((2000, 3))
+
+    def whole_sphere_spread(row) -> float:
+        Tf, hf = (np.array([[row[f"T_{i}{j}"] for j in range(3)] for i in range(3)]),
+                  np.array([row[f"h_{i}"] for i in range(3)]))
+        n = np.linalg.norm(np.linalg.solve(Tf, (sphere - hf).T), axis=0)
+        return 100 * n.std() / n.mean()
+
+    chosen = whole_sphere_spread(result.chosen)
+    full = {r["algorithm"]: whole_sphere_spread(r) for r in result.ranked
+            if get_method(r["algorithm"]).model == "full" and np.isfinite(r["T_00"])}
+    assert chosen < np.median(list(full.values()))
+    assert chosen < min(full[n] for n in ("ellipsoid", "fang", "twostep", "wu_shi_nm"))
+
+
+def test_a_fit_whose_field_is_off_the_data_scale_is_not_ranked_the_next_is_chosen():
+    from magbench.studies.choice import choose
+
+    base = {"meaningful": True, "error": "", "ok": True, "n_iter": 10, "coverage": 0.9,
+            "coverage_sphere": 0.9, "J_r_sphere_in": 1.0}
+    rows = [{**base, "algorithm": "ali", "J_r_out": 0.010, "J_r_worst": 0.0010,
+             "field_pct": 80.0},
+            {**base, "algorithm": "fang", "J_r_out": 0.013, "J_r_worst": 0.0012,
+             "field_pct": 2.0, "n_iter": 0}]
+    choice = choose(rows, {"ali": None, "fang": None}, gap_deg=0.0, max_field_pct=25.0)
+    assert choice.chosen["algorithm"] == "fang"
+    ali = next(r for r in choice.ranked if r["algorithm"] == "ali")
+    assert not ali["eligible"] and "fitted field 80 % from the data's radius" in ali["note"]
+    # without the check, the fit with the better score would have been chosen
+    assert choose(rows, {"ali": None, "fang": None}, gap_deg=0.0).chosen["algorithm"] == "ali"
+
+
+def test_when_the_chosen_fit_fails_the_gate_the_next_that_passes_is_written(monkeypatch):
+    import magbench.studies.calibration as study
+
+    rec = synthetic(600)
+    first = calibrate_recording(rec, ["ellipsoid", "sphere"], bootstrap=0)
+    assert first.chosen["algorithm"] == "ellipsoid" and first.fitness["status"] == "PASS"
+    refused = float(np.cbrt(abs(np.linalg.det(
+        np.array([[first.chosen[f"T_{i}{j}"] for j in range(3)] for i in range(3)])))))
+    real_fitness = study.fitness
+
+    def gate_refusing_the_ellipsoid(gate, **kw):     # a reason of the fit's own, not the data's
+        out = real_fitness(gate, **kw)
+        if abs(kw["field"] / refused - 1) < 1e-12:
+            out = {**out, "status": "FAIL", "reasons": ["refused by this test", *out["reasons"]]}
+        return out
+
+    monkeypatch.setattr(study, "fitness", gate_refusing_the_ellipsoid)
+    out = calibrate_recording(rec, ["ellipsoid", "sphere"], bootstrap=0)
+    assert out.chosen["algorithm"] == "sphere" and out.fitness["status"] != "FAIL"
+    assert out.how == ("ellipsoid ranked first but fails the gate (refused by this test); "
+                       "sphere, the next eligible one, passes")
+    note = next(r for r in out.ranked if r["algorithm"] == "ellipsoid")["note"]
+    assert note == "fails the gate: refused by this test"
+    # a named method is the user's choice: it is judged, never replaced
+    named = calibrate_recording(rec, ["ellipsoid"], bootstrap=0)
+    assert named.chosen["algorithm"] == "ellipsoid" and named.fitness["status"] == "FAIL"
+
+
+@pytest.mark.parametrize(("step", "status"), [(0.0, "PASS"), (0.08, "WARN"), (0.25, "FAIL")])
+def test_a_hard_iron_that_steps_halfway_is_never_a_pass(step, status):
+    K = 1200
+    gen = np.random.default_rng(4)
+    m = np.concatenate([_spiral_track(K // 2), _spiral_track(K // 2)])   # every face, twice
+    y = m @ T_TRUE.T + H_TRUE + 1.5 * gen.standard_normal((K, 3))
+    y[K // 2:] += step * T_TRUE @ np.array([1.0, 0.0, 0.0]) / np.linalg.norm(T_TRUE[:, 0]) \
+        * np.cbrt(np.linalg.det(T_TRUE))
+    rec = Recording("step", y, t=np.arange(K) * 0.05, n_rows=K)
+    result = calibrate_recording(rec, ["ellipsoid", "sphere"], bootstrap=0)
+    moved = [r for r in result.fitness["reasons"] if "offset moves" in r]
+    if step == 0.0:
+        assert result.fitness["status"] == "PASS" and not moved
+        assert result.verdict["halves_offset_change_pct"] < 2.0
+    else:
+        assert result.fitness["status"] == status and moved
+        assert result.verdict["halves_offset_change_pct"] == pytest.approx(100 * step, rel=0.3)

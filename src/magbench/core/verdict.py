@@ -53,6 +53,12 @@ __all__ = [
 MAX_GAP_DEG = 100.0
 
 
+#: Share of the samples, by field magnitude, that :func:`central_spread_pct` keeps.
+CENTRAL_SHARE = 0.95
+#: A field error up to this many times the noise's own (:func:`noise_p95_pct`) is noise.
+NOISE_FACTOR = 1.5
+
+
 def field_error_pct(corrected: np.ndarray) -> np.ndarray:
     """``100 |1 - ||m_k|| |`` for each corrected sample (the field is of unit magnitude)."""
     m = np.asarray(corrected, dtype=float)
@@ -63,6 +69,28 @@ def heading_error_deg(error_pct: float, inclination_deg: float = 0.0) -> float:
     """Heading error of a level compass from a field error of ``error_pct`` % (see notes)."""
     ratio = error_pct / 100.0 / math.cos(math.radians(inclination_deg))
     return math.degrees(math.asin(min(1.0, ratio)))
+
+
+def noise_p95_pct(y: np.ndarray, radius: float) -> float:
+    """The 95th percentile (%) of the field error that white sensor noise alone gives:
+    ``1.96`` times the per-axis noise, from the robust spread of the second differences of
+    ``y`` in time order (which cancel a smooth turn: ``var = 6 sigma^2``), over ``radius``.
+    NaN with fewer than 10 samples."""
+    y = np.asarray(y, dtype=float)
+    if y.shape[0] < 10 or not radius > 0:
+        return np.nan
+    d2 = np.diff(y, n=2, axis=0)
+    sigma = 1.4826 * np.median(np.abs(d2 - np.median(d2, axis=0)), axis=0) / np.sqrt(6)
+    return float(100 * 1.96 * np.sqrt(np.mean(sigma ** 2)) / radius)
+
+
+def central_spread_pct(vectors: np.ndarray, share: float = CENTRAL_SHARE) -> float:
+    """``100 std|v| / mean|v|`` over the central ``share`` of the samples by norm: the spread
+    of the field magnitude, with the few largest deviations (spikes) at either end left out."""
+    norm = np.linalg.norm(np.asarray(vectors, dtype=float), axis=1)
+    low, high = np.percentile(norm, [50 * (1 - share), 100 - 50 * (1 - share)])
+    kept = norm[(norm >= low) & (norm <= high)]
+    return float(100 * kept.std() / kept.mean()) if kept.size and kept.mean() > 0 else np.nan
 
 
 def magnitude_verdict(corrected: np.ndarray, *, held_out: bool) -> dict:
@@ -234,7 +262,9 @@ def _field_distance_pct(value: float, expected: float | tuple[float, float]) -> 
 def fitness(gate: Gate, *, p95_pct: float, held_out: bool, gap_deg: float, directions: int,
             band_deg: float, field: float, radius: float,
             expected_field: float | tuple[float, float] | None = None,
-            heading_deg: float | None = None) -> dict:
+            heading_deg: float | None = None,
+            spread_pct: tuple[float, float] | None = None,
+            noise_p95_pct: float | None = None) -> dict:
     """PASS, WARN or FAIL with the reasons (see the module notes).
 
     Parameters
@@ -253,6 +283,14 @@ def fitness(gate: Gate, *, p95_pct: float, held_out: bool, gap_deg: float, direc
         The field strength expected in the recording's units.
     heading_deg : float, optional
         Held-out heading RMS (deg) measured against a reference attitude; None without one.
+    spread_pct : (float, float), optional
+        :func:`central_spread_pct` of every sample of the recording corrected, and
+        uncorrected: a correction that does not narrow it leaves the user worse off than no
+        correction (the field itself changes: disturbances, or another state), a FAIL.
+    noise_p95_pct : float, optional
+        The 95th percentile of the field error that the sensor's own noise alone gives
+        (:func:`noise_p95_pct`): a field error above the FAIL threshold but within
+        :data:`NOISE_FACTOR` times it is the sensor's noise, not the calibration, a WARN.
 
     Returns
     -------
@@ -270,9 +308,16 @@ def fitness(gate: Gate, *, p95_pct: float, held_out: bool, gap_deg: float, direc
         elif bad_warn:
             warns.append(text.format(v=value, t=warn))
 
-    judge(p95_pct, gate.warn_error_pct, gate.fail_error_pct,
-          "field error {v:.1f} % (p95" + (", held out" if held_out else ", in sample")
-          + ") > {t:g} %")
+    noisy = (noise_p95_pct is not None and p95_pct > gate.fail_error_pct
+             and p95_pct <= NOISE_FACTOR * noise_p95_pct)
+    if noisy:
+        warns.append(f"field error {p95_pct:.1f} % (p95) is the sensor's own noise "
+                     f"({noise_p95_pct:.1f} % p95 from sample-to-sample changes), not the "
+                     "calibration: filter or average the samples before use")
+    else:
+        judge(p95_pct, gate.warn_error_pct, gate.fail_error_pct,
+              "field error {v:.1f} % (p95" + (", held out" if held_out else ", in sample")
+              + ") > {t:g} %")
     judge(gap_deg, gate.warn_gap_deg, gate.fail_gap_deg,
           "no direction within {v:.0f} deg of the gap centre (> {t:g} deg)")
     judge(directions, gate.warn_directions, gate.fail_directions,
@@ -291,6 +336,10 @@ def fitness(gate: Gate, *, p95_pct: float, held_out: bool, gap_deg: float, direc
         judge(_field_distance_pct(field, expected_field), gate.warn_field_pct,
               gate.fail_field_pct, f"field strength {field:.4g} is {{v:.0f}} % from the "
               f"expected {_expected_text(expected_field)} (> {{t:g}} %)")
+    if spread_pct is not None and not spread_pct[0] < spread_pct[1]:
+        fails.append(f"the correction does not narrow the field magnitude's spread over the "
+                     f"recording ({spread_pct[0]:.1f} % against {spread_pct[1]:.1f} % "
+                     "uncorrected): the field itself changes (disturbances, another state)")
     if heading_deg is not None and math.isfinite(heading_deg):
         judge(heading_deg, gate.warn_heading_deg, gate.fail_heading_deg,
               "heading error {v:.1f} deg RMS (held out, against the attitude) > {t:g} deg")

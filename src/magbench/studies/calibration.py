@@ -40,7 +40,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -57,11 +57,15 @@ from magbench.core.uncertainty import (
     student_t95,
 )
 from magbench.core.verdict import (
+    CENTRAL_SHARE,
     MAX_GAP_DEG,
     Gate,
+    central_spread_pct,
     coverage_report,
     fitness,
     magnitude_verdict,
+    noise_p95_pct,
+    with_reason,
 )
 from magbench.methods.registry import get_method
 from magbench.sources.recordings import Recording
@@ -73,7 +77,13 @@ from magbench.studies.choice import (
     allowed,
     choose,
 )
-from magbench.studies.holdout import estimate, evaluate_folds, fold_summary, held_out_corrected
+from magbench.studies.holdout import (
+    estimate,
+    evaluate_folds,
+    fold_summary,
+    held_out_corrected,
+    sphere_spread,
+)
 from magbench.studies.real import fit_recording
 
 __all__ = ["FIRST_ROUND", "ROBUST_ON_CAPS", "THIN_GAP_DEG", "CalibrationResult", "allowed",
@@ -182,8 +192,9 @@ def second_round_reason(tie: Sequence[str], chosen: Mapping | None, gap_deg: flo
 
 
 def _rank_trials(trials: list[dict], work: Recording, gap_deg: float, centre: np.ndarray,
-                 extra: ExtraScore | None = None) -> Choice:
-    summary = fold_summary(trials)
+                 extra: ExtraScore | None = None, radius: float = 0.0,
+                 max_field_pct: float = math.inf) -> Choice:
+    summary = [{**r, **sphere_scores(trials, r, radius)} for r in fold_summary(trials)]
     scores = SCORES
     if extra is not None:
         column, values = extra(summary, trials, work)
@@ -191,8 +202,25 @@ def _rank_trials(trials: list[dict], work: Recording, gap_deg: float, centre: np
         scores = (*SCORES, column)
     corrected = {r["algorithm"]: held_out_corrected(trials, work, r["algorithm"])
                  for r in summary}
-    return choose(summary, corrected, gap_deg, scores=scores,
+    return choose(summary, corrected, gap_deg, scores=scores, max_field_pct=max_field_pct,
                   refuse=lambda row: refusal_reason(*estimate(row), work.y, centre))
+
+
+def sphere_scores(trials: Sequence[Mapping], row: Mapping, radius: float) -> dict:
+    """``sphere_out``, the predicted RMS error (share of the field) of ``row``'s correction
+    over the whole sphere: the held-out error on the recorded directions (``J_r_out / 4``,
+    as J_r (81) is about four times the mean squared magnitude error) plus the fold fits'
+    disagreement on every direction (:func:`magbench.studies.holdout.sphere_spread`); and
+    ``field_pct``, how far (%) the fitted field strength ``|det T|^(1/3)`` lies from the
+    samples' radius ``radius`` (NaN without one)."""
+    name = str(row["algorithm"])
+    spread = sphere_spread(trials, name)
+    out = float(np.sqrt(row["J_r_out"] / 4 + spread)) if np.isfinite(row["J_r_out"]) \
+        else np.nan
+    field = np.nan
+    if radius > 0 and np.isfinite(row["T_00"]):
+        field = 100 * abs(float(np.cbrt(abs(np.linalg.det(estimate(row)[0])))) / radius - 1)
+    return {"sphere_out": out, "field_pct": field}
 
 
 def _named_choice(choice: Choice, work: Recording, centre: np.ndarray) -> Choice:
@@ -209,18 +237,20 @@ def _named_choice(choice: Choice, work: Recording, centre: np.ndarray) -> Choice
 
 
 def _fit_and_choose(work: Recording, centre: np.ndarray, names: list[str], later: list[str],
-                    gap: float, named: bool, fit: dict, extra: ExtraScore | None = None
+                    gap: float, named: bool, fit: dict, extra: ExtraScore | None = None,
+                    radius: float = 0.0, max_field_pct: float = math.inf
                     ) -> tuple[list[dict], Choice, str]:
     """One round of fitting and choosing (module notes, steps 2-3): the first round's
     candidates, then the second round's when :func:`second_round_reason` gives a reason (also
     returned, "" otherwise)."""
     limit = 0.0 if named else gap
+    rank = dict(extra=extra, radius=radius, max_field_pct=math.inf if named else max_field_pct)
     trials = fit_round(work, names, **fit)
-    choice = _rank_trials(trials, work, limit, centre, extra)
+    choice = _rank_trials(trials, work, limit, centre, **rank)
     reason = second_round_reason(choice.tie, choice.chosen, gap, names) if later else ""
     if reason:
         trials = trials + fit_round(work, later, **fit)
-        choice = _rank_trials(trials, work, limit, centre, extra)
+        choice = _rank_trials(trials, work, limit, centre, **rank)
     if named:
         choice = _named_choice(choice, work, centre)
     return trials, choice, reason
@@ -235,10 +265,12 @@ def retrim(rec: Recording, current: Screen, chosen: Mapping) -> Screen:
 
 def judge(result: CalibrationResult, gate: Gate,
           expected_field: float | tuple[float, float] | None = None,
-          heading_deg: float | None = None) -> None:
+          heading_deg: float | None = None, whole: np.ndarray | None = None) -> None:
     """Verdict, model-based intervals and fitness of the choice (module notes, step 5);
     ``heading_deg``: the choice's held-out heading RMS against a reference attitude, when
-    measured (recorded in the verdict and judged by the gate)."""
+    measured (recorded in the verdict and judged by the gate); ``whole``: the samples whose
+    field-magnitude spread the correction must narrow (default every sample of
+    ``result.rec``; a caller that cut the recording passes the uncut one)."""
     chosen = result.chosen
     work = result.work
     name = str(chosen["algorithm"])
@@ -252,12 +284,97 @@ def judge(result: CalibrationResult, gate: Gate,
     result.verdict["heading_measured_deg"] = heading_deg
     model = get_method(name).model
     result.intervals = fisher_intervals(work.y, T, h, model)
+    spreads = _spreads(result.rec.y if whole is None else whole, T, h)
+    noise = noise_p95_pct(result.rec.y, result.screen.radius)
+    result.verdict["spread_pct"] = {"corrected": spreads[0], "uncorrected": spreads[1],
+                                    "kept": CENTRAL_SHARE}
+    result.verdict["noise_p95_pct"] = noise
     result.fitness = fitness(
         gate, p95_pct=result.verdict["field_error_pct"]["p95"],
         held_out=result.verdict["held_out"], gap_deg=result.coverage["largest_gap_deg"],
         directions=result.directions, band_deg=result.band_deg,
         field=float(np.cbrt(abs(np.linalg.det(T)))), radius=result.screen.radius,
-        expected_field=expected_field, heading_deg=heading_deg)
+        expected_field=expected_field, heading_deg=heading_deg,
+        spread_pct=spreads, noise_p95_pct=noise)
+
+
+def offset_of(y: np.ndarray, T: np.ndarray, h: np.ndarray, iterations: int = 8) -> np.ndarray:
+    """The offset that best fits ``y`` with the shape ``T`` held: Gauss-Newton on the norm
+    residuals ``|T^-1 (y - h)| - 1``, from ``h``."""
+    Ti = np.linalg.inv(T)
+    h = np.array(h, dtype=float)
+    for _ in range(iterations):
+        m = (y - h) @ Ti.T
+        n = np.linalg.norm(m, axis=1)
+        J = -(m / n[:, None]) @ Ti          # d(n_k)/dh
+        step = np.linalg.lstsq(J, -(n - 1.0), rcond=None)[0]
+        h += step
+        if np.linalg.norm(Ti @ step) < 1e-9:
+            break
+    return h
+
+
+def halves_offset_change(work: Recording, T: np.ndarray, h: np.ndarray) -> float:
+    """How far (share of the field) the offset of the first half of ``work`` (in time order)
+    lies from that of the second, the shape ``T`` held (:func:`offset_of`): a hard iron that
+    moved (a magnet, a battery, a switched load) during the recording. NaN when a half has
+    fewer than 20 samples."""
+    half = work.K // 2
+    if half < 20:
+        return np.nan
+    h1 = offset_of(work.y[:half], T, h)
+    h2 = offset_of(work.y[half:], T, h)
+    return float(np.linalg.norm(np.linalg.solve(T, h1 - h2)))
+
+
+def _halves_reason(result: CalibrationResult, gate: Gate) -> None:
+    """WARN (FAIL above the gate's field-error FAIL threshold) when the second half of the
+    recording contradicts the first (:func:`halves_offset_change`): a correction fitted on
+    both is a compromise that holds neither state."""
+    T, h = estimate(result.chosen)
+    change = halves_offset_change(result.work, T, h)
+    result.verdict["halves_offset_change_pct"] = None if np.isnan(change) else 100 * change
+    if not 100 * change > gate.warn_error_pct:
+        return
+    t = result.work.t
+    when = f" (t = {t[result.work.K // 2]:.1f} s splits them)" if t is not None else ""
+    reason = (f"the offset moves by {100 * change:.0f} % of the field between the first and "
+              f"the second half of the recording{when}: the hard iron changed, and the "
+              "correction is a compromise of both states; record again in one state")
+    result.fitness = with_reason(result.fitness, reason,
+                                 fail=100 * change > gate.fail_error_pct)
+
+
+def _spreads(y: np.ndarray, T: np.ndarray, h: np.ndarray) -> tuple[float, float]:
+    """:func:`~magbench.core.verdict.central_spread_pct` of ``y`` corrected and uncorrected."""
+    return central_spread_pct(np.linalg.solve(T, (y - h).T).T), central_spread_pct(y)
+
+
+def _next_that_passes(result: CalibrationResult, gate: Gate,
+                      expected_field: float | tuple[float, float] | None,
+                      headings: Mapping[str, float], whole: np.ndarray | None = None) -> None:
+    """When the chosen fit FAILs the gate, the next eligible candidate in the ranking that
+    does not (and is not refused) is chosen instead, and the table says why; unchanged when
+    none passes (a reason of the recording's, coverage say, fails them all)."""
+    first = result.chosen
+    reason = result.fitness["reasons"][0]
+    for row in result.ranked:
+        if not row["eligible"] or row["algorithm"] == first["algorithm"] or \
+                refusal_reason(*estimate(row), result.work.y, result.screen.centre):
+            continue
+        trial = replace(result, choice=Choice(result.ranked, dict(row), result.how))
+        judge(trial, gate, expected_field, headings.get(str(row["algorithm"])), whole)
+        if trial.fitness["status"] != "FAIL":
+            ranked = [dict(r) for r in result.ranked]
+            for r in ranked:
+                if r["algorithm"] == first["algorithm"]:
+                    r["note"] = f"fails the gate: {reason}"
+            how = (f"{first['algorithm']} ranked first but fails the gate ({reason}); "
+                   f"{row['algorithm']}, the next eligible one, passes")
+            result.choice = Choice(ranked, dict(row), how)
+            result.verdict, result.intervals = trial.verdict, trial.intervals
+            result.fitness = trial.fitness
+            return
 
 
 def _coverage_warnings(result: CalibrationResult, named: bool) -> list[str]:
@@ -285,7 +402,8 @@ def calibrate_recording(rec: Recording, candidates: Sequence[str], *,
                         second_round: Sequence[str] = (), max_samples: int | None = None,
                         gate: Gate | None = None,
                         expected_field: float | tuple[float, float] | None = None,
-                        extra: ExtraScore | None = None) -> CalibrationResult:
+                        extra: ExtraScore | None = None,
+                        whole: np.ndarray | None = None) -> CalibrationResult:
     """Thin, screen, fit, choose, trim and judge (module notes).
 
     Parameters
@@ -316,6 +434,9 @@ def calibrate_recording(rec: Recording, candidates: Sequence[str], *,
         mapping (method -> held-out heading RMS, deg, as
         :class:`magbench.studies.alignment.DirectionVeto`), the choice's entry goes to the
         gate.
+    whole : ndarray of shape (n, 3), optional
+        Samples whose field-magnitude spread the correction must narrow, or the result FAILs
+        (default every sample of ``rec``; :func:`judge`).
     """
     options = options or {}
     current = screen(rec.y)
@@ -331,8 +452,9 @@ def calibrate_recording(rec: Recording, candidates: Sequence[str], *,
     for _ in range(rounds):
         work, stride = prepare(rec, current, max_samples)
         cover = coverage_report(work.y - current.centre)
-        trials, choice, reason = _fit_and_choose(work, current.centre, names, later,
-                                                 cover["largest_gap_deg"], named, fit, extra)
+        trials, choice, reason = _fit_and_choose(
+            work, current.centre, names, later, cover["largest_gap_deg"], named, fit, extra,
+            current.radius, (gate or Gate()).fail_field_pct)
         if reason:
             names, later, escalated = names + later, [], reason
         if choice.chosen is None:
@@ -357,8 +479,12 @@ def calibrate_recording(rec: Recording, candidates: Sequence[str], *,
     result.warnings += _coverage_warnings(result, named)
     if result.chosen is None:
         return result
-    heading = getattr(extra, "scores", {}).get(str(result.chosen["algorithm"]))
-    judge(result, gate or Gate(), expected_field, heading)
+    scores = getattr(extra, "scores", {})
+    judge(result, gate or Gate(), expected_field, scores.get(str(result.chosen["algorithm"])),
+          whole)
+    if result.fitness["status"] == "FAIL" and not named:
+        _next_that_passes(result, gate or Gate(), expected_field, scores, whole)
+    _halves_reason(result, gate or Gate())
     result.bootstrap = bootstrap_check(result, bootstrap, preprocess=preprocess,
                                        options=options, seed=seed)
     return result

@@ -7,15 +7,18 @@ join the choice:
 1. :func:`annotate` adds the model, whether the method needs the gyroscope, and the held-out
    field errors (95th percentile and worst) from the folds.
 2. :func:`eligibility` writes why a method cannot be ranked (no out-of-sample score, not
-   meaningful, a model the coverage does not support: :func:`allowed`).
+   meaningful, a model the coverage does not support: :func:`allowed`, a fitted field
+   strength the gate would refuse: J_r is blind to a scale the data do not fix).
 3. :func:`gyro_rule`: a gyro-aided method stays eligible only when it beats the best
    magnetometer-only method out of sample on every score (it needs more of the data to be right:
    the gyroscope's bias and alignment, the time base).
-4. :func:`rank`: by the mean held-out J_r over the folds.
+4. :func:`rank`: by the mean held-out J_r over the folds. (``sphere_out``, the fold fits'
+   predicted error over the whole sphere, is computed and shown beside it; ranked by it, the
+   generalisation study lost more band cases, not fewer: docs/decisions.md.)
 5. :func:`find_tie`: the methods that tie the best on *every* score in ``scores`` (by default
-   the mean and the worst fold's held-out J_r, :data:`SCORES`): each within :data:`TIE_RTOL`
-   of the best's. Another per-candidate score (lower is better) joins by adding its column to
-   the table and its name to ``scores``.
+   the mean and the worst fold's held-out J_r, :data:`SCORES`): each within
+   :data:`TIE_RTOL` of the best's. Another per-candidate score (lower is better) joins by
+   adding its column to the table and its name to ``scores``.
 6. :func:`pick`: the simplest of the tie (fewest model parameters, then closed form, then the
    best mean held-out J_r), skipping refused fits (:func:`magbench.core.robust.refusal_reason`);
    if all of the tie is refused, the next in the ranking. Fit times are never used, so the same
@@ -49,7 +52,8 @@ Row = dict
 THIN_GAP_DEG = 135.0
 #: Full-model methods with RB >= 90 % on 60 deg caps in results/coverage/summary.csv.
 ROBUST_ON_CAPS = ("magical", "fang")
-#: Scores (lower is better) on which a simpler model must tie the best to be chosen.
+#: Scores (lower is better) on which a simpler model must tie the best to be chosen; the
+#: first ranks.
 SCORES = ("J_r_out", "J_r_worst")
 #: Two methods tie on a score when the larger is at most this much above the smaller.
 TIE_RTOL = 0.05
@@ -91,18 +95,24 @@ def _why_not(r: Mapping) -> str:
     return f"J_r above twice the sphere fit's ({r['J_r_sphere_in']:.3g})"
 
 
-def eligibility(table: Sequence[Mapping], gap_deg: float, scores: Sequence[str] = SCORES
-                ) -> list[Row]:
+def eligibility(table: Sequence[Mapping], gap_deg: float, scores: Sequence[str] = SCORES,
+                max_field_pct: float = math.inf) -> list[Row]:
     """``table`` with ``scored``, ``eligible`` and ``note`` (why not); ``scored``: every score
-    finite and the fit meaningful."""
+    finite and the fit meaningful. A fit whose field strength (``field_pct``, when the table
+    has it) lies more than ``max_field_pct`` % from the samples' radius is not eligible: J_r
+    (81) is blind to scale, and the gate would refuse it (a collapsed fit or a wrong unit)."""
     out = []
     for r in table:
         has = all(math.isfinite(float(r[s])) for s in scores)
         note = ""
+        field = float(r.get("field_pct", np.nan))
         if not r["meaningful"]:
             note = _why_not(r)
         elif not has:
             note = "no out-of-sample score (a fold's fit failed or was degenerate)"
+        elif field > max_field_pct:
+            note = (f"not chosen: fitted field {field:.0f} % from the data's radius (the gate "
+                    f"fails above {max_field_pct:g} %)")
         elif not allowed(r["algorithm"], gap_deg):
             note = (f"not chosen: a {r['model']} model is not trusted with a {gap_deg:.0f} deg "
                     "gap in coverage")
@@ -213,7 +223,7 @@ def _how(ranked: Sequence[Mapping], chosen: Mapping | None) -> str:
 
 def choose(summary: Sequence[Mapping], corrected: Mapping[str, np.ndarray | None],
            gap_deg: float, *, refuse: Callable[[Row], str] | None = None,
-           scores: Sequence[str] = SCORES) -> Choice:
+           scores: Sequence[str] = SCORES, max_field_pct: float = math.inf) -> Choice:
     """Annotate, judge eligibility, apply the gyro rule, rank, tie and pick (module notes).
 
     Parameters
@@ -228,7 +238,11 @@ def choose(summary: Sequence[Mapping], corrected: Mapping[str, np.ndarray | None
         ``refuse(row) -> str``: a non-empty reason keeps the row from being chosen.
     scores : sequence of str
         Columns (lower is better) a simpler model must tie on; the first ranks.
+    max_field_pct : float
+        Largest distance (%) of a fit's field strength from the samples' radius
+        (:func:`eligibility`).
     """
-    table = gyro_rule(eligibility(annotate(summary, corrected), gap_deg, scores), scores)
+    table = gyro_rule(eligibility(annotate(summary, corrected), gap_deg, scores,
+                                  max_field_pct), scores)
     ranked, chosen = pick(find_tie(rank(table, scores), scores), refuse)
     return Choice(ranked, chosen, _how(ranked, chosen))

@@ -19,13 +19,15 @@ import numpy as np
 from magbench.sources.recordings import Recording
 from magbench.studies.real import evaluate_recording, summary_records
 
-__all__ = ["BLOCKS_PER_FOLD", "N_FOLDS", "estimate", "evaluate_folds", "fold_indices",
-           "fold_summary", "held_out_corrected"]
+__all__ = ["BLOCKS_PER_FOLD", "N_FOLDS", "SPHERE_DIRECTIONS", "estimate", "evaluate_folds",
+           "fold_indices", "fold_summary", "held_out_corrected", "sphere_spread"]
 
 #: Folds of the held-out score.
 N_FOLDS = 3
 #: Test blocks per fold (so ``N_FOLDS * BLOCKS_PER_FOLD`` blocks in all).
 BLOCKS_PER_FOLD = 4
+#: Directions over the whole sphere on which the fold fits are compared.
+SPHERE_DIRECTIONS = 400
 
 
 def estimate(row: Mapping) -> tuple[np.ndarray, np.ndarray]:
@@ -89,6 +91,33 @@ def fold_summary(trials: Sequence[Mapping]) -> list[dict]:
         out.append({**row, "J_r_out": mean, "J_r_worst": float(scores.max()) if ok else np.nan,
                     "halves_usable": bool(np.isfinite(mean))})
     return out
+
+
+def sphere_spread(trials: Sequence[Mapping], method: str,
+                  directions: int = SPHERE_DIRECTIONS) -> float:
+    """The fold fits' disagreement on the whole sphere: the delete-a-group jackknife variance
+    of the corrected field magnitude, averaged over ``directions`` field directions.
+
+    Each direction ``u`` of a Fibonacci grid is mapped to the sample the fit on all samples
+    says it would give, ``y = T u + h``, and corrected by every fold fit; the variance of
+    ``|T_f^-1 (y - h_f)|`` over the ``g`` folds, times ``(g - 1)``, estimates the variance of
+    the fit's correction in that direction. Where the data are, it is small when the fit is
+    well determined; where they never were (a band, a cap), a model with more freedom than the
+    data determine shows it here, however well it does on the held-out time blocks. NaN
+    unless every fold's fit is usable.
+    """
+    from magbench.core.geometry import fibonacci_sphere
+
+    rows = _fold_rows(trials, method)
+    whole = [r for r in trials if r["algorithm"] == method and r["fit_on"] == "all"]
+    if not _usable(rows) or not whole or not np.isfinite(whole[0]["T_00"]):
+        return np.nan
+    T, h = estimate(whole[0])
+    y = fibonacci_sphere(directions) @ T.T + h
+    norms = np.array([np.linalg.norm(np.linalg.solve(Tf, (y - hf).T), axis=0)
+                      for Tf, hf in (estimate(r) for r in rows)])
+    g = norms.shape[0]
+    return float(np.mean((g - 1) * norms.var(axis=0)))
 
 
 def held_out_corrected(trials: Sequence[Mapping], rec: Recording, method: str

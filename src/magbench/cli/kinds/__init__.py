@@ -36,7 +36,7 @@ __all__ = ["BASE_KEYS", "Kind", "get_kind", "kind_names", "kind_of_sweep", "regi
 BASE_KEYS = ("name", "kind", "vary", "values")
 
 #: The kinds shipped with magbench, in the order their report sections appear.
-_BUILTIN = ("review", "real", "wushi", "gyro", "heading", "compensation")
+_BUILTIN = ("review", "real", "generalisation", "wushi", "gyro", "heading", "compensation")
 
 
 def _no_figures(name: str, out_dir: Path) -> list[Path]:

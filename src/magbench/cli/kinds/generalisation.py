@@ -1,0 +1,114 @@
+"""Generalisation on real recordings (fit on one part, score on the rest): a kind."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from omegaconf import DictConfig
+
+from magbench.cli.config import (
+    Key,
+    UsageError,
+    check_options,
+    field_default,
+    integer,
+    plain,
+)
+from magbench.cli.kinds import Kind, register_kind
+from magbench.core.files import write_text_atomic
+from magbench.studies.generalisation import PROTOCOLS, GeneralisationStudy, fixed_methods
+
+
+def build(cfg: DictConfig, common: dict, values: dict) -> GeneralisationStudy:
+    """The study over the recordings in ``data_dir``, every protocol, every fixed method."""
+    from magbench.sources.recordings import data_dir, list_recordings
+
+    if cfg.get("trials") is not None:
+        raise UsageError("trials does not apply to sweep=generalisation (each recording is "
+                         "split once per protocol, deterministically); drop trials=")
+    try:
+        root = data_dir(cfg.get("data_dir"))
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
+    known = list_recordings(root)
+    chosen = values["datasets"]
+    chosen = known if chosen == "all" else [chosen] if isinstance(chosen, str) else list(chosen)
+    unknown = [d for d in chosen if d not in known]
+    if unknown or not chosen:
+        raise UsageError(f"unknown recording(s) {', '.join(map(str, unknown)) or '(none)'} in "
+                         f"{root}; expected 'all' or a list from: {', '.join(known)}")
+    every = fixed_methods()
+    wanted = plain(cfg.algorithms)
+    algorithms = every if wanted == "all" else [a for a in every if a in list(wanted)]
+    if wanted != "all" and len(algorithms) != len(list(wanted)):
+        bad = [a for a in list(wanted) if a not in every]
+        raise UsageError(f"algorithms {', '.join(map(str, bad))} cannot be fixed entrants of "
+                         f"sweep=generalisation; expected 'all' or a list from: "
+                         f"{', '.join(every)}")
+    return GeneralisationStudy(str(root), chosen, tuple(values["protocols"]), tuple(algorithms),
+                               bool(values["peers"]), values["bootstrap"],
+                               check_options(cfg, every), common["seed"],
+                               common["call_timeout_s"], common["plugins"],
+                               str(cfg.sweep.name))
+
+
+def finish(study: GeneralisationStudy, out_dir: Path, common: dict) -> None:
+    study.summarize(out_dir)
+
+
+def figures(name: str, out_dir: Path) -> list[Path]:
+    from magbench.figures.generalisation import generalisation_figure
+    from magbench.figures.style import save_figure
+
+    if not (out_dir / "generalisation_cases.csv").exists():
+        return []
+    import pandas as pd
+
+    cases = pd.read_csv(out_dir / "generalisation_cases.csv")
+    return [save_figure(generalisation_figure(cases), out_dir / "generalisation.png")]
+
+
+def section(out_dir: Path) -> None:
+    from magbench.report.generalisation import generalisation_section
+
+    write_text_atomic(generalisation_section(out_dir.parent, out_dir.name) + "\n",
+                      out_dir / "generalisation.md")
+
+
+def report(results_dir: Path) -> str:
+    from magbench.report.generalisation import generalisation_section
+
+    return generalisation_section(results_dir)
+
+
+def _protocols(value: object, what: str) -> list[str]:
+    value = plain(value)
+    value = [value] if isinstance(value, str) else list(value or [])
+    bad = [p for p in value if p not in PROTOCOLS]
+    if bad or not value:
+        raise UsageError(f"{what} must be a list from {', '.join(PROTOCOLS)}, got {value}")
+    return value
+
+
+def _boolean(value: object, what: str) -> bool:
+    if not isinstance(value, bool):
+        raise UsageError(f"{what} must be true or false, got {value!r}")
+    return value
+
+
+KIND = register_kind(Kind(
+    name="generalisation",
+    what="fit on part of each real recording, score on the rest: calibrate vs fixed fits",
+    keys=(
+        Key("datasets", "all", "'all' or a list of recording folder names",
+            lambda v, what: plain(v)),
+        Key("protocols", list(PROTOCOLS), "which parts are fitted and scored: "
+            + ", ".join(PROTOCOLS), _protocols),
+        Key("peers", True, "also score navlib's and magcal's fits when installed (the peers "
+            "extra)", _boolean),
+        Key("bootstrap", field_default(GeneralisationStudy, "bootstrap"), "block-bootstrap "
+            "refits of the interval check (halves of recordings of two minutes or more; 0: no "
+            "check)", integer(0, 10_000)),
+    ),
+    build=build, finish=finish, figures=figures, section=section, report=report,
+    needs_data=True))

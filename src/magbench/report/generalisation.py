@@ -1,0 +1,138 @@
+"""Report section of the generalisation study, from ``<results_dir>/generalisation`` CSVs alone."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from magbench.report.intervals import run_note
+
+__all__ = ["generalisation_section", "headline"]
+
+FOLDER = "generalisation"
+
+
+def _pct(k: int, n: int) -> str:
+    return f"{k} of {n} ({100 * k / n:.0f} %)" if n else "0 of 0"
+
+
+def headline(cases: pd.DataFrame) -> dict:
+    """The numbers the section leads with: cases, losses, harmful writes, needless FAILs."""
+    return {"cases": len(cases), "losses": int(cases["loss"].sum()),
+            "harmful": int(cases["harmful"].sum()),
+            "needless_fail": int(cases["needless_fail"].sum()),
+            "not_written": int((~cases["written"].astype(bool)).sum()),
+            "recordings": int(cases["dataset"].nunique())}
+
+
+def _protocol_lines(summary: pd.DataFrame) -> list[str]:
+    lines = ["| protocol | cases | losses | written worse than raw | needless FAIL | "
+             "not written | median regret | worst regret |",
+             "|---|---:|---:|---:|---:|---:|---:|---:|"]
+    for r in summary.itertuples():
+        lines.append(f"| {r.protocol} | {r.cases} | {r.losses} | {r.harmful} | "
+                     f"{r.needless_fail} | {r.not_written} | {r.regret_median:+.2f} | "
+                     f"{r.regret_max:+.2f} |")
+    return lines
+
+
+def _wtl_lines(summary: pd.DataFrame) -> list[str]:
+    total = summary[summary["protocol"] == "all"].iloc[0]
+    cols = [c for c in summary.columns if c.startswith("wtl:")]
+    lines = ["| against | wins / ties / losses of calibrate |", "|---|---|"]
+    for c in cols:
+        lines.append(f"| {c.removeprefix('wtl:')} | {total[c]} |")
+    return lines
+
+
+def _direction_lines(cases: pd.DataFrame, trials: pd.DataFrame) -> list[str]:
+    att = cases[np.isfinite(cases["raw_direction_deg"].to_numpy(float))]
+    if att.empty:
+        return []
+    peers = trials[(trials["kind"] == "peer") & np.isfinite(
+        trials["direction_deg"].to_numpy(float))]
+    lines = ["", f"Where the recording has a reference attitude ({len(att)} cases of "
+             f"{att['dataset'].nunique()} recordings), the world-frame direction spread of the "
+             "held-out field (RMS deg about its mean direction; median over the cases):", "",
+             "| protocol | raw | calibrate | " + " | ".join(sorted(peers["entrant"].unique()))
+             + " |", "|---|---:|---:|" + "---:|" * peers["entrant"].nunique()]
+    for p, g in att.groupby("protocol", sort=False):
+        cells = []
+        for e in sorted(peers["entrant"].unique()):
+            v = peers[(peers["protocol"] == p) & (peers["entrant"] == e)]["direction_deg"]
+            cells.append(f"{v.median():.2f}" if len(v) else "-")
+        lines.append(f"| {p} | {g['raw_direction_deg'].median():.2f} | "
+                     f"{g['auto_direction_deg'].median():.2f} | " + " | ".join(cells) + " |")
+    return lines
+
+
+def _interval_lines(intervals: pd.DataFrame) -> list[str]:
+    if intervals.empty:
+        return ["", "Interval check: no recording of two minutes or more wrote a correction "
+                "from both halves."]
+    agree = int(intervals["agree"].astype(bool).sum())
+    per = intervals.groupby("dataset")["agree"].apply(lambda a: a.astype(bool).all())
+    return ["", f"**Intervals.** On the {intervals['dataset'].nunique()} recordings of two "
+            "minutes or more, the offsets written from the first and from the second half "
+            "agree within the printed 95 % intervals (combined in quadrature) on "
+            f"{_pct(agree, len(intervals))} axes; all three axes agree on "
+            f"{int(per.sum())} of {len(per)} recordings."]
+
+
+def _loss_lines(cases: pd.DataFrame) -> list[str]:
+    lost = cases[cases["loss"] | cases["harmful"]]
+    if lost.empty:
+        return []
+    lines = ["", "<details><summary>Every loss and harmful write</summary>", "",
+             "| recording | protocol | status | calibrate chose | its spread % | best fixed | "
+             "its spread % | raw % |", "|---|---|---|---|---:|---|---:|---:|"]
+    for r in lost.itertuples():
+        lines.append(f"| {r.dataset} | {r.protocol} | {r.status} | {r.method or '-'} | "
+                     f"{r.auto_pct:.2f} | {r.best_fixed} | {r.best_fixed_pct:.2f} | "
+                     f"{r.raw_pct:.2f} |")
+    return lines + ["", "</details>"]
+
+
+def generalisation_section(results_dir: Path | str, folder: str = FOLDER) -> str:
+    """Markdown section of the generalisation study, or '' when it has not been run."""
+    where = Path(results_dir) / folder
+    need = ("generalisation_cases.csv", "generalisation_summary.csv",
+            "generalisation_trials.csv")
+    if not all((where / n).exists() for n in need):
+        return ""
+    cases = pd.read_csv(where / "generalisation_cases.csv")
+    summary = pd.read_csv(where / "generalisation_summary.csv")
+    trials = pd.read_csv(where / "generalisation_trials.csv", keep_default_na=False,
+                         na_values=[""])
+    intervals = (pd.read_csv(where / "generalisation_intervals.csv")
+                 if (where / "generalisation_intervals.csv").exists() else pd.DataFrame())
+    h = headline(cases)
+    lines = [
+        "## Generalisation: fit on one part of a recording, score on the rest", "",
+        "Every real recording is split by each protocol: one part is fitted, the other scored "
+        "by the held-out field-magnitude spread `100 std|m| / mean|m|` of the corrected "
+        "samples (and, with a reference attitude, the world-frame direction spread). "
+        "`calibrate`'s automatic choice runs its own decision, exit status included: where it "
+        "writes nothing the user keeps the raw data, and that is its score. Protocols: "
+        "`blocks` (even time blocks fitted, odd scored), `band_x/y/z` (directions within "
+        "+-15 deg of one sensor plane fitted, every other direction scored), `half` (first "
+        "half fitted), `first15` (first 15 %), `spikes` (5 % spikes in the fitted part), "
+        "`still_first` (a still first half before the fitted blocks). A *loss* is a held-out "
+        "spread worse than the best fixed method in hindsight by more than max(0.25 points, "
+        "5 %).", "",
+        f"**In short.** Over {h['cases']} cases of {h['recordings']} recordings, `calibrate` "
+        f"loses to the best fixed method in hindsight in {_pct(h['losses'], h['cases'])}; it "
+        f"writes a correction worse than the raw data in {h['harmful']} and FAILs where a "
+        f"fixed fit would have helped in {h['needless_fail']}.", "",
+        f"![calibrate against fixed fits]({folder}/generalisation.png)", "",
+        run_note(where, "recordings"), "",
+        *_protocol_lines(summary), "",
+        "Against each fixed method and peer, as if the user always ran it (all cases):", "",
+        *_wtl_lines(summary),
+        *_direction_lines(cases, trials),
+        *_interval_lines(intervals),
+        *_loss_lines(cases),
+    ]
+    return "\n".join(lines)

@@ -1,0 +1,499 @@
+"""Generalisation on real recordings: fit on one part, score on the part that was not recorded.
+
+A user calibrates on what they recorded and flies on everything else: other orientations,
+later minutes. This study (``python -m magbench sweep=generalisation``) asks, for each recording
+of ``data_dir`` and each *protocol* (:data:`PROTOCOLS`), how a fit made on one part does on the
+other part, for every fixed method, for ``calibrate``'s automatic choice (its own decision,
+:func:`magbench.studies.decision.decide`: a FAIL or no choice leaves the user the raw data) and
+for the peers (navlib, magcal) when the optional ``peers`` extra is installed.
+
+Protocols (:func:`split`):
+
+* ``blocks``: ten time blocks, the even ones fitted, the odd ones scored;
+* ``band_x``, ``band_y``, ``band_z``: the samples whose field direction (from the sphere-fit
+  centre of the whole recording) lies within +-15 deg of the plane normal to that sensor axis
+  are fitted, every other sample is scored: extrapolation to directions never recorded;
+* ``half``: the first half fitted, the second scored (a state change shows here);
+* ``first15``: the first 15 % fitted, the rest scored (a short recording);
+* ``spikes``: as ``blocks``, with 5 % of the fitted samples hit by spikes (seeded);
+* ``still_first``: as ``blocks``, the fitted part preceded by as many still samples (the first
+  sample held, with the recording's own sample-to-sample noise): a first half at rest.
+
+Scores on the held-out part (:func:`scores`): the field-magnitude spread
+``100 std|m| / mean|m|`` (%) of the corrected samples, and, where the recording carries a
+reference attitude, the world-frame direction spread (RMS angle, deg, of the corrected field
+turned to world axes, about its mean direction). The raw data's scores are the "no correction"
+line. :func:`case_table` and :func:`protocol_table` turn the rows into what the report says:
+regret of the automatic choice against the best fixed method in hindsight, wins, ties and
+losses against every fixed method and peer, corrections written worse than raw, and FAILs
+where a fixed method would have helped.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import TYPE_CHECKING, ClassVar
+
+import numpy as np
+
+from magbench.core.direction import direction_spread, world_field
+from magbench.core.files import write_csv_atomic
+from magbench.core.geometry import coverage, sphere_fit, unit_rows
+from magbench.core.seeding import rng
+from magbench.engine.sweep import Study
+from magbench.engine.trial import run_method
+from magbench.sources.recordings import Recording, load_recording
+from magbench.studies.auto import candidate_rounds
+from magbench.studies.calibration import bootstrap_check
+from magbench.studies.decision import decide, written_correction
+from magbench.studies.peers import available_peers, fit_peer
+from magbench.studies.real import DEFAULT_MAX_SAMPLES, applicability, fit_recording, is_usable
+
+if TYPE_CHECKING:
+    import pandas as pd
+
+__all__ = ["AUTO", "INTERVAL_COLUMNS", "MIN_PART", "PROTOCOLS", "ROW_COLUMNS",
+           "GeneralisationStudy", "case_table", "fixed_methods", "interval_rows",
+           "protocol_table", "scores", "split", "tolerance"]
+
+#: Every protocol, in report order (module notes).
+PROTOCOLS = ("blocks", "band_x", "band_y", "band_z", "half", "first15", "spikes",
+             "still_first")
+#: The entrant name of ``calibrate``'s automatic choice.
+AUTO = "calibrate"
+#: Fewest samples in a fitted or a scored part; a protocol that leaves fewer is skipped.
+MIN_PART = 60
+#: Half-width of a band (deg) about the plane normal to a sensor axis.
+BAND_DEG = 15.0
+#: Share of the fitted samples hit by spikes.
+SPIKE_SHARE = 0.05
+#: Recordings of at least this long (s) enter the interval check (goal: halves agree).
+INTERVAL_MIN_S = 120.0
+
+ROW_COLUMNS = ["dataset", "protocol", "entrant", "kind", "K_fit", "K_test", "status", "ok",
+               "written", "degenerate", "method", "spread_pct", "raw_spread_pct",
+               "direction_deg", "raw_direction_deg", "field_ratio", "error"]
+INTERVAL_COLUMNS = ["dataset", "axis", "method_first", "method_second", "b_first", "b_second",
+                    "half_width_first", "half_width_second", "source_first",
+                    "source_second", "agree"]
+
+
+def tolerance(best: float) -> float:
+    """How much worse than ``best`` still ties: max(0.25 points, 5 %)."""
+    return max(0.25, 0.05 * best)
+
+
+def fixed_methods() -> list[str]:
+    """The magnetometer-only methods ``calibrate`` may choose (its ``candidates=all`` without a
+    gyroscope): each is a fixed entrant."""
+    return candidate_rounds(False, "all")[0]
+
+
+# --- protocols -----------------------------------------------------------------------------
+
+def _blocks(K: int, n: int = 10) -> tuple[np.ndarray, np.ndarray]:
+    blocks = np.array_split(np.arange(K), n)
+    return np.concatenate(blocks[0::2]), np.concatenate(blocks[1::2])
+
+
+def _spiked(fit: Recording, radius: float, gen: np.random.Generator) -> Recording:
+    """``fit`` with :data:`SPIKE_SHARE` of its samples moved by 0.5-2 radii in a random
+    direction (a bumped sensor, a motor switched on)."""
+    y = fit.y.copy()
+    hit = gen.choice(fit.K, size=max(1, round(SPIKE_SHARE * fit.K)), replace=False)
+    y[hit] += unit_rows(gen.standard_normal((hit.size, 3))) * \
+        (radius * gen.uniform(0.5, 2.0, hit.size))[:, None]
+    return replace(fit, y=y)
+
+
+def _still_then(fit: Recording, gen: np.random.Generator) -> Recording:
+    """As many still samples as ``fit`` has, then ``fit``: the first sample held with the
+    recording's own noise (robust spread of the second differences), times before the first,
+    inertial columns held at their first row."""
+    n = fit.K
+    # Second differences cancel a smooth turn: var(d2 y) = 6 sigma^2 for white noise.
+    d2 = np.diff(fit.y, n=2, axis=0)
+    noise = 1.4826 * np.median(np.abs(d2 - np.median(d2, axis=0)), axis=0) / np.sqrt(6)
+    still = fit.y[0] + gen.standard_normal((n, 3)) * noise
+    t = None
+    if fit.t is not None:
+        dt = float(np.median(np.diff(fit.t))) if fit.K > 1 else 0.01
+        t = np.concatenate([fit.t[0] - dt * np.arange(n, 0, -1), fit.t])
+    gyro = None if fit.gyro is None else np.concatenate([np.zeros((n, 3)), fit.gyro])
+    extra = None if fit.extra is None else {
+        k: np.concatenate([np.repeat(v[:1], n, axis=0), v]) for k, v in fit.extra.items()}
+    return replace(fit, y=np.concatenate([still, fit.y]), t=t, gyro=gyro, extra=extra)
+
+
+def split(rec: Recording, protocol: str, seed: int = 0) -> tuple[Recording, Recording] | str:
+    """The fitted and the scored part of ``rec`` under ``protocol`` (module notes), or why the
+    protocol does not apply (a part of fewer than :data:`MIN_PART` samples)."""
+    K = rec.K
+    gen = rng(seed, "generalisation", rec.name, protocol)
+    centre, radius = sphere_fit(rec.y)
+    if protocol in ("blocks", "spikes", "still_first"):
+        fit_idx, test_idx = _blocks(K)
+    elif protocol.startswith("band_"):
+        axis = "xyz".index(protocol[-1])
+        u = unit_rows(rec.y - centre)
+        inside = np.abs(np.degrees(np.arcsin(np.clip(u[:, axis], -1, 1)))) <= BAND_DEG
+        fit_idx, test_idx = np.flatnonzero(inside), np.flatnonzero(~inside)
+    elif protocol == "half":
+        fit_idx, test_idx = np.arange(K // 2), np.arange(K // 2, K)
+    elif protocol == "first15":
+        n = round(0.15 * K)
+        fit_idx, test_idx = np.arange(n), np.arange(n, K)
+    else:
+        raise ValueError(f"unknown protocol {protocol!r}; expected one of {PROTOCOLS}")
+    if min(fit_idx.size, test_idx.size) < MIN_PART:
+        return (f"skipped: the {protocol} protocol leaves {fit_idx.size} samples to fit and "
+                f"{test_idx.size} to score ({MIN_PART} needed each)")
+    fit, test = rec.rows(fit_idx), rec.rows(test_idx)
+    if protocol == "spikes":
+        fit = _spiked(fit, radius, gen)
+    elif protocol == "still_first":
+        fit = _still_then(fit, gen)
+    return fit, test
+
+
+# --- scores --------------------------------------------------------------------------------
+
+def _attitude(rec: Recording) -> np.ndarray | None:
+    names = ("qw", "qx", "qy", "qz")
+    if rec.extra is None or not all(n in rec.extra for n in names):
+        return None
+    q = np.column_stack([rec.extra[n] for n in names])
+    return q if np.isfinite(q).all() else None
+
+
+def scores(test: Recording, A: np.ndarray | None = None, b: np.ndarray | None = None
+           ) -> tuple[float, float]:
+    """Held-out field-magnitude spread (%) and world-frame direction spread (deg RMS, NaN
+    without an attitude) of ``test`` corrected by ``m = A (y - b)`` (raw without ``A``)."""
+    m = test.y if A is None else (test.y - b) @ np.asarray(A).T
+    norm = np.linalg.norm(m, axis=1)
+    spread = float(100 * norm.std() / norm.mean())
+    q = _attitude(test)
+    if q is None:
+        return spread, float("nan")
+    angles = np.degrees(direction_spread(world_field(m, q)))
+    return spread, float(np.sqrt(np.mean(angles ** 2)))
+
+
+def _degenerate(test: Recording, A: np.ndarray, b: np.ndarray, centre: np.ndarray) -> bool:
+    """The degenerate answer (``h`` far away, every corrected sample near one point, which
+    makes any spread small): corrected directions cover less than half of what the sphere
+    fit's cover (:func:`magbench.studies.real.is_usable`)."""
+    return not is_usable(coverage((test.y - b) @ np.asarray(A).T), coverage(test.y - centre))
+
+
+def _row(rec: Recording, protocol: str, entrant: str, kind: str, fit: Recording,
+         test: Recording, raw: tuple[float, float], *, A=None, b=None, status: str = "",
+         written: bool = False, method: str = "", radius: float = float("nan"),
+         centre: np.ndarray | None = None, error: str = "") -> dict:
+    spread, direction = scores(test, A, b) if A is not None else (float("nan"),) * 2
+    ratio = float("nan")
+    degenerate = False
+    if A is not None:
+        degenerate = _degenerate(test, A, b, centre)
+        # The fitted field strength over the data's own radius: a fit whose scale is far off
+        # is a wrong unit or a collapsed fit, whatever its shape.
+        ratio = float(1.0 / np.cbrt(abs(np.linalg.det(A))) / radius)
+    return {"dataset": rec.name, "protocol": protocol, "entrant": entrant, "kind": kind,
+            "K_fit": fit.K, "K_test": test.K, "status": status,
+            "ok": status not in ("failed", "ERROR"), "written": bool(written),
+            "degenerate": degenerate, "method": method, "spread_pct": spread,
+            "raw_spread_pct": raw[0],
+            "direction_deg": direction, "raw_direction_deg": raw[1], "field_ratio": ratio,
+            "error": error}
+
+
+def _fixed_rows(rec, protocol, fit, test, raw, names, options, seed, timeout, radius,
+                centre):
+    thin = fit.thinned(DEFAULT_MAX_SAMPLES)
+    rows, times = [], []
+    for name in names:
+        reason = applicability(name, thin)
+        if reason:
+            rows.append(_row(rec, protocol, name, "fixed", fit, test, raw, error=reason))
+            times.append(float("nan"))
+            continue
+        out = run_method(name, lambda o, n=name: fit_recording(thin, n, "centre", o),
+                         options=dict(options.get(name) or {}), seed=seed,
+                         stream=("generalisation", rec.name, protocol),
+                         call_timeout_s=timeout)
+        A = b = None
+        error = out.error
+        if out.T is not None and not error:
+            try:
+                from magbench.core.model import Calibration
+                A, b = Calibration(out.T, out.h).correction()
+            except Exception as exc:    # a singular fit is a row with its reason
+                error = f"{type(exc).__name__}: {exc}"
+        rows.append(_row(rec, protocol, name, "fixed", fit, test, raw, A=A, b=b,
+                         status="ok" if A is not None else "failed", written=A is not None,
+                         method=name, radius=radius, centre=centre, error=error or ""))
+        times.append(out.time_s)
+    return rows, times
+
+
+def _peer_rows(rec, protocol, fit, test, raw, radius, centre):
+    thin = fit.thinned(DEFAULT_MAX_SAMPLES)
+    rows, times = [], []
+    for name in available_peers():
+        start = time.perf_counter()
+        try:
+            from magbench.core.model import Calibration
+            A, b = Calibration(*fit_peer(name, thin.y)).correction()
+            rows.append(_row(rec, protocol, name, "peer", fit, test, raw, A=A, b=b,
+                             status="ok", written=True, method=name, radius=radius,
+                             centre=centre))
+        except Exception as exc:        # a peer's failure is a row, as a method's
+            rows.append(_row(rec, protocol, name, "peer", fit, test, raw, status="failed",
+                             error=f"{type(exc).__name__}: {exc}"[:200]))
+        times.append(time.perf_counter() - start)
+    return rows, times
+
+
+def _auto_row(rec, protocol, fit, test, raw, options, seed, timeout, radius, centre):
+    start = time.perf_counter()
+    first, second = candidate_rounds(fit.has_gyro, "auto")
+    try:
+        decision = decide(fit, first, second_round=second, options=options, seed=seed,
+                          call_timeout_s=timeout, max_samples=DEFAULT_MAX_SAMPLES)
+    except Exception as exc:            # the command would exit 2 with one line
+        return (_row(rec, protocol, AUTO, "auto", fit, test, raw, status="ERROR",
+                     error=f"{type(exc).__name__}: {exc}"[:300]),
+                time.perf_counter() - start)
+    cal = written_correction(decision)
+    chosen = decision.result.chosen
+    method = "" if chosen is None else str(chosen["algorithm"])
+    reasons = (decision.result.fitness or {}).get("reasons") or []
+    A = b = None
+    if cal is not None:
+        A, b = cal.correction()
+    row = _row(rec, protocol, AUTO, "auto", fit, test, raw, A=A, b=b, status=decision.status,
+               written=decision.written, method=method, radius=radius, centre=centre,
+               error="; ".join(str(r) for r in reasons)[:300])
+    if A is None and chosen is not None:
+        # What the user is left with is the raw data; the ratio is still worth keeping.
+        from magbench.studies.holdout import estimate
+        T, _ = estimate(chosen)
+        row["field_ratio"] = float(np.cbrt(abs(np.linalg.det(T))) / radius)
+    return row, time.perf_counter() - start
+
+
+def evaluate_protocol(rec: Recording, protocol: str, *, fixed: Sequence[str],
+                      peers: bool = True, options: dict | None = None, seed: int = 0,
+                      call_timeout_s: float | None = None) -> tuple[list[dict], list[dict]]:
+    """Rows (and their times) of every entrant on ``rec`` under ``protocol``: the automatic
+    choice, each of ``fixed``, each installed peer (``peers``); one skipped row when the
+    protocol does not apply."""
+    options = options or {}
+    parts = split(rec, protocol, seed)
+    if isinstance(parts, str):
+        empty = replace(rec, y=np.zeros((0, 3)), t=None, gyro=None, extra=None)
+        row = _row(rec, protocol, AUTO, "auto", empty, empty, (np.nan, np.nan),
+                   status="SKIPPED", error=parts)
+        return [row], [{"dataset": rec.name, "protocol": protocol, "entrant": AUTO,
+                        "time_s": 0.0}]
+    fit, test = parts
+    raw = scores(test)
+    centre, radius = sphere_fit(fit.y)
+    rows, times = [], []
+    row, t = _auto_row(rec, protocol, fit, test, raw, options, seed, call_timeout_s, radius,
+                       centre)
+    rows.append(row)
+    times.append(t)
+    r, t = _fixed_rows(rec, protocol, fit, test, raw, fixed, options, seed, call_timeout_s,
+                       radius, centre)
+    rows += r
+    times += t
+    if peers:
+        r, t = _peer_rows(rec, protocol, fit, test, raw, radius, centre)
+        rows += r
+        times += t
+    return rows, [{"dataset": rec.name, "protocol": protocol, "entrant": r["entrant"],
+                   "time_s": s} for r, s in zip(rows, times, strict=True)]
+
+
+# --- honest intervals ----------------------------------------------------------------------
+
+def interval_rows(rec: Recording, *, options: dict | None = None, seed: int = 0,
+                  bootstrap: int = 50, call_timeout_s: float | None = None) -> list[dict]:
+    """The offsets ``calibrate`` writes from the first and from the second half of ``rec``,
+    with their printed 95 % half-widths (the wider of model-based and block bootstrap), per
+    axis; ``agree`` when the difference is within the two half-widths combined in quadrature
+    (the 95 % interval of the difference of two independent estimates). Empty for recordings
+    shorter than :data:`INTERVAL_MIN_S` or when a half writes nothing."""
+    if rec.t is None or rec.t[-1] - rec.t[0] < INTERVAL_MIN_S:
+        return []
+    halves = []
+    for part in (rec.rows(np.arange(rec.K // 2)), rec.rows(np.arange(rec.K // 2, rec.K))):
+        first, second = candidate_rounds(part.has_gyro, "auto")
+        d = decide(part, first, second_round=second, options=options, seed=seed,
+                   call_timeout_s=call_timeout_s, max_samples=DEFAULT_MAX_SAMPLES)
+        if not d.written:
+            return []
+        d.result.bootstrap = bootstrap_check(d.result, bootstrap, options=options or {},
+                                             seed=seed)
+        iv, bs = d.result.intervals, d.result.bootstrap
+        width = np.array(bs["wider_h"]) if bs else np.asarray(iv.h_half)
+        source = bs["source_h"] if bs else "model-based"
+        from magbench.studies.holdout import estimate
+        halves.append((str(d.result.chosen["algorithm"]), estimate(d.result.chosen)[1], width,
+                       source))
+    (m1, b1, w1, s1), (m2, b2, w2, s2) = halves
+    return [{"dataset": rec.name, "axis": "xyz"[i], "method_first": m1, "method_second": m2,
+             "b_first": b1[i], "b_second": b2[i], "half_width_first": w1[i],
+             "half_width_second": w2[i], "source_first": s1, "source_second": s2,
+             "agree": bool(abs(b1[i] - b2[i]) <= np.hypot(w1[i], w2[i]))} for i in range(3)]
+
+
+# --- the study -----------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class GeneralisationStudy(Study):
+    """One work unit per recording: every protocol, then the interval check."""
+
+    root: str
+    datasets: Sequence[str]
+    protocols: Sequence[str] = PROTOCOLS
+    algorithms: Sequence[str] = ()
+    peers: bool = True
+    bootstrap: int = 50
+    options: dict | None = None
+    seed: int = 0
+    call_timeout_s: float | None = None
+    plugins: Sequence[str] = ()
+    name: str = "generalisation"
+
+    tables: ClassVar[dict] = {
+        "trials": ("generalisation_trials.csv", ROW_COLUMNS),
+        "times": ("generalisation_trials_times.csv",
+                  ["dataset", "protocol", "entrant", "time_s"]),
+        "intervals": ("generalisation_intervals.csv", INTERVAL_COLUMNS)}
+
+    def units(self) -> list[str]:
+        return list(self.datasets)
+
+    def estimated_rows(self, units: Sequence) -> int:
+        return len(units) * len(self.protocols) * (2 + len(self.algorithms))
+
+    def describe(self) -> dict:
+        out = super().describe()
+        out["peers_installed"] = available_peers() if self.peers else []
+        return out
+
+    def run_unit(self, name: str) -> dict[str, list[dict]]:
+        rec = load_recording(self.root, name, check=False)
+        rows, times = [], []
+        for protocol in self.protocols:
+            r, t = evaluate_protocol(rec, protocol, fixed=list(self.algorithms),
+                                     peers=self.peers, options=self.options, seed=self.seed,
+                                     call_timeout_s=self.call_timeout_s)
+            rows += r
+            times += t
+        intervals = interval_rows(rec, options=self.options, seed=self.seed,
+                                  bootstrap=self.bootstrap,
+                                  call_timeout_s=self.call_timeout_s) if self.bootstrap else []
+        return {"trials": rows, "times": times, "intervals": intervals}
+
+    def summarize(self, out_dir: Path | str) -> None:
+        """``generalisation_cases.csv`` (one row per recording and protocol) and
+        ``generalisation_summary.csv`` (one per protocol, and ``all``)."""
+        import pandas as pd
+
+        out_dir = Path(out_dir)
+        trials = pd.read_csv(out_dir / "generalisation_trials.csv", keep_default_na=False,
+                             na_values=[""])
+        cases = case_table(trials)
+        write_csv_atomic(cases, out_dir / "generalisation_cases.csv")
+        write_csv_atomic(protocol_table(cases, trials), out_dir / "generalisation_summary.csv")
+
+
+# --- summaries -----------------------------------------------------------------------------
+
+def _user_score(row: Mapping) -> float:
+    """What the user is left with: the correction if written (NaN if it is the degenerate
+    answer, whose small spread means nothing), else the raw data."""
+    if not bool(row["written"]):
+        return float(row["raw_spread_pct"])
+    return np.nan if bool(row["degenerate"]) else float(row["spread_pct"])
+
+
+def case_table(trials: pd.DataFrame) -> pd.DataFrame:
+    """One row per (dataset, protocol) that was run: the automatic choice's score (raw when
+    nothing was written), the best fixed method in hindsight, the regret, and whether it is a
+    loss (worse than the best by more than :func:`tolerance`), a harmful write (written and
+    worse than raw) or a needless FAIL (nothing written where the best fixed fit beats raw by
+    more than the tolerance)."""
+    import pandas as pd
+
+    out = []
+    for (dataset, protocol), g in trials.groupby(["dataset", "protocol"], sort=False):
+        auto = g[g["kind"] == "auto"].iloc[0]
+        if auto["status"] == "SKIPPED":
+            continue
+        fixed = g[(g["kind"] == "fixed") & g["written"].astype(bool)
+                  & ~g["degenerate"].astype(bool)]
+        best = fixed.loc[fixed["spread_pct"].idxmin()] if len(fixed) else None
+        score = _user_score(auto)
+        raw = float(auto["raw_spread_pct"])
+        best_score = float(best["spread_pct"]) if best is not None else np.nan
+        tol = tolerance(best_score) if best is not None else np.nan
+        written = bool(auto["written"])
+        row = {"dataset": dataset, "protocol": protocol, "status": auto["status"],
+               "method": auto["method"], "written": written, "auto_pct": score,
+               "raw_pct": raw, "best_fixed": best["entrant"] if best is not None else "",
+               "best_fixed_pct": best_score, "regret": score - best_score,
+               "loss": bool(not score <= best_score + tol) if best is not None else False,
+               "harmful": bool(written and not score <= raw),
+               "needless_fail": bool(not written and best is not None
+                                     and raw > best_score + tol),
+               "auto_direction_deg": float(auto["direction_deg"]) if written else
+               float(auto["raw_direction_deg"]),
+               "raw_direction_deg": float(auto["raw_direction_deg"])}
+        for _, r in g[g["kind"] != "auto"].iterrows():
+            row[f"pct:{r['entrant']}"] = _user_score(r) if r["status"] == "ok" else raw
+            row[f"deg:{r['entrant']}"] = float(r["direction_deg"]) if r["status"] == "ok" \
+                and not bool(r["degenerate"]) else np.nan
+        out.append(row)
+    return pd.DataFrame(out)
+
+
+def _wtl(auto: np.ndarray, other: np.ndarray) -> tuple[int, int, int]:
+    """Wins, ties and losses; a degenerate answer (NaN) loses to any other."""
+    auto = np.where(np.isnan(auto), np.inf, auto)
+    other = np.where(np.isnan(other), np.inf, other)
+    tol = np.maximum(0.25, 0.05 * np.where(np.isfinite(other), other, 0.0))
+    with np.errstate(invalid="ignore"):
+        tie = (np.abs(auto - other) <= tol) | (np.isinf(auto) & np.isinf(other))
+        return (int(np.sum((auto < other - tol) & ~tie)), int(np.sum(tie)),
+                int(np.sum((auto > other + tol) & ~tie)))
+
+
+def protocol_table(cases: pd.DataFrame, trials: pd.DataFrame | None = None) -> pd.DataFrame:
+    """Per protocol (and ``all``): cases, median and worst regret, losses, harmful writes,
+    needless FAILs, FAILs, and wins/ties/losses against each fixed method and peer
+    (``wtl:<entrant>`` as ``W/T/L``)."""
+    import pandas as pd
+
+    entrants = [c.removeprefix("pct:") for c in cases.columns if c.startswith("pct:")]
+    out = []
+    groups = [(p, cases[cases["protocol"] == p]) for p in cases["protocol"].unique()]
+    for protocol, g in [*groups, ("all", cases)]:
+        row = {"protocol": protocol, "cases": len(g),
+               "regret_median": float(g["regret"].median()),
+               "regret_max": float(g["regret"].max()), "losses": int(g["loss"].sum()),
+               "loss_pct": 100.0 * float(g["loss"].mean()) if len(g) else np.nan,
+               "harmful": int(g["harmful"].sum()), "needless_fail": int(g["needless_fail"].sum()),
+               "not_written": int((~g["written"].astype(bool)).sum())}
+        for e in entrants:
+            w, t, l_ = _wtl(g["auto_pct"].to_numpy(float), g[f"pct:{e}"].to_numpy(float))
+            row[f"wtl:{e}"] = f"{w}/{t}/{l_}"
+        out.append(row)
+    return pd.DataFrame(out)

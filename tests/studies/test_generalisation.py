@@ -1,0 +1,186 @@
+"""The generalisation study: protocols, scores, the case and protocol tables, one unit."""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from magbench.core.geometry import fibonacci_sphere, sphere_fit, unit_rows
+from magbench.sources.recordings import Recording
+from magbench.studies.generalisation import (
+    AUTO,
+    BAND_DEG,
+    MIN_PART,
+    PROTOCOLS,
+    SPIKE_SHARE,
+    GeneralisationStudy,
+    case_table,
+    protocol_table,
+    scores,
+    split,
+    tolerance,
+)
+
+T_TRUE = np.array([[52.0, 2.0, -0.8], [0.0, 47.0, 1.5], [0.0, 0.0, 61.0]])
+H_TRUE = np.array([90.0, -35.0, 12.0])
+
+
+def rotating(K: int = 1500, seed: int = 0, noise: float = 0.3) -> Recording:
+    """A sensor turned smoothly through every direction (a spiral), in time order."""
+    s = np.linspace(0.0, 1.0, K)
+    theta, phi = np.arccos(1 - 2 * s), 2 * np.pi * 12 * s        # pole to pole, 12 turns
+    m = np.column_stack([np.sin(theta) * np.cos(phi), np.sin(theta) * np.sin(phi),
+                         np.cos(theta)])
+    y = m @ T_TRUE.T + H_TRUE + noise * np.random.default_rng(seed + 1).standard_normal((K, 3))
+    return Recording("spiral", y, t=np.arange(K) * 0.02, n_rows=K)
+
+
+def test_blocks_half_and_first15_partition_the_recording_in_time():
+    rec = rotating()
+    for protocol, share in (("blocks", 0.5), ("half", 0.5), ("first15", 0.15)):
+        fit, test = split(rec, protocol)
+        assert fit.K + test.K == rec.K
+        assert fit.K == pytest.approx(share * rec.K, abs=rec.K / 20)
+        assert set(map(tuple, fit.y)).isdisjoint(map(tuple, test.y))
+    fit, test = split(rec, "half")
+    assert fit.t.max() < test.t.min()                      # fitted before scored
+
+
+@pytest.mark.parametrize("axis", [0, 1, 2])
+def test_band_fits_only_directions_near_one_plane(axis):
+    rec = rotating()
+    fit, test = split(rec, f"band_{'xyz'[axis]}")
+    centre = sphere_fit(rec.y)[0]
+    elevation = np.degrees(np.arcsin(np.abs(unit_rows(fit.y - centre)[:, axis])))
+    assert elevation.max() <= BAND_DEG
+    rest = np.degrees(np.arcsin(np.abs(unit_rows(test.y - centre)[:, axis])))
+    assert rest.min() > BAND_DEG and fit.K + test.K == rec.K
+
+
+def test_spikes_move_exactly_their_share_of_the_fitted_samples():
+    rec = rotating()
+    clean, _ = split(rec, "blocks")
+    spiky, test = split(rec, "spikes", seed=3)
+    moved = np.any(clean.y != spiky.y, axis=1)
+    assert moved.sum() == round(SPIKE_SHARE * clean.K)
+    assert np.array_equal(split(rec, "spikes", seed=3)[0].y, spiky.y)   # seeded
+    assert test.K == rec.K - clean.K
+
+
+def test_still_first_prepends_a_still_half_before_the_fitted_blocks():
+    rec = rotating()
+    blocks, _ = split(rec, "blocks")
+    fit, _ = split(rec, "still_first")
+    n = blocks.K
+    assert fit.K == 2 * n
+    assert np.array_equal(fit.y[n:], blocks.y)
+    assert np.all(np.diff(fit.t) > 0)
+    # still: spread about the first sample at the recording's own noise, far below the field
+    assert np.linalg.norm(fit.y[:n] - blocks.y[0], axis=1).max() < 3.0
+
+
+def test_a_protocol_that_leaves_too_few_samples_is_skipped_with_the_reason():
+    rec = rotating(K=100)
+    out = split(rec, "first15")
+    assert isinstance(out, str) and f"({MIN_PART} needed each)" in out
+
+
+def test_scores_know_the_answer():
+    u = fibonacci_sphere(400)
+    rec = Recording("r", 2.0 * u + [5.0, 0.0, 0.0], n_rows=400)
+    spread, direction = scores(rec, np.eye(3) / 2.0, np.array([5.0, 0.0, 0.0]))
+    assert spread == pytest.approx(0.0, abs=1e-9) and np.isnan(direction)
+    norm = np.linalg.norm(rec.y, axis=1)
+    assert scores(rec)[0] == pytest.approx(100 * norm.std() / norm.mean())
+    # an attitude that turns each sample's field onto +x: no direction spread in the world
+    q = np.array([_quat_to_x(v) for v in u])
+    att = Recording("a", rec.y, n_rows=400,
+                    extra={"qw": q[:, 0], "qx": q[:, 1], "qy": q[:, 2], "qz": q[:, 3]})
+    assert scores(att, np.eye(3) / 2.0, np.array([5.0, 0.0, 0.0]))[1] == \
+        pytest.approx(0.0, abs=1e-6)
+
+
+def _quat_to_x(v: np.ndarray) -> np.ndarray:
+    """The shortest rotation (scalar first) taking unit ``v`` to +x."""
+    x = np.array([1.0, 0.0, 0.0])
+    axis = np.cross(v, x)
+    s, c = np.linalg.norm(axis), float(v @ x)
+    if s < 1e-12:
+        return np.array([1.0, 0, 0, 0]) if c > 0 else np.array([0.0, 0, 0, 1])
+    angle = np.arctan2(s, c)
+    return np.concatenate([[np.cos(angle / 2)], np.sin(angle / 2) * axis / s])
+
+
+def _rows(dataset, protocol, auto, fixed, raw=10.0, peers=()):
+    """A case's rows: ``auto`` (spread or None for nothing written), fixed name -> spread."""
+    base = {"dataset": dataset, "protocol": protocol, "raw_spread_pct": raw,
+            "raw_direction_deg": np.nan, "direction_deg": np.nan, "degenerate": False,
+            "method": ""}
+    rows = [{**base, "entrant": AUTO, "kind": "auto", "status": "PASS" if auto else "FAIL",
+             "written": auto is not None, "spread_pct": auto if auto else np.nan}]
+    for kind, table in (("fixed", fixed), ("peer", dict(peers))):
+        rows += [{**base, "entrant": n, "kind": kind, "status": "ok", "written": True,
+                  "spread_pct": v} for n, v in table.items()]
+    return rows
+
+
+def test_case_and_protocol_tables_count_losses_harm_and_needless_fails():
+    trials = pd.DataFrame(
+        _rows("a", "half", 1.0, {"sphere": 1.0, "fang": 0.9})              # tie
+        + _rows("b", "half", 2.0, {"sphere": 1.0, "fang": 3.0})            # loss
+        + _rows("c", "half", 12.0, {"sphere": 11.0, "fang": 11.5})         # harmful + loss
+        + _rows("d", "half", None, {"sphere": 4.0, "fang": 5.0})           # needless FAIL
+        + _rows("e", "blocks", None, {"sphere": 11.0, "fang": 12.0})       # a fair FAIL
+    )
+    cases = case_table(trials).set_index("dataset")
+    assert list(cases["loss"]) == [False, True, True, True, False]
+    assert list(cases["harmful"]) == [False, False, True, False, False]
+    assert list(cases["needless_fail"]) == [False, False, False, True, False]
+    assert cases.loc["d", "auto_pct"] == 10.0                     # the raw data is what is left
+    assert cases.loc["b", "best_fixed"] == "sphere"
+    assert cases.loc["b", "regret"] == pytest.approx(1.0)
+    table = protocol_table(cases.reset_index()).set_index("protocol")
+    assert table.loc["half", "losses"] == 3 and table.loc["all", "cases"] == 5
+    # against sphere: a tie, a loss (2 vs 1), a loss (12 vs 11 > 0.55), a loss (10 vs 4)
+    assert table.loc["half", "wtl:sphere"] == "0/1/3"
+    assert table.loc["blocks", "wtl:fang"] == "1/0/0"             # 10 raw vs 12: a win
+
+
+def test_a_degenerate_fit_never_is_the_best_in_hindsight():
+    rows = _rows("a", "half", 1.0, {"sphere": 1.0, "crassidis": 0.01})
+    rows[-1]["degenerate"] = True
+    cases = case_table(pd.DataFrame(rows))
+    assert cases.loc[0, "best_fixed"] == "sphere" and not cases.loc[0, "loss"]
+    assert protocol_table(cases).loc[0, "wtl:crassidis"] == "1/0/0"
+
+
+def test_tolerance_is_a_quarter_point_or_five_percent():
+    assert tolerance(1.0) == 0.25 and tolerance(10.0) == pytest.approx(0.5)
+
+
+def test_one_unit_scores_every_entrant_under_every_protocol(tmp_path):
+    rec = rotating(K=1200)
+    folder = tmp_path / "spiral"
+    folder.mkdir()
+    pd.DataFrame({"t": rec.t, "mx": rec.y[:, 0], "my": rec.y[:, 1],
+                  "mz": rec.y[:, 2]}).to_csv(folder / "data.csv", index=False)
+    study = GeneralisationStudy(str(tmp_path), ["spiral"], ("blocks", "band_z", "half"),
+                                ("sphere", "ellipsoid"), peers=False, bootstrap=0)
+    out = study.run_unit("spiral")
+    rows = pd.DataFrame(out["trials"])
+    assert set(rows["protocol"]) == {"blocks", "band_z", "half"}
+    assert sorted(rows[rows["protocol"] == "blocks"]["entrant"]) == \
+        sorted([AUTO, "sphere", "ellipsoid"])
+    assert len(out["times"]) == len(rows) and out["intervals"] == []
+    blocks = rows[rows["protocol"] == "blocks"].set_index("entrant")
+    # the true model is an ellipsoid: the full fit is within the noise, the sphere is not
+    assert blocks.loc["ellipsoid", "spread_pct"] < 0.5 * blocks.loc["sphere", "spread_pct"]
+    assert blocks.loc[AUTO, "written"] and blocks.loc[AUTO, "status"] in ("PASS", "WARN")
+    assert blocks.loc[AUTO, "spread_pct"] <= blocks.loc["ellipsoid", "spread_pct"] + \
+        tolerance(blocks.loc["ellipsoid", "spread_pct"])
+
+
+def test_protocols_are_the_issues():
+    assert set(PROTOCOLS) >= {"blocks", "band_x", "band_y", "band_z", "half", "first15",
+                              "spikes", "still_first"}
