@@ -344,7 +344,7 @@ def test_terminal_view_in_tmux(tmp_path):
     subprocess.run(["tmux", "new-session", "-d", "-s", session, "-x", "100", "-y", "70",
                     command], check=True)
     try:
-        early = wait_for("next: turn it")
+        early = wait_for("(toward the gap)")
         assert "covered" in early and "largest gap" in early and "quality      [#" in early
         enough = wait_for("ENOUGH")
         assert "press Enter to calibrate" in enough
@@ -376,3 +376,46 @@ def test_shared_recording_played_through_a_pty(tmp_path):
     data, info = read_capture(tmp_path / "cap")
     np.testing.assert_array_equal(data, table)
     assert rc in (0, 3) and info["rate"].endswith("(device time)")
+
+
+def test_turn_words_follow_the_vehicle_axes():
+    from magbench.cli.live import turn_words
+
+    # field ahead (+X) to be seen along -Z (up): the nose goes down a quarter turn
+    assert turn_words([1, 0, 0], [0, 0, -1]) == "turn it nose down about 90 deg"
+    assert turn_words([1, 0, 0], [0, 0, 1]) == "turn it nose up about 90 deg"
+    # field to the right (+Y) to be seen along -Z: the right side goes down (roll right)
+    assert turn_words([0, 1, 0], [0, 0, -1]) == "turn it roll right about 90 deg"
+    # field ahead to be seen on the right: the nose turns left (yaw left)
+    assert turn_words([1, 0, 0], [0, 1, 0]) == "turn it yaw left about 90 deg"
+    assert turn_words([1, 0, 0], [0, 1, -1]) == "turn it nose down and yaw left about 90 deg"
+
+
+def test_live_status_on_a_cap_and_on_the_sphere():
+    cap = live_status(spiral()[:500])
+    assert not cap.enough and cap.gap_deg > 100 and "turn it" in cap.prompt
+    assert cap.fit == "sphere"                  # a full model only once the gap is small
+    full = live_status(spiral())
+    assert full.enough and full.quality == 1.0 and full.fit == "ellipsoid"
+    assert full.error_p95_pct < 1.5 and full.coverage == 1.0
+    assert live_status(spiral()[:10]).prompt == "waiting for samples"
+
+
+def test_view_fits_80_by_24_with_half_blocks():
+    from magbench.cli.capture import _half_blocks, render
+    from magbench.cli.live import map_rows
+    from magbench.core.verdict import Gate
+
+    status = live_status(spiral()[:700])
+    head = ["magbench capture   port /dev/ttyACM0   Raw: lines (MotionCal)", "  units 0.1uT",
+            "  recording cal/capture.csv", "  700 samples   3.5 s   0 lines skipped"]
+    half = render(status, head=head, gate=Gate(), stop="enough", keys=True, map_style="half")
+    full = render(status, head=head, gate=Gate(), stop="enough", keys=True)
+    assert len(half) <= 23 and max(map(len, half)) <= 80
+    assert len(full) <= 30 and max(map(len, full)) <= 80
+    # the half-block map holds the same cells, two bands per row
+    rows = map_rows(status.cells)
+    halves = _half_blocks(rows)
+    assert len(halves) == len(rows) // 2
+    assert sum(r.count("#") for r in rows) == len(status.cells) == sum(
+        2 * r.count("\u2588") + r.count("\u2580") + r.count("\u2584") for r in halves)

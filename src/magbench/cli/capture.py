@@ -32,6 +32,7 @@ import math
 import os
 import re
 import select
+import shutil
 import sys
 import threading
 import time
@@ -335,22 +336,51 @@ class _Recording:
         return f"{n / span:.0f} Hz ({'device time' if self.device_time else 'arrival'})"
 
 
+#: Rows of the view besides the map's rows (:meth:`_Screen.map_style`): 24 rows show the map
+#: in half blocks, 31 in full.
+_FIGURE_LINES = 16
+
+
 def _bar(fraction: float, width: int = 30) -> str:
     full = round(max(0.0, min(1.0, fraction)) * width)
     return "[" + "#" * full + "-" * (width - full) + "]"
 
 
+def _half_blocks(rows: list[str]) -> list[str]:
+    """Two bands of the map per text row (Unicode half blocks): the map in half the rows."""
+    out = []
+    for upper, lower in zip(rows[0::2], rows[1::2], strict=False):
+        line = ""
+        for a, b in zip(upper, lower, strict=True):
+            marks = [c for c in (a, b) if c in "O@"]
+            line += marks[0] if marks else _HALF[(a == "#", b == "#")]
+        out.append(line)
+    return out
+
+
+_HALF = {(True, True): "\u2588", (True, False): "\u2580", (False, True): "\u2584",
+         (False, False): "."}
+
+
 def render(status: LiveStatus, *, head: list[str], gate: Gate, stop: str | float,
-           keys: bool) -> list[str]:
-    """The view's lines (a terminal of 80 columns and 30 rows): the stream, the map of the
-    directions covered, the figures against the gate, a quality bar and what to do next."""
-    rows = map_rows(status.cells, status.gap_centre if status.samples else None, status.now)
-    lines = [*head, "",
-             "  field directions seen (equal-area cells: # seen  . not yet  O gap  @ now)"]
-    for i, row in enumerate(rows):
-        label = "+Z" if i == 0 else "-Z" if i == BANDS - 1 else "  "
-        lines.append(f"  {label} |{''.join(ch * 2 for ch in row)}|")
-    lines.append("       longitude of the field in the XY plane, -180 to +180 deg")
+           keys: bool, map_style: str = "full") -> list[str]:
+    """The view's lines: the stream, the map of the directions covered (``map_style``
+    ``full``: one text row per band, 34 rows in all; ``half``: two bands per row in Unicode
+    half blocks, 24 rows; ``none``), the figures against the gate, a quality bar and what to
+    do next."""
+    lines = [*head]
+    if map_style != "none":
+        rows = map_rows(status.cells, status.gap_centre if status.samples else None,
+                        status.now)
+        seen = "#" if map_style == "full" else _HALF[(True, True)]
+        if map_style == "half":
+            rows = _half_blocks(rows)
+        lines += ["", f"  field directions seen (equal-area cells: {seen} seen  . not yet  "
+                  "O gap  @ now)"]
+        for i, row in enumerate(rows):
+            label = "+Z" if i == 0 else "-Z" if i == len(rows) - 1 else "  "
+            lines.append(f"  {label} |{''.join(ch * 2 for ch in row)}|")
+        lines.append("       longitude of the field in the XY plane, -180 to +180 deg")
     err = status.error_p95_pct
     lines += [
         "",
@@ -384,6 +414,20 @@ class _Screen:
         self.last_line = -math.inf
         if self.tty:
             out.write("\x1b[?25l\x1b[2J")      # hide the cursor, clear once
+
+    def map_style(self) -> str:
+        """The map the terminal has rows for: one row per band, half blocks (a UTF-8
+        terminal), or none (the figures matter more); one row per band without a terminal."""
+        if not self.tty:
+            return "full"
+        try:                 # the terminal's own size (LINES in the environment may be stale)
+            rows = os.get_terminal_size(self.out.fileno()).lines
+        except (OSError, ValueError):
+            rows = shutil.get_terminal_size((80, 40)).lines
+        if rows > _FIGURE_LINES + BANDS:
+            return "full"
+        utf8 = "utf" in (getattr(self.out, "encoding", "") or "").lower()
+        return "half" if utf8 and rows > _FIGURE_LINES + BANDS // 2 else "none"
 
     def draw(self, lines: list[str], line: str, force: bool = False) -> None:
         if self.tty:
@@ -463,7 +507,8 @@ def run_capture(cfg: DictConfig) -> int:
     status = live_status(y, settings.gate)
     units = settings.units or reader.units
     screen.draw(render(status, head=_head(settings, reader, recording, started, units),
-                       gate=settings.gate, stop=settings.stop, keys=False),
+                       gate=settings.gate, stop=settings.stop, keys=False,
+                       map_style=screen.map_style()),
                 _line(status, recording), force=True)
     summary = {"port": settings.port, "format": reader.form, "units": units,
                "rate": recording.rate_text(), "samples": len(recording.y),
@@ -538,7 +583,8 @@ def _loop(settings: _Settings, reader: _Reader, recording: _Recording, screen: _
             next_draw = now + DRAW_S
             units = settings.units or reader.units
             screen.draw(render(status, head=_head(settings, reader, recording, started, units),
-                               gate=settings.gate, stop=settings.stop, keys=keys.fd is not None),
+                               gate=settings.gate, stop=settings.stop, keys=keys.fd is not None,
+                               map_style=screen.map_style()),
                         _line(status, recording))
         if status.enough and settings.stop == "enough" and status.samples == len(recording.y):
             return "enough"

@@ -20,7 +20,9 @@
 - *Next turn* (:func:`turn_words`). From the field direction seen now toward the centre of the
   largest gap: the sensor turns about ``-(now x gap)`` (the field turns opposite to the sensor,
   :func:`magbench.core.verdict.turn_advice`'s convention), named for a vehicle with X forward,
-  Y right and Z down ("nose down", "roll left"), with the angle.
+  Y right and Z down ("nose down", "roll left"), with the angle. While the directions lie near
+  one plane (the gate's band), the centre and so the gap are not known yet, and the words ask
+  for a turn about another axis instead.
 """
 
 from __future__ import annotations
@@ -200,6 +202,9 @@ def live_status(y: np.ndarray, gate: Gate | None = None) -> LiveStatus:
     status.enough = not status.missing
     if status.enough:
         status.prompt = "enough: coverage and error meet the gate"
+    elif status.band_deg < gate.warn_band_deg:
+        # near one plane the centre, hence the gap, is not known yet: no direction to name
+        status.prompt = "turn it about another axis too: the directions so far lie near one plane"
     elif gap > gate.warn_gap_deg or status.directions < gate.warn_directions:
         status.prompt = turn_words(status.now, centre) + " (toward the gap)"
     else:
