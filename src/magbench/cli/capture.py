@@ -260,12 +260,12 @@ class _Reader(threading.Thread):
             if msg is None:
                 continue
             self.received += 1
-            kind = msg.get_type()
-            self.types[kind] += 1
-            if kind == "BAD_DATA":
+            mtype = msg.get_type()
+            self.types[mtype] += 1
+            if mtype == "BAD_DATA":
                 self.parser.garbage += 1
                 continue
-            if kind == "HEARTBEAT" and not asked:
+            if mtype == "HEARTBEAT" and not asked:
                 asked = True        # ask for the raw sensors (ArduPilot streams them on request)
                 conn.mav.request_data_stream_send(msg.get_srcSystem(), msg.get_srcComponent(),
                                                   mavutil.mavlink.MAV_DATA_STREAM_RAW_SENSORS,

@@ -210,15 +210,15 @@ def mavlink_sample(msg: object, instance: int = 0) -> tuple[Sample, str, str | N
         The sample (time in seconds since the vehicle booted), the message type and its unit;
         None for another message, another compass, or a compass that is absent (all zero).
     """
-    kind = msg.get_type()  # type: ignore[attr-defined]
-    if kind not in MAVLINK_TYPES:
+    mtype = msg.get_type()  # type: ignore[attr-defined]
+    if mtype not in MAVLINK_TYPES:
         return None
-    carries, unit = MAVLINK_TYPES[kind]
+    carries, unit = MAVLINK_TYPES[mtype]
     if carries is None:
         carries = int(getattr(msg, "id", 0) or 0)
     if carries != instance:
         return None
-    if kind == "HIGHRES_IMU":
+    if mtype == "HIGHRES_IMU":
         updated = int(getattr(msg, "fields_updated", 0) or 0)
         if updated and not updated & _HIGHRES_MAG_BITS:
             return None
@@ -229,4 +229,4 @@ def mavlink_sample(msg: object, instance: int = 0) -> tuple[Sample, str, str | N
         t = float(msg.time_usec) * 1e-6
     else:
         t = float(getattr(msg, "time_boot_ms", 0)) * 1e-3
-    return Sample(t, m), kind, unit
+    return Sample(t, m), mtype, unit
