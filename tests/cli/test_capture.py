@@ -279,6 +279,7 @@ def test_stream_without_magnetometer_is_one_line(tmp_path, monkeypatch, capsys, 
     assert rc == 2 and len(err) == 1
     assert err[0].startswith("magbench: error: no magnetometer on port=- in 0.5 s")
     assert expect in err[0]
+    assert not (tmp_path / "cap" / "capture.csv").exists()     # a rerun is not refused
 
 
 @pytest.mark.parametrize(("args", "expect"), [

@@ -489,7 +489,6 @@ def run_capture(cfg: DictConfig) -> int:
     screen = _Screen(sys.stdout)
     started = time.monotonic()
     reader.start()
-    status, why = LiveStatus(0), ""
     try:
         why = _loop(settings, reader, recording, screen, keys, started)
     except KeyboardInterrupt as stop:
@@ -501,6 +500,8 @@ def run_capture(cfg: DictConfig) -> int:
         return 143 if killed else 130
     except BaseException:
         _finish(reader, recording, screen, keys, started)
+        if not recording.y:       # nothing recorded: no empty file to refuse a rerun with
+            recording.path.unlink(missing_ok=True)
         raise
     _finish(reader, recording, screen, keys, started)
     y = np.array(recording.y, dtype=float).reshape(-1, 3)
