@@ -124,7 +124,7 @@ def test_pty_raw_lines_stop_on_enough_and_match_calibrate(tmp_path, capsys):
     lines, _ = raw_lines(y, garbage_every=50)
     player = Player(lines, tmp_path, rate=2000)
     try:
-        rc = main(["capture", f"port={player.port}", f"out={tmp_path / 'cap'}", *FAST])
+        rc = main(["capture", f"port={player.port}", f"out={tmp_path / 'cap'}", *FEWER])
     finally:
         player.close()
     data, info = read_capture(tmp_path / "cap")
@@ -147,7 +147,7 @@ def test_pty_raw_lines_stop_on_enough_and_match_calibrate(tmp_path, capsys):
     assert abs(cal["coverage"]["coverage"] - offline.coverage) < 0.05
     # the calibration is calibrate's on the saved file
     assert main(["calibrate", f"file={tmp_path / 'cap' / 'capture.csv'}", "units=0.1uT",
-                 f"out={tmp_path / 'again'}", *FAST]) == 0
+                 f"out={tmp_path / 'again'}", *FEWER]) == 0
     same_calibration(tmp_path / "cap", tmp_path / "again")
     shown = capsys.readouterr().out
     assert "ENOUGH" in shown and "PASS" in shown
