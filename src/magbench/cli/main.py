@@ -60,6 +60,12 @@ def _calibrate(cfg: DictConfig, picture: PictureWorker | None = None) -> int:
     return run_calibrate(cfg, picture=picture)
 
 
+def _capture(cfg: DictConfig) -> int:
+    from magbench.cli.capture import run_capture
+
+    return run_capture(cfg)
+
+
 def _apply(cfg: DictConfig) -> int:
     from magbench.cli.apply import run_apply
 
@@ -94,6 +100,11 @@ COMMANDS: dict[str, tuple[Callable[..., int], str, str, tuple[str, ...]]] = {
                    "max_samples", "compensate", "bootstrap", "seed", "units", "field_strength",
                    "location", "date", "gate", "instance", "overwrite", "picture",
                    "options", "call_timeout_s", "plugins")),
+    "capture": (_capture, "record a live stream with a coverage view, stop when enough, "
+                "calibrate it", "python -m magbench capture port=/dev/ttyACM0 out=cal/",
+                ("port", "baud", "format", "rate", "stop", "out", "units", "columns",
+                 "instance", "gate", "overwrite", "method", "candidates", "picture",
+                 "field_strength", "location", "date", "plugins")),
     "apply": (_apply, "correct a recording with a saved calibration.json (m = A (y - b))",
               "python -m magbench apply calibration=cal/calibration.json file=flight.csv "
               "out=flight-corrected.csv", ("calibration", "file", "columns", "instance", "out",
@@ -229,7 +240,7 @@ def command_help(command: str) -> str:
         lines += ["", "sweeps:"] + [f"  {n:<10} {w}" for n, w in sweep_kinds()]
     if command == "run":
         lines += ["", *kind_keys_help()]
-    if command in ("run", "calibrate", "bench"):
+    if command in ("run", "calibrate", "capture", "bench"):
         from magbench.methods.registry import methods
 
         lines += ["", "methods (algorithms=[...] or method=NAME; details: python -m "
