@@ -27,6 +27,7 @@ from magbench.report.html import slug, write_html
 from magbench.report.speed import bench_report_section
 from magbench.report.sweeps import SWEEP_SECTIONS, sweep_section
 from magbench.report.table2 import write_sweep_tables
+from magbench.report.table4 import table4_section
 
 __all__ = ["HTML_DETAILS", "REVIEW_SECTIONS", "Section", "build_report", "contents",
            "header_section", "link_sections", "write_report", "write_sweep_tables"]
@@ -41,11 +42,11 @@ def header_section(results_dir: Path) -> str:
 
 
 #: The review's sections, in report order: title, the answer (decision table), Table 2,
-#: Figures 2-5 and coverage, large K, the claims.
+#: Figures 2-5 and coverage, large K, the claims, Table 4 and the conclusions.
 REVIEW_SECTIONS: tuple[Section, ...] = (
     header_section, decision_section, baseline_section,
     *(partial(sweep_section, sweep=s) for s in SWEEP_SECTIONS), efficiency_section,
-    claims_section)
+    claims_section, table4_section)
 #: Section -> Markdown only the page shows, folded under it: the advice's reasoning in full.
 HTML_DETAILS: dict[Section, Section] = {decision_section: advice_section}
 
