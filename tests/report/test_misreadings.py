@@ -123,3 +123,39 @@ def test_gamma_claims_on_a_subset_of_methods_do_not_fail(tmp_path):
                                                           index=False)
     checks = all_checks(tmp_path)           # used to raise IndexError (claims.py:80)
     assert [c.figure for c in checks] == ["Figure 6"]
+
+
+def test_advice_at_beta_1_says_the_ranking_rests_on_tail_runs():
+    from magbench.report.decision import decision_rows
+
+    t = pd.read_csv(need("beta", "trials.csv"), usecols=["beta", "algorithm", "trial", "J",
+                                                          "meaningful"])
+    s = pd.read_csv(need("beta", "summary.csv"))
+    b = s["beta"].max()
+    robust = s[(s["beta"] == b) & (s["RB_pct"] >= 99)
+               & ~s["algorithm"].str.endswith("_printed")]["algorithm"]
+    robust = [n for n in robust if n not in ("twostep_no_svd", "crassidis_prior")]
+    p = t[(t["beta"] == b) & t["algorithm"].isin(robust)]
+    ok = p.pivot(index="trial", columns="algorithm", values="meaningful").astype(bool).all(axis=1)
+    J = p.pivot(index="trial", columns="algorithm", values="J").loc[ok[ok].index]
+    med = J.median().max() / J.median().min() - 1
+    mean = J.mean().max() / J.mean().min() - 1
+    row = decision_rows(RESULTS).set_index("setting").filter(like="beta = 1", axis=0).iloc[0]
+    assert ("rests on the tail runs" in row["why"]) == (med < 0.05 and mean >= 2 * med)
+
+
+def test_heading_proxy_verdict_names_the_datasets_the_pooled_rho_hides():
+    from magbench.report.heading import heading_report_section
+
+    corr = pd.read_csv(need("heading", "correlation.csv"))
+    semi = corr[(corr["part"] == "semi") & (corr["dataset"] != "pooled")]["spearman_J"]
+    fair = semi[semi >= 0.7]
+    text = heading_report_section(RESULTS)
+    line = next(x for x in text.split("\n") if x.startswith("**Is J a proxy")
+                and "semi-synthetic" in x)
+    if len(fair) and (semi < 0.7).any():
+        assert (f"a fair proxy on {len(fair)} of {semi.notna().sum()} "
+                f"({', '.join(f'{v:.2f}' for v in fair)})") in line
+    mc = corr[(corr["part"] == "mc")]["spearman_J"].iloc[0]
+    mc_line = next(x for x in text.split("\n") if "simulated manoeuvres?" in x)
+    assert ("Structurally so" in mc_line) == (mc < 0.7)

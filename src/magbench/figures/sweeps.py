@@ -45,6 +45,10 @@ __all__ = ["FIGURES", "REFERENCE_STYLE", "FigureSpec", "coverage_group", "figure
            "plot_sweep", "reference_data", "write_figure"]
 
 
+#: Accuracy and efficiency points averaged over fewer meaningful runs than this are not
+#: drawn as part of a line: a line through one or two runs reads as a result (issue 41).
+MIN_MEANINGFUL = 10
+
 #: The columns of a sweep figure's CSV: what is drawn, and the n behind every point.
 FIGURE_COLUMNS = ["series", "label", "family", "x", "group", "accuracy", "speed_hz",
                   "speed_source", "RB_pct", "efficiency", "n", "n_meaningful"]
@@ -208,10 +212,15 @@ def plot_sweep(data: pd.DataFrame, sweep: str) -> Figure:
         groups = part.groupby("group", sort=False) if categories else [("", part)]
         for gi, (_, g) in enumerate(groups):
             xs = [position[v] for v in g["x"]] if categories else list(g["x"])
+            few = (g["n_meaningful"] < MIN_MEANINGFUL).to_numpy() if "n_meaningful" in g \
+                else np.zeros(len(g), bool)
             for ax, (column, _, _) in zip(axes, panels, strict=True):
-                if g[column].notna().any():
-                    ax.plot(xs, g[column], **{**style, "label": style["label"] if gi == 0
-                                              else "_nolegend_"})
+                values = g[column].to_numpy(dtype=float).copy()
+                if column in ("accuracy", "efficiency"):
+                    values[few] = np.nan             # too few runs to average: no line
+                if np.isfinite(values).any():
+                    ax.plot(xs, values, **{**style, "label": style["label"] if gi == 0
+                                           else "_nolegend_"})
     for k, (ax, (column, ylabel, logy)) in enumerate(zip(axes, panels, strict=True)):
         values = data[column].to_numpy(dtype=float)
         if logy and np.any(values[np.isfinite(values)] > 0):
@@ -219,6 +228,9 @@ def plot_sweep(data: pd.DataFrame, sweep: str) -> Figure:
         _x_axis(ax, spec, data, position)
         ax.set_ylabel(ylabel)
         ax.set_title(f"({'abcd'[k]})", loc="left")
+        if panels[k][0] in ("accuracy", "efficiency"):
+            ax.set_title(f"points from < {MIN_MEANINGFUL} meaningful runs not drawn",
+                         loc="right", fontsize=8)
         ax.grid(True, which="major", alpha=0.3)
     axes[2].set_ylim(-3, 103)
     axes[3].axhline(1.0, color="black", linestyle=":", linewidth=2,

@@ -22,6 +22,7 @@ from magbench.report.advice import (
     _hardest,
     _most_accurate,
     _needs_gyro,
+    tail_note,
 )
 from magbench.report.format import format_number, md_table
 from magbench.report.intervals import accuracy_intervals, annotate, cell, rb_interval
@@ -29,13 +30,9 @@ from magbench.report.load import load_csv, load_trials
 from magbench.report.matched import paired
 from magbench.studies.review import with_coverage_column
 
-__all__ = ["DECISION_COLUMNS", "MEDIAN_TIE", "decision_rows", "decision_section",
-           "median_spread"]
+__all__ = ["DECISION_COLUMNS", "decision_rows", "decision_section", "median_spread"]
 
 DECISION_COLUMNS = ["setting", "method", "why", "n", "interval"]
-#: Robust methods whose median J differ by less than this (relative) are a tie in the typical
-#: run: any ranking by the mean then rests on the tail runs.
-MEDIAN_TIE = 0.02
 
 
 def median_spread(point: pd.DataFrame, candidates: list[str]) -> tuple[float, float]:
@@ -112,20 +109,37 @@ def _stress_row(summary: pd.DataFrame, column: str, title: str, figure: str,
     versus = {n: paired(point, best, n, key=("advice", best)) for n in names if n != best}
 
     tied = [n for n, p in versus.items() if not p.different]
-    lo, hi = median_spread(point, names)
     why = f"most accurate (mean J) of the {len(robust)} at RB >= {RECOMMEND_RB_PCT:g} %"
     if tied:
         why += (f"; {len(tied)} other{'s' if len(tied) > 1 else ''} within the 95 % paired "
                 "interval (a tie)")
-    if np.isfinite(lo) and hi / lo - 1 < MEDIAN_TIE:
-        why += (f"; median J {format_number(lo)}-{format_number(hi)} for all of them: "
-                "any ranking rests on the tail runs")
+    tail = tail_note(point, names)
+    if tail:
+        why += f"; {tail}"
+    flip = _previous_best(summary, trials, column, value)
+    if flip and flip[0] != best:
+        why += f"; at {column} = {flip[1]:g} the most accurate is {method_label(flip[0])}"
     sub = point[point["algorithm"] == best]
     acc = accuracy_intervals(sub, ["algorithm"], f"decision {column}={value}").iloc[0]
     interval = (_rb(best_row) + "; 1/rho "
                 + cell(best_row["accuracy"], (acc["acc_lo"], acc["acc_hi"]), 3))
     return {"setting": setting, "method": method_label(best), "why": why,
             "n": int(best_row["n"]), "interval": interval}
+
+
+def _previous_best(summary: pd.DataFrame, trials: pd.DataFrame, column: str,
+                   value: float) -> tuple[str, float] | None:
+    """The most accurate robust method at the sweep point next to the hardest, and that
+    point (None when there is none)."""
+    values = sorted(summary[column].unique())
+    i = values.index(value)
+    j = i + 1 if column == "K" else i - 1
+    if not 0 <= j < len(values):
+        return None
+    rows = _advisable(summary[summary[column] == values[j]])
+    robust = list(rows[rows["RB_pct"] >= RECOMMEND_RB_PCT]["algorithm"])
+    return ((_most_accurate(trials[trials[column] == values[j]], robust), values[j])
+            if robust else None)
 
 
 def _gyro_rows(summary: pd.DataFrame) -> list[dict]:
