@@ -142,14 +142,14 @@ def _image(alt: str, src: str, base: Path) -> str:
     path = base / src
     if not path.exists():
         return f"<em>[figure {escape(src)} missing]</em>"
-    kind = "svg+xml" if path.suffix == ".svg" else "png"
+    mime = "svg+xml" if path.suffix == ".svg" else "png"
     data = base64.b64encode(path.read_bytes()).decode()
     caption = escape(alt) + (f" <br>{escape(figure_note(path))}" if figure_note(path) else "")
     extra = ""
     sweep = next((k for k, s in FIGURES.items() if s.stem == path.stem), None)
     if sweep and path.with_suffix(".csv").exists():
         extra = _sweep_svgs(path.with_suffix(".csv"), sweep)
-    return (f'<figure><img alt="{escape(alt)}" src="data:image/{kind};base64,{data}">'
+    return (f'<figure><img alt="{escape(alt)}" src="data:image/{mime};base64,{data}">'
             f"<figcaption>{caption}</figcaption>{extra}</figure>")
 
 
@@ -268,8 +268,8 @@ def _toc(body: str) -> str:
     items = re.findall(r'<(section|details) id="([^"]+)"><(?:h2|summary)>(.*?)</(?:h2|summary)>',
                        body)
     tree: list[tuple[str, str, list[tuple[str, str]]]] = []
-    for kind, anchor, title in items:
-        if kind == "section" or not tree:
+    for tag, anchor, title in items:
+        if tag == "section" or not tree:
             tree.append((anchor, title, []))
         else:
             tree[-1][2].append((anchor, title))
