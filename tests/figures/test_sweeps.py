@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import numpy as np
 import pandas as pd
 import pytest
 
@@ -128,3 +129,18 @@ def test_a_reference_of_other_points_is_not_drawn(tmp_path):
                   "undetermined": 0}).to_csv(tmp_path / "efficient_selection.csv", index=False)
     csv = write_figure(gamma_case(), "gamma", tmp_path)[1]
     assert (pd.read_csv(csv)["family"] != "reference").all()
+
+
+def test_accuracy_from_too_few_meaningful_runs_is_not_drawn():
+    from magbench.figures.sweeps import MIN_MEANINGFUL
+
+    s = gamma_case()
+    data = figure_data(s, "gamma")
+    data.loc[data.index[1], "n_meaningful"] = MIN_MEANINGFUL - 1
+    fig = plot_sweep(data, "gamma")
+    first = data["series"].iloc[0]
+    line = next(ln for ln in fig.axes[0].lines if ln.get_label() == data["label"].iloc[0])
+    y = line.get_ydata()
+    assert first == data["series"].iloc[1] and np.isnan(y[1]) and np.isfinite(y[0])
+    rb = next(ln for ln in fig.axes[2].lines if ln.get_label() == data["label"].iloc[0])
+    assert np.isfinite(rb.get_ydata()[1])          # robustness still drawn

@@ -87,7 +87,7 @@ def test_advice_section_reads_the_results_folder(tmp_path):
     text = report.advice_section(tmp_path)
     assert text.startswith("## In short: which method to use\n\n- **Data from the whole sphere")
     assert "1 methods are equally good" in text and "the fastest here is MAG.I.C.AL" in text
-    assert text.rstrip().endswith("(see the real-recordings section below).")
+    assert text.rstrip().endswith("writes the chosen correction.")
 
 
 def test_stress_rows_compare_accuracy_on_matched_datasets():

@@ -11,6 +11,8 @@ def test_report_from_fixture_files(tmp_path):
     text = (tmp_path / "report.md").read_text()
     assert "## Figure 2: sweep `gamma`" in text and "(gamma/fig2_gamma.png)" in text
     assert (tmp_path / "gamma" / "fig2_gamma.png").exists()
+    page = (tmp_path / "report.html").read_text()       # the page, beside it, same sections
+    assert '<section id="figure-2-sweep-gamma">' in page and "data:image/png;base64," in page
     assert text.count("**holds**") == 5
     assert "| Figure 6 |" in text and "**not evaluated**" in text
 
@@ -20,7 +22,9 @@ def test_sections_come_in_order_and_empty_ones_are_left_out(tmp_path):
 
     # Without results: the title, and the claims table saying Figure 6 was not evaluated.
     text = build_report(tmp_path, sections=())
-    assert text.startswith(header_section(tmp_path) + "\n\n## The paper's claims, checked")
+    assert text.startswith(header_section(tmp_path) + "\n\n**Contents**\n\n"
+                           "- [The paper's claims, checked](#the-papers-claims-checked)\n\n"
+                           "## The paper's claims, checked")
     assert text.count("\n## ") == 1
     text = build_report(tmp_path, sections=(lambda d: "## A\n", lambda d: "", lambda d: "## B"))
     assert text.endswith("\n## A\n\n## B\n")

@@ -45,6 +45,15 @@ __all__ = ["FIGURES", "REFERENCE_STYLE", "FigureSpec", "coverage_group", "figure
            "plot_sweep", "reference_data", "write_figure"]
 
 
+#: Accuracy and efficiency points averaged over fewer meaningful runs than this are not
+#: drawn as part of a line: a line through one or two runs reads as a result (issue 41).
+MIN_MEANINGFUL = 10
+
+#: The columns of a sweep figure's CSV: what is drawn, and the n behind every point.
+FIGURE_COLUMNS = ["series", "label", "family", "x", "group", "accuracy", "speed_hz",
+                  "speed_source", "RB_pct", "efficiency", "n", "n_meaningful"]
+
+
 @dataclass(frozen=True)
 class FigureSpec:
     """How one sweep is drawn: the review's figure number, the x column, its label and scale."""
@@ -121,8 +130,9 @@ def figure_data(summary: pd.DataFrame, sweep: str,
         ``group`` (the coverage geometry, ``cap`` or ``band``; empty elsewhere), ``accuracy``
         (1/rho), ``speed_hz`` (1/tau; NaN where RB is 0, as eq. (79) averages over
         meaningful runs), ``speed_source`` (``timing`` or ``trials``),
-        ``RB_pct`` and ``efficiency`` (Cramer-Rao bound / mean squared error over the same
-        meaningful runs; NaN without the Cramer-Rao columns).
+        ``RB_pct``, ``efficiency`` (Cramer-Rao bound / mean squared error over the same
+        meaningful runs; NaN without the Cramer-Rao columns), ``n`` (runs at the point) and
+        ``n_meaningful`` (the runs accuracy and efficiency average over).
     """
     spec = FIGURES[sweep]
     speeds = _timing_speed(timing, spec.x)
@@ -142,9 +152,10 @@ def figure_data(summary: pd.DataFrame, sweep: str,
                          "speed_hz": speed if rec.RB_pct > 0 else np.nan,
                          "speed_source": "trials" if speeds is None else "timing",
                          "RB_pct": rec.RB_pct,
-                         "efficiency": getattr(rec, "efficiency", np.nan)})
-    return pd.DataFrame(rows, columns=["series", "label", "family", "x", "group", "accuracy",
-                                       "speed_hz", "speed_source", "RB_pct", "efficiency"])
+                         "efficiency": getattr(rec, "efficiency", np.nan),
+                         "n": getattr(rec, "n", np.nan),
+                         "n_meaningful": getattr(rec, "n_meaningful", np.nan)})
+    return pd.DataFrame(rows, columns=FIGURE_COLUMNS)
 
 
 #: How the simulated efficient estimator under the same selection is drawn.
@@ -156,8 +167,7 @@ REFERENCE_STYLE = {"color": "0.35", "linestyle": (0, (5, 2)), "linewidth": 3.0, 
 def reference_data(reference: pd.DataFrame | None, sweep: str) -> pd.DataFrame:
     """Rows of :func:`figure_data` for ``efficient_selection.csv`` (the efficient estimator
     scored on its meaningful runs), ``family`` ``reference``; empty without it."""
-    columns = ["series", "label", "family", "x", "group", "accuracy", "speed_hz",
-               "speed_source", "RB_pct", "efficiency"]
+    columns = FIGURE_COLUMNS
     if reference is None or reference.empty:
         return pd.DataFrame(columns=columns)
     spec = FIGURES[sweep]
@@ -169,7 +179,10 @@ def reference_data(reference: pd.DataFrame | None, sweep: str) -> pd.DataFrame:
                          "group": [coverage_group(x) if spec.categorical else "" for x in xs],
                          "accuracy": reference["accuracy"].to_numpy(), "speed_hz": np.nan,
                          "speed_source": "", "RB_pct": reference["RB_pct"].to_numpy(),
-                         "efficiency": reference["efficiency"].to_numpy()}, columns=columns)
+                         "efficiency": reference["efficiency"].to_numpy(),
+                         "n": reference.get("n", np.nan),
+                         "n_meaningful": reference.get("n_meaningful", np.nan)},
+                        columns=columns)
 
 
 def plot_sweep(data: pd.DataFrame, sweep: str) -> Figure:
@@ -199,10 +212,15 @@ def plot_sweep(data: pd.DataFrame, sweep: str) -> Figure:
         groups = part.groupby("group", sort=False) if categories else [("", part)]
         for gi, (_, g) in enumerate(groups):
             xs = [position[v] for v in g["x"]] if categories else list(g["x"])
+            few = (g["n_meaningful"] < MIN_MEANINGFUL).to_numpy() if "n_meaningful" in g \
+                else np.zeros(len(g), bool)
             for ax, (column, _, _) in zip(axes, panels, strict=True):
-                if g[column].notna().any():
-                    ax.plot(xs, g[column], **{**style, "label": style["label"] if gi == 0
-                                              else "_nolegend_"})
+                values = g[column].to_numpy(dtype=float).copy()
+                if column in ("accuracy", "efficiency"):
+                    values[few] = np.nan             # too few runs to average: no line
+                if np.isfinite(values).any():
+                    ax.plot(xs, values, **{**style, "label": style["label"] if gi == 0
+                                           else "_nolegend_"})
     for k, (ax, (column, ylabel, logy)) in enumerate(zip(axes, panels, strict=True)):
         values = data[column].to_numpy(dtype=float)
         if logy and np.any(values[np.isfinite(values)] > 0):
@@ -210,6 +228,9 @@ def plot_sweep(data: pd.DataFrame, sweep: str) -> Figure:
         _x_axis(ax, spec, data, position)
         ax.set_ylabel(ylabel)
         ax.set_title(f"({'abcd'[k]})", loc="left")
+        if panels[k][0] in ("accuracy", "efficiency"):
+            ax.set_title(f"points from < {MIN_MEANINGFUL} meaningful runs not drawn",
+                         loc="right", fontsize=8)
         ax.grid(True, which="major", alpha=0.3)
     axes[2].set_ylim(-3, 103)
     axes[3].axhline(1.0, color="black", linestyle=":", linewidth=2,

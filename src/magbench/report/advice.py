@@ -13,8 +13,8 @@ from magbench.report.load import load_csv, load_trials
 from magbench.report.matched import Paired, paired
 from magbench.studies.review import with_coverage_column
 
-__all__ = ["RECOMMEND_EFFICIENCY", "RECOMMEND_RB_PCT", "STRESS_CONDITIONS", "advice_section",
-           "gyro_line", "recommendations", "stress_line"]
+__all__ = ["MEDIAN_ALIKE", "RECOMMEND_EFFICIENCY", "RECOMMEND_RB_PCT", "STRESS_CONDITIONS",
+           "advice_section", "gyro_line", "recommendations", "stress_line", "tail_note"]
 
 #: A method counts as "as good as any" at the baseline when it is this robust and efficient.
 RECOMMEND_RB_PCT, RECOMMEND_EFFICIENCY = 99.0, 0.9
@@ -184,8 +184,38 @@ def stress_line(summary: pd.DataFrame | None, column: str, title: str, figure: s
                f"{lo if lo == hi else f'{lo}-{hi}'})")
     else:
         top = _matched_top(robust, fragile, trials[trials[column] == value])
+        tail = tail_note(trials[trials[column] == value], list(robust["algorithm"]))
+        top += f" ({tail})" if tail else ""
     return (f"- {where}: {len(robust)} methods keep RB >= {RECOMMEND_RB_PCT:g} %; {top}"
             + (f"; least robust: {_worst(fragile)}" if not fragile.empty else "") + ".")
+
+
+#: Robust methods whose median J (on the runs meaningful for all) differ by less than this
+#: (relative) are alike in the typical run.
+MEDIAN_ALIKE = 0.05
+
+
+def tail_note(point: pd.DataFrame, candidates: list[str]) -> str:
+    """'' unless the candidates' median J on the runs meaningful for all of them are alike
+    (within :data:`MEDIAN_ALIKE`) while their mean J spread at least twice as wide: then the
+    ranking by the mean (1/rho) rests on the tail runs, and the note says so with both
+    spreads."""
+    rows = point[point["algorithm"].isin(candidates)]
+    if rows.empty or len(candidates) < 2:
+        return ""
+    ok = rows.assign(meaningful=rows["meaningful"].astype(bool)).pivot(
+        index="trial", columns="algorithm", values="meaningful").eq(True).all(axis=1)
+    J = rows.pivot(index="trial", columns="algorithm", values="J").loc[ok[ok].index]
+    if len(J) < 2:
+        return ""
+    med, mean = J.median(), J.mean()
+    med_spread, mean_spread = med.max() / med.min() - 1, mean.max() / mean.min() - 1
+    if med_spread >= MEDIAN_ALIKE or mean_spread < 2 * med_spread:
+        return ""
+    return (f"median J {format_number(med.min())}-{format_number(med.max())} for all "
+            f"{len(med)} on the {len(J)} runs meaningful for all (within "
+            f"{100 * med_spread:.2g} %), mean J {100 * mean_spread:.2g} % apart: the ranking "
+            "rests on the tail runs")
 
 
 def _span(values: list[float], digits: int = 3) -> str:

@@ -15,11 +15,11 @@ import pandas as pd
 
 from magbench.methods.registry import method_label
 from magbench.report.format import compact_number, format_number, names, render
-from magbench.report.intervals import run_note
+from magbench.report.intervals import cell, rb_interval, run_note
 from magbench.report.load import load_csv
 
 __all__ = ["CONSISTENT", "DROP", "INCONSISTENT", "efficiency_section", "efficiency_table",
-           "efficiency_verdicts"]
+           "efficiency_verdicts", "growth_lines"]
 
 #: The sweep the section reads.
 SWEEP = "largeK"
@@ -91,11 +91,56 @@ def _consistency(eff: pd.DataFrame, top: pd.DataFrame) -> str:
                   verdict=verdict)
 
 
+def growth_lines(summary: pd.DataFrame) -> str:
+    """What more samples do to each method (``largeK/summary.csv``): 1/rho from the smallest
+    to the largest K for the methods that stay robust, set against the review's section
+    10.1.1 ('bigger datasets do not improve any algorithm'), and every method whose RB %
+    falls below 99 % beyond its Wilson interval, with its 1/rho over the last two K."""
+    Ks = sorted(summary["K"].unique())
+    if len(Ks) < 2:
+        return ""
+    by = summary.set_index(["algorithm", "K"])
+    k0, k1 = Ks[0], Ks[-1]
+    names_ = list(dict.fromkeys(summary["algorithm"]))
+    steady = [n for n in names_ if (n, k1) in by.index and by.loc[(n, k1), "RB_pct"] >= 99]
+    gain = {n: by.loc[(n, k1), "accuracy"] / by.loc[(n, k0), "accuracy"] for n in steady
+            if (n, k0) in by.index}
+    better = [n for n, g in gain.items() if g > 1]
+    acc0 = [by.loc[(n, k0), "accuracy"] for n in gain]
+    acc1 = [by.loc[(n, k1), "accuracy"] for n in gain]
+    text = (f"More samples: from K = {int(k0)} to K = {int(k1)}, 1/rho of the {len(gain)} "
+            f"methods that stay at RB >= 99 % goes from {format_number(min(acc0))}-"
+            f"{format_number(max(acc0))} to {format_number(min(acc1))}-"
+            f"{format_number(max(acc1))} ({len(better)} of {len(gain)} improve, by "
+            f"{format_number(min(gain.values()), 2)}-{format_number(max(gain.values()), 2)}x). "
+            + ("The review's section 10.1.1, 'bigger datasets do not improve any algorithm', "
+               "is contradicted by these numbers." if better else
+               "No method improves, as the review's section 10.1.1 says."))
+    drops = []
+    for n in names_:
+        rows = summary[summary["algorithm"] == n].sort_values("K")
+        last = rows.iloc[-1]
+        lo, hi = rb_interval(last)
+        if last["RB_pct"] < 99 and hi < 99:
+            prev = rows.iloc[-2]
+            drops.append(f"{method_label(n)}: RB {rows['RB_pct'].iloc[0]:.3g} % at K = "
+                         f"{int(k0)} -> {cell(last['RB_pct'], (lo, hi), 3)} % at K = {int(k1)}, "
+                         f"and 1/rho {format_number(prev['accuracy'])} -> "
+                         f"{format_number(last['accuracy'])} from K = {int(prev['K'])} to "
+                         f"{int(k1)} ({int(last['n'])} datasets)")
+    if drops:
+        text += (" Methods that lose robustness as K grows (beyond the 95 % Wilson interval): "
+                 + "; ".join(drops) + ".")
+    return text
+
+
 def efficiency_section(results_dir: Path | str) -> str:
     """Markdown of the large-K section ('' without ``largeK/efficiency.csv``)."""
     eff = load_csv(Path(results_dir), SWEEP, "efficiency.csv")
     if eff is None or eff.empty:
         return ""
+    summary = load_csv(Path(results_dir), SWEEP)
     return "\n".join(["## Large K: who stays on the Cramer-Rao floor", "",
                       run_note(Path(results_dir) / SWEEP), "", render("efficiency.intro"), "",
-                      efficiency_table(eff), "", efficiency_verdicts(eff), ""])
+                      efficiency_table(eff), "", efficiency_verdicts(eff), "",
+                      growth_lines(summary) if summary is not None else "", ""])

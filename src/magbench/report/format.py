@@ -12,7 +12,13 @@ import pandas as pd
 
 from magbench.methods.registry import method_label
 
-__all__ = ["compact_number", "format_number", "md_table", "names", "render"]
+__all__ = ["HTML_ONLY", "compact_number", "format_number", "html_only", "md_table", "names",
+           "render", "shorten_for_markdown"]
+
+#: Markers of a block only ``report.html`` shows (the Markdown report names it instead).
+HTML_ONLY = ("<!-- html-only: ", " -->", "<!-- /html-only -->")
+#: Tables longer than this many rows are left to ``report.html`` in the Markdown report.
+MD_MAX_ROWS = 20
 
 
 def format_number(x: float, digits: int = 3) -> str:
@@ -43,6 +49,37 @@ def md_table(frame: pd.DataFrame, digits: int = 3) -> str:
                  for v in row]
         lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines)
+
+
+def html_only(markdown: str, what: str) -> str:
+    """``markdown`` shown only in ``report.html``; the Markdown report says ``what`` is
+    there instead (:func:`shorten_for_markdown`)."""
+    start, close, end = HTML_ONLY
+    return f"{start}{what}{close}\n{markdown}\n{end}"
+
+
+def shorten_for_markdown(markdown: str) -> str:
+    """The Markdown report's text: :func:`html_only` blocks and tables over
+    :data:`MD_MAX_ROWS` rows replaced by one line naming what ``report.html`` holds."""
+    start, close, end = HTML_ONLY
+    pattern = re.escape(start) + r"(.*?)" + re.escape(close) + r"\n.*?\n" + re.escape(end)
+    text = re.sub(pattern, lambda m: f"*{m[1]}: in `report.html`.*", markdown,
+                  flags=re.DOTALL)
+    out, table = [], []
+    for line in [*text.split("\n"), ""]:
+        if line.startswith("|"):
+            table.append(line)
+            continue
+        if table:
+            if len(table) - 2 > MD_MAX_ROWS:
+                head = [c.strip() for c in table[0].strip().strip("|").split("|")]
+                out.append(f"*A table of {len(table) - 2} rows ({', '.join(head[:4])}, ...): "
+                           "in `report.html`.*")
+            else:
+                out += table
+            table = []
+        out.append(line)
+    return "\n".join(out[:-1])
 
 
 @cache

@@ -114,8 +114,21 @@ def _answer(summary: pd.DataFrame, corr: pd.DataFrame) -> list[str]:
         per = sel[sel["dataset"] != "pooled"][f"spearman_{metric}"]
         spread = (f" (per dataset {per.min():.2f} to {per.max():.2f})"
                   if len(per) > 1 and per.notna().any() else "")
+        verdict = proxy_verdict(rho)
+        kinds = {proxy_verdict(v) for v in per.dropna()} if len(per) > 1 else set()
+        if len(kinds) > 1:        # the pooled figure hides datasets on either side
+            fair = per[per >= 0.7]
+            verdict = (f"pooled {verdict}, but it depends on the dataset: "
+                       + (f"a fair proxy on {len(fair)} of {per.notna().sum()} "
+                          f"({', '.join(f'{v:.2f}' for v in fair)}), "
+                          f"{' or '.join(sorted(kinds - {'a fair proxy'}))} on the others"
+                          if len(fair) else " or ".join(sorted(kinds)) + " by dataset"))
         lines.append(f"**Is {metric} a proxy for the heading error** on {names[part]}? "
-                     f"Spearman rho = {rho:.2f}{spread}: {proxy_verdict(rho)}.")
+                     f"Spearman rho = {rho:.2f}{spread}: {verdict}."
+                     + (" Structurally so: a magnetometer-only heading follows the "
+                        "mounting rotation, which no magnetometer-only fit can observe and "
+                        "J (74), invariant to that rotation, cannot see; J ranks the "
+                        "magnitude errors only." if part == "mc" and rho < 0.7 else ""))
     return lines
 
 

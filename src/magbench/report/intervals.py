@@ -11,7 +11,9 @@ the folder's ``run.json``.
 from __future__ import annotations
 
 import json
+import subprocess
 from collections.abc import Sequence
+from functools import cache
 from pathlib import Path
 
 import numpy as np
@@ -20,8 +22,8 @@ import pandas as pd
 from magbench.core.intervals import bootstrap_inverse_mean, intervals_overlap, wilson
 from magbench.report.format import format_number
 
-__all__ = ["accuracy_intervals", "annotate", "cell", "rb_interval", "read_run", "run_note",
-           "significantly_different"]
+__all__ = ["accuracy_intervals", "annotate", "cell", "commit_in_history", "rb_interval",
+           "read_run", "run_note", "significantly_different", "timing_provenance"]
 
 
 def rb_interval(row: pd.Series | dict | object) -> tuple[float, float]:
@@ -106,12 +108,56 @@ def run_note(folder: Path | str, unit: str = "trials per point") -> str:
         return f"*Run: no `{name}/run.json`, so the trial count and configuration are unknown.*"
     settings = record.get("settings") or {}
     count = settings.get("trials", settings.get("runs", record.get("units")))
-    commit = str(record.get("git_commit") or "")[:10] or "unknown"
+    full = str(record.get("git_commit") or "")
+    commit = full[:10] or "unknown"
+    history = commit_in_history(full, Path(folder))
+    flag = ("" if history is not False else
+            " (not an ancestor of this checkout's HEAD: the code that ran is not in this "
+            "history)")
     delta = f", delta = {settings['delta']:g}" if "delta" in settings else ""
     seed = f", seed {settings['seed']}" if "seed" in settings else ""
     return (f"*Run `{name}`: {count} {unit}{delta}{seed}; config fingerprint "
-            f"`{record.get('fingerprint', '?')}`, commit `{commit}`, finished "
-            f"{record.get('finished', '?')} ({record.get('cpu_model', '?')}).*")
+            f"`{record.get('fingerprint', '?')}`, commit `{commit}`{flag}, finished "
+            f"{record.get('finished', '?')} ({record.get('cpu_model', '?')})"
+            f"{timing_provenance(Path(folder), record)}.*")
+
+
+def timing_provenance(folder: Path, record: dict | None = None) -> str:
+    """Where and when the folder's timing pass (``timing.csv``) was measured, said beside
+    the run's own machine: '' without a timing pass or without those columns."""
+    path = Path(folder) / "timing.csv"
+    if not path.exists():
+        return ""
+    t = pd.read_csv(path, usecols=lambda c: c in ("cpu_model", "measured"))
+    if t.empty or not {"cpu_model", "measured"} <= set(t.columns):
+        return ""
+    cpus = ", ".join(map(str, dict.fromkeys(t["cpu_model"].dropna())))
+    dates = sorted(str(d)[:10] for d in t["measured"].dropna())
+    when = dates[0] if dates and dates[0] == dates[-1] else (
+        f"{dates[0]} to {dates[-1]}" if dates else "?")
+    other = record is not None and record.get("cpu_model") not in (None, cpus)
+    return (f"; its timing pass (the speeds) measured on {cpus} on {when}"
+            + (", another machine than the sweep's" if other else ""))
+
+
+@cache
+def commit_in_history(commit: str, where: Path) -> bool | None:
+    """Whether ``commit`` is an ancestor of HEAD of the git checkout holding ``where``
+    (``git merge-base --is-ancestor``); None when that cannot be told (no git, not a
+    checkout, no commit recorded)."""
+    if not commit or not where.exists():
+        return None
+    try:
+        top = subprocess.run(["git", "rev-parse", "--show-toplevel"], cwd=where,
+                             capture_output=True, text=True, timeout=10)
+        if top.returncode != 0:
+            return None
+        done = subprocess.run(["git", "merge-base", "--is-ancestor", commit, "HEAD"],
+                              cwd=where, capture_output=True, timeout=10)
+    except (OSError, subprocess.SubprocessError):
+        return None
+    # 0: an ancestor; 1: not one; otherwise (128) the commit is unknown here: not in history
+    return done.returncode == 0
 
 
 def annotate(summary: pd.DataFrame, trials: pd.DataFrame | None = None,

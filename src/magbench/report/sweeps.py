@@ -10,7 +10,7 @@ import pandas as pd
 
 from magbench.figures.sweeps import FIGURES
 from magbench.methods.registry import method_label
-from magbench.report.format import format_number, md_table, render
+from magbench.report.format import format_number, html_only, md_table, render
 from magbench.report.intervals import annotate, cell, run_note
 from magbench.report.load import load_csv, load_trials, sweep_delta
 from magbench.studies.review import coverage_label, with_coverage_column
@@ -157,4 +157,7 @@ def sweep_tables(summary: pd.DataFrame, x: str, trials: pd.DataFrame | None = No
              for column, title in titles]
     if "crb_accuracy" in summary:
         parts.append(_efficiency_table(summary, x))
-    return "\n\n".join(parts)
+    # accuracy and robustness stay in the Markdown report; speed and efficiency on the page
+    return "\n\n".join(parts[:2] + ([html_only("\n\n".join(parts[2:]),
+                                                "The speed and efficiency tables")]
+                                     if parts[2:] else []))

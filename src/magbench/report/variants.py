@@ -95,7 +95,7 @@ def _p0_rows(summary: pd.DataFrame, paper: dict) -> list[str]:
         return []
     best = full.iloc[int(np.argmin(np.abs(np.log(full["accuracy_sq"].to_numpy() / target))))]
     n = int(swept["n"].max())
-    return ["", f"The EKF against its initial covariance P0 = s I (`results/p0`, {n} trials, "
+    return ["", f"The EKF against its initial covariance P0 = s I (sweep `p0`, {n} trials, "
             "delta = 0.5; figure `p0/fig_p0.png`):", "", md_table(table), "",
             f"At full robustness the value closest to the paper's {format_number(target)} is "
             f"s = {best[column]:g} ({format_number(best['accuracy_sq'])}): the paper's number is "
