@@ -96,3 +96,54 @@ def test_a_failing_reason_comes_before_the_warnings():
 
     out = fitness(Gate(), **{**GOOD, "p95_pct": 7.0, "directions": 5})
     assert out["status"] == "FAIL" and out["reasons"][0].startswith("5 distinct")
+
+
+def test_central_spread_leaves_out_one_sided_spikes_but_not_a_disturbed_fifth():
+    from magbench.core.geometry import fibonacci_sphere
+    from magbench.core.verdict import central_spread_pct
+
+    u = fibonacci_sphere(1000)
+    clean = central_spread_pct(u * 2.0)
+    assert clean == pytest.approx(0.0, abs=1e-9)
+    spiky = u * 2.0
+    spiky[::20] *= 10.0                                   # 5 % spikes, all on one side
+    assert central_spread_pct(spiky) == pytest.approx(0.0, abs=1e-9)
+    disturbed = u * 2.0
+    disturbed[::5] *= 1.3                                 # a fifth of the samples 30 % off
+    assert central_spread_pct(disturbed) > 10.0
+
+
+def test_noise_p95_is_the_white_noise_level_whatever_the_turn():
+    from magbench.core.verdict import noise_p95_pct
+
+    K, sigma, radius = 20000, 0.5, 50.0
+    s = np.linspace(0, 1, K)
+    turn = radius * np.column_stack([np.cos(40 * s), np.sin(40 * s), np.zeros(K)])
+    y = turn + sigma * np.random.default_rng(0).standard_normal((K, 3))
+    assert noise_p95_pct(y, radius) == pytest.approx(100 * 1.96 * sigma / radius, rel=0.05)
+    assert np.isnan(noise_p95_pct(y[:5], radius))
+
+
+def _fit(**kw):
+    from magbench.core.verdict import Gate, fitness
+
+    base = dict(p95_pct=2.0, held_out=True, gap_deg=20.0, directions=200, band_deg=90.0,
+                field=1.0, radius=1.0)
+    return fitness(Gate(), **{**base, **kw})
+
+
+def test_a_correction_that_hardly_narrows_the_spread_fails():
+    assert _fit(spread_pct=(1.0, 5.0))["status"] == "PASS"
+    out = _fit(spread_pct=(4.5, 5.0))
+    assert out["status"] == "FAIL"
+    assert out["reasons"][0].startswith(
+        "the correction narrows the field magnitude's spread over the recording by less than "
+        "20% (4.5 % against 5.0 % uncorrected)")
+
+
+def test_an_error_that_is_the_sensors_noise_warns_instead_of_failing():
+    assert _fit(p95_pct=13.0)["status"] == "FAIL"
+    noisy = _fit(p95_pct=13.0, noise_p95_pct=10.0)
+    assert noisy["status"] == "WARN"
+    assert noisy["reasons"][0].startswith("field error 13.0 % (p95) is the sensor's own noise")
+    assert _fit(p95_pct=16.0, noise_p95_pct=10.0)["status"] == "FAIL"   # beyond 1.5x noise

@@ -57,6 +57,8 @@ MAX_GAP_DEG = 100.0
 CENTRAL_SHARE = 0.95
 #: A field error up to this many times the noise's own (:func:`noise_p95_pct`) is noise.
 NOISE_FACTOR = 1.5
+#: A correction must bring the field magnitude's spread below this share of the raw one.
+NARROWING = 0.8
 
 
 def field_error_pct(corrected: np.ndarray) -> np.ndarray:
@@ -85,11 +87,12 @@ def noise_p95_pct(y: np.ndarray, radius: float) -> float:
 
 
 def central_spread_pct(vectors: np.ndarray, share: float = CENTRAL_SHARE) -> float:
-    """``100 std|v| / mean|v|`` over the central ``share`` of the samples by norm: the spread
-    of the field magnitude, with the few largest deviations (spikes) at either end left out."""
+    """``100 std|v| / mean|v|`` over the ``share`` of the samples whose norm lies closest to
+    the median norm: the spread of the field magnitude with the few largest deviations
+    (spikes, on either side) left out."""
     norm = np.linalg.norm(np.asarray(vectors, dtype=float), axis=1)
-    low, high = np.percentile(norm, [50 * (1 - share), 100 - 50 * (1 - share)])
-    kept = norm[(norm >= low) & (norm <= high)]
+    deviation = np.abs(norm - np.median(norm))
+    kept = norm[deviation <= np.percentile(deviation, 100 * share)]
     return float(100 * kept.std() / kept.mean()) if kept.size and kept.mean() > 0 else np.nan
 
 
@@ -285,8 +288,9 @@ def fitness(gate: Gate, *, p95_pct: float, held_out: bool, gap_deg: float, direc
         Held-out heading RMS (deg) measured against a reference attitude; None without one.
     spread_pct : (float, float), optional
         :func:`central_spread_pct` of every sample of the recording corrected, and
-        uncorrected: a correction that does not narrow it leaves the user worse off than no
-        correction (the field itself changes: disturbances, or another state), a FAIL.
+        uncorrected: a correction that does not narrow it below :data:`NARROWING` times the
+        raw one is a FAIL: it would leave the user no better off, or worse, than no
+        correction (data calibrated already, or a field that itself changes).
     noise_p95_pct : float, optional
         The 95th percentile of the field error that the sensor's own noise alone gives
         (:func:`noise_p95_pct`): a field error above the FAIL threshold but within
@@ -336,10 +340,11 @@ def fitness(gate: Gate, *, p95_pct: float, held_out: bool, gap_deg: float, direc
         judge(_field_distance_pct(field, expected_field), gate.warn_field_pct,
               gate.fail_field_pct, f"field strength {field:.4g} is {{v:.0f}} % from the "
               f"expected {_expected_text(expected_field)} (> {{t:g}} %)")
-    if spread_pct is not None and not spread_pct[0] < spread_pct[1]:
-        fails.append(f"the correction does not narrow the field magnitude's spread over the "
-                     f"recording ({spread_pct[0]:.1f} % against {spread_pct[1]:.1f} % "
-                     "uncorrected): the field itself changes (disturbances, another state)")
+    if spread_pct is not None and not spread_pct[0] < NARROWING * spread_pct[1]:
+        fails.append(f"the correction narrows the field magnitude's spread over the recording "
+                     f"by less than {1 - NARROWING:.0%} ({spread_pct[0]:.1f} % against "
+                     f"{spread_pct[1]:.1f} % uncorrected): the data are calibrated already, or "
+                     "the field itself changes (disturbances, another state)")
     if heading_deg is not None and math.isfinite(heading_deg):
         judge(heading_deg, gate.warn_heading_deg, gate.fail_heading_deg,
               "heading error {v:.1f} deg RMS (held out, against the attitude) > {t:g} deg")
