@@ -55,6 +55,7 @@ from magbench.cli.config import (
     check_options,
     check_site,
     check_units,
+    did_you_mean,
     overwrite_wanted,
     picture_wanted,
 )
@@ -472,13 +473,15 @@ def _nothing_cached() -> bool:
 
 
 def _print_skipped(ranked: list[dict]) -> None:
-    """Why no candidate was written: the table, or one line when every row was skipped for
-    one reason (a 5-row file gives the same reason for every method)."""
-    reasons = {str(r["note"] or "") for r in ranked}
-    if len(reasons) == 1 and all(r["rank"] is None for r in ranked):
-        print(f"every candidate ({len(ranked)}) not fitted: {reasons.pop() or 'no reason given'}")
+    """Why no candidate was written: the table when some were ranked, else one line (a
+    5-row file gives every method the same kind of reason)."""
+    if any(r["rank"] is not None for r in ranked):
+        print(_table(ranked))
         return
-    print(_table(ranked))
+    notes = [str(r["note"] or "no out-of-sample score") for r in ranked]
+    common = max(set(notes), key=notes.count)
+    print(f"no candidate has an out-of-sample score ({len(ranked)} tried), e.g. "
+          f"{ranked[notes.index(common)]['algorithm']}: {common.removeprefix('skipped: ')}")
 
 
 @dataclass(frozen=True)
@@ -522,7 +525,10 @@ def _settings(cfg: DictConfig) -> _Run:
     overwrite = overwrite_wanted(cfg)
     name = cfg.get("method")
     if name is not None and str(name) not in methods():
-        raise UsageError(f"unknown method {name!r}; expected one of: {', '.join(methods())}")
+        guess = did_you_mean(str(name), methods())
+        raise UsageError(f"unknown method {name!r}" + (f" (did you mean {guess}?)" if guess
+                                                       else "")
+                         + f"; expected one of: {', '.join(methods())}")
     _check_candidates(cfg)
     check_options(cfg, [str(name)] if name is not None else methods())
     return _Run(common, path, preprocess,

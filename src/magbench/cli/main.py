@@ -249,12 +249,26 @@ def _plain_keys(args: list[str]) -> list[str]:
             # Added if new, so that a misspelt sweep key reaches the kind's check, which names
             # the keys it reads, instead of Hydra's advice to add it with '+'.
             out.append(f"++{bare}")
+        elif _bare_list(bare):
+            # ``location=52.5,13.4`` as --help writes it: Hydra calls a bare comma list
+            # ambiguous (a sweep or a list); these keys only take lists.
+            key, value = bare.split("=", 1)
+            out.append(f"{key}=[{value}]")
         elif arg.startswith("+") and not arg.startswith("++") and \
                 bare.split("=", 1)[0].split(".", 1)[0] in known:
             out.append(bare)
         else:
             out.append(arg)
     return out
+
+
+#: Keys whose value is a list, so that ``key=a,b`` means ``key=[a,b]``.
+LIST_KEYS = ("location", "columns", "candidates", "algorithms", "compensate", "plugins")
+
+
+def _bare_list(arg: str) -> bool:
+    key, _, value = arg.partition("=")
+    return key in LIST_KEYS and "," in value and not value.startswith(("[", "'", '"'))
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -302,7 +316,11 @@ def _main(argv: Sequence[str] | None) -> int:
         return 0
     bad = [a for a in args if "=" not in a]
     if bad:
-        print(f"magbench: error: unknown command or argument {bad[0]!r}; expected one of "
+        from magbench.cli.config import did_you_mean
+
+        guess = did_you_mean(bad[0], list(COMMANDS))
+        hint = f" (did you mean {guess}?)" if guess else ""
+        print(f"magbench: error: unknown command or argument {bad[0]!r}{hint}; expected one of "
               f"{', '.join(COMMANDS)} followed by key=value pairs (python -m magbench --help)",
               file=sys.stderr)
         return 2
@@ -338,6 +356,8 @@ def _dispatch(command: str, args: list[str], picture: PictureWorker | None) -> i
         # process. One line and a failing status; finished chunks are kept.
         print(f"magbench: error: {exc}", file=sys.stderr)
         return 1
+    except BrokenPipeError:
+        raise                       # the reader went away: main() ends quietly
     except OSError as exc:
         # A file-system refusal the checks could not foresee (a disk that fills, a folder
         # removed under a run): one line naming the path, not a traceback.
