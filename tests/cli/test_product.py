@@ -326,3 +326,52 @@ def test_the_first_compile_is_announced(tmp_path, monkeypatch):
     (tmp_path / "k.nbi").write_text("")
     assert not _nothing_cached()
     assert os.environ["NUMBA_CACHE_DIR"] == str(tmp_path)
+
+
+# --- the picture ----------------------------------------------------------------------
+
+def _picture_job(monkeypatch, *args: str) -> tuple[int, dict]:
+    import magbench.cli.calibrate as command
+    import importlib
+
+    entry = importlib.import_module("magbench.cli.main")
+
+    jobs = []
+    monkeypatch.setattr(entry, "_start_picture", lambda: None)
+    monkeypatch.setattr(command, "draw_picture", lambda job, layout=None: jobs.append(job))
+    code = main(["calibrate", "progress=false", "bootstrap=0", *args])
+    return code, jobs[0]
+
+
+def test_the_picture_draws_thinned_outlying_and_kept_samples_apart(tmp_path, monkeypatch):
+    y = recording(48.0, K=400, offset=(5.0, 0.0, 0.0))          # offset 5 times the field
+    still = np.repeat(y[:1], 300, axis=0) + 0.05 * np.random.default_rng(1).standard_normal(
+        (300, 3))
+    spikes = y[:3] * 3.0
+    path = save(tmp_path / "r.csv", np.vstack([still, y, spikes]))
+    code, job = _picture_job(monkeypatch, f"file={path}", "method=ellipsoid",
+                             f"out={tmp_path / 'o'}")
+    kw = job["kwargs"]
+    assert code == 0 and kw["thinned"].sum() > 200 and (~kw["inliers"]).sum() == 3
+    assert (kw["thinned"] & kw["inliers"]).sum() > 200         # drawn grey, not as outliers
+    # the "before" row about the fitted offset: on the unit circle's scale, and said so
+    assert np.median(np.linalg.norm(kw["before"], axis=1)) == pytest.approx(1.0, abs=0.1)
+    assert kw["before_title"].startswith("before, drawn about the fitted offset (|b| = 4.9 x the field)")
+
+
+def test_a_fail_draws_its_picture_with_the_reason(tmp_path, monkeypatch):
+    path = save(tmp_path / "r.csv", recording(1071.0))
+    code, job = _picture_job(monkeypatch, f"file={path}", "method=ellipsoid",
+                             f"out={tmp_path / 'o'}", "units=uT")
+    assert code == 3 and job["kwargs"]["title"].startswith("FAIL: field strength 1094 uT")
+
+
+def test_help_and_ranking_notes_are_never_cut_mid_sentence():
+    from magbench.cli.calibrate import _table
+    from magbench.cli.main import _first_sentence
+
+    assert _first_sentence("# A b of eq.\n# (80), c. Next one.\nx: 1\n") == "A b of eq. (80), c."
+    note = "held-out worst case 17.38 % vs best 10.37 % (a note longer than 48 characters)"
+    row = {"rank": 1, "algorithm": "fang", "model": "full", "J_r_in": 1.0, "J_r_out": 1.0,
+           "J_r_worst": 1.0, "p95_out_pct": 1.0, "tie": False, "note": note}
+    assert _table([row]).endswith(note)

@@ -6,8 +6,11 @@ allows, every candidate fitted on all samples and on interleaved time-block fold
 that holds out of sample, trimming around the chosen fit, refusal of collapsed fits, verdict,
 intervals and the PASS / WARN / FAIL gate; its module notes say how each is decided); this
 command reads the file, prints the answer first (status, held-out error, method, folder), then
-the reasons and the details, and writes. FAIL exits 3 and writes only ``calibration.json``
-with the reasons (thresholds: the ``gate.*`` keys, :func:`check_gate`).
+the reasons and the details, and writes. FAIL exits 3 and writes ``calibration.json`` with
+the reasons, the ranking and the picture, no correction (thresholds: the ``gate.*`` keys,
+:func:`check_gate`; a field strength the Earth does not give in the declared unit,
+:func:`magbench.core.units.unit_check`). Every file goes to a staging folder put in place as
+``out`` in one step, under a lock (:mod:`magbench.cli.outfolder`).
 The candidates are the registered methods except the review's printed variants (family
 ``variant``: benchmark-only, wrong as printed) and, without gyro data, the gyro-aided ones.
 By default (``candidates=auto``) they are fitted in two rounds: the closed forms and Wu-Shi NM
@@ -18,12 +21,15 @@ first, the iterative rest only when they could change the choice (the rule is in
 The chosen (or the named) calibration is written in the safe gauge of
 :mod:`magbench.core.gauge`: the correction a firmware applies is ``m = A (y - b)`` with
 ``A = (T T^T)^(-1/2)`` symmetric positive definite and ``b = h``, in the recording's units
-(never rotated, never a mirror image; the rotation removed from the method's own ``T^-1`` is
-reported). Beside ``calibration.json`` (:func:`magbench.core.exports.to_json_dict`) go
-``calibration.h`` and ``ardupilot.param`` (the latter only where ArduPilot accepts the values,
-see :mod:`magbench.core.exports`), ``ranking.csv`` and ``calibration.png`` (the data before and
-after, and the field directions covered). The default folder is ``<name>-calibration`` with
-``name`` the file's stem, or its folder's name for a file called ``data.csv``.
+(never a mirror image; the rotation removed from the method's own ``T^-1`` is reported), or,
+when the inertial columns fix the rotation, heading-true ``A = R S``
+(:mod:`magbench.cli.direction`; the firmware files then say what part of R they leave out).
+Beside ``calibration.json`` (:func:`magbench.core.exports.to_json_dict`) go ``calibration.h``,
+the firmware files that accept the values (:mod:`magbench.core.exports`), ``ranking.csv``,
+``manifest.json`` and ``calibration.png`` (the data before and after, kept, thinned and
+outlying samples apart, and the field directions covered). The default folder is
+``<name>-calibration`` with ``name`` the file's stem,
+or its folder's name for a file called ``data.csv``.
 The preprocessing is ``centre`` (remove the sphere-fit centre and radius first), which the
 real-data sweep found necessary for MAG.I.C.AL and Dorveaux when the offset exceeds the field
 radius; ``preprocess=scale`` selects the review's.
@@ -313,7 +319,7 @@ def _table(ranked: list[dict]) -> str:
         lines.append(f"{rank:>4}  {r['algorithm']:<12}{r['model']:<9}"
                      f"{_fmt(r['J_r_in'], 9, '.2e')}{_fmt(r['J_r_out'], 9, '.2e')}"
                      f"{_fmt(r['J_r_worst'], 9, '.2e')}{_fmt(r['p95_out_pct'], 7, '.2f')}  "
-                     f"{note.rstrip('; ')[:48]}")
+                     f"{note.rstrip('; ')}")
     return "\n".join(lines)
 
 
@@ -704,8 +710,10 @@ def _export_motor(cal: Calibration, payload: dict) -> tuple[Calibration, MotorCo
                            "(they hold one current or throttle term)")
     name = terms["regressors"][0]
     motor = MotorCompensation(name, np.asarray(terms["C"], dtype=float)[:, 0])
+    # The alignment of the static fit goes with it, so that the files' headers say the
+    # rotation calibration.json applies and they do not.
     kept = Calibration(np.linalg.inv(np.asarray(terms["A"], dtype=float)),
-                       np.asarray(terms["b"], dtype=float))
+                       np.asarray(terms["b"], dtype=float), alignment=cal.alignment)
     rms = _held_out_rms_pct(terms)
     others = [n for n in names if n != name]
     alone = (f" alone, as {' and '.join(others)} {'has' if len(others) == 1 else 'have'} no "

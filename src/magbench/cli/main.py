@@ -116,6 +116,18 @@ COMMANDS: dict[str, tuple[Callable[..., int], str, str, tuple[str, ...]]] = {
 }
 
 
+#: What ``calibrate`` does, for its --help (docs/calibrate.md says it at length).
+CALIBRATE_STEPS = [
+    "reads the file (CSV, .ulg, .bin, .log) -> thins still stretches and sets outliers aside ->",
+    "fits the candidates on all samples and on interleaved time-block folds -> chooses the",
+    "simplest of those tied out of sample -> judges it PASS / WARN / FAIL (gate.*; a field",
+    "strength the Earth does not give in units= fails) -> writes out/ as one folder:",
+    "calibration.json (m = A (y - b)), calibration.h, ardupilot.param and px4.params (a",
+    "known or inferred unit), inav.txt and betaflight.txt (units=counts), ranking.csv,",
+    "calibration.png and manifest.json. Exit 0 PASS or WARN, 3 FAIL (the reasons, no",
+    "correction), 2 a bad input or a folder in use. Details: docs/calibrate.md.", ""]
+
+
 def _key_help() -> dict[str, tuple[str, str]]:
     """``key -> (default, meaning)`` from the comments of ``conf/config.yaml``; the keys of a
     section (``gate:``) as ``gate.<key>``."""
@@ -141,10 +153,21 @@ def sweep_kinds() -> list[tuple[str, str]]:
 
     out = []
     for path in sorted((config_dir() / "sweep").glob("*.yaml")):
-        first = next((ln.lstrip("# ").strip() for ln in path.read_text().splitlines()
-                      if ln.startswith("#") and "@package" not in ln), "")
-        out.append((path.stem, first))
+        out.append((path.stem, _first_sentence(path.read_text())))
     return out
+
+
+def _first_sentence(text: str) -> str:
+    """The leading comment's first sentence, joined across lines (never cut mid-sentence: a
+    sentence ends at . ? or ! before a capital letter or at the comment's end)."""
+    words = []
+    for line in text.splitlines():
+        if not line.startswith("#"):
+            break
+        if "@package" not in line:
+            words.append(line.lstrip("# ").strip())
+    joined = " ".join(w for w in words if w)
+    return re.split(r"(?<=[.?!])\s+(?=[A-Z])", joined, maxsplit=1)[0]
 
 
 def kind_keys_help() -> list[str]:
@@ -209,8 +232,10 @@ def general_help() -> str:
 def command_help(command: str) -> str:
     _, what, example, keys = COMMANDS[command]
     known = _key_help()
-    lines = [f"python -m magbench {command} [key=value ...]: {what}", f"example: {example}", "",
-             "keys (default, meaning):"]
+    lines = [f"python -m magbench {command} [key=value ...]: {what}", f"example: {example}", ""]
+    if command == "calibrate":
+        lines += CALIBRATE_STEPS
+    lines.append("keys (default, meaning):")
     for key in keys:
         default, meaning = known.get(key, ("", ""))
         if key == "sweep":
