@@ -331,8 +331,9 @@ def test_the_first_compile_is_announced(tmp_path, monkeypatch):
 # --- the picture ----------------------------------------------------------------------
 
 def _picture_job(monkeypatch, *args: str) -> tuple[int, dict]:
-    import magbench.cli.calibrate as command
     import importlib
+
+    import magbench.cli.calibrate as command
 
     entry = importlib.import_module("magbench.cli.main")
 
