@@ -357,7 +357,8 @@ def test_the_picture_draws_thinned_outlying_and_kept_samples_apart(tmp_path, mon
     assert (kw["thinned"] & kw["inliers"]).sum() > 200         # drawn grey, not as outliers
     # the "before" row about the fitted offset: on the unit circle's scale, and said so
     assert np.median(np.linalg.norm(kw["before"], axis=1)) == pytest.approx(1.0, abs=0.1)
-    assert kw["before_title"].startswith("before, drawn about the fitted offset (|b| = 4.9 x the field)")
+    assert kw["before_title"].startswith("before, drawn about the fitted offset "
+                                         "(|b| = 4.9 x the field)")
 
 
 def test_a_fail_draws_its_picture_with_the_reason(tmp_path, monkeypatch):
