@@ -11,7 +11,7 @@ another recording's JSON would flash another sensor's offsets. So :func:`hold`:
    file before that removal finds, once it has the lock, that the path no longer names the
    file it locked, and tries again (so two writers never hold two different files). The
    ``filelock`` library was weighed: its current release keeps the file on release (its waiters
-   share the inode) and costs a 1.9 MB install and 40 ms of import; this needs 30 lines;
+   share the inode), and its install and import cost more than these lines (docs/decisions.md);
 2. checks the overwrite rule *under the lock* (``out`` holding a calibration needs
    ``overwrite=true``), and refuses an ``out`` holding files ``calibrate`` does not write
    (the whole folder is replaced);

@@ -697,6 +697,7 @@ def firmware_files(cal: Calibration, units: Units, *, instance: int = 0,
         offsets_only = (f"\nthe {motor.regressor} term C of calibration.json's time_varying is "
                         "not applied either (no such setting)")
     turned = rotation_note(cal, rotation)
+    turned_raw = rotation_note(cal, None, "offsets in the sensor's axes")
     partial = {}
     if samples is not None and units.counts:
         with np.errstate(all="ignore"):
@@ -719,9 +720,9 @@ def firmware_files(cal: Calibration, units: Units, *, instance: int = 0,
             f"magbench calibration for PX4: corrected = {px4_formula}, raw in gauss{rot}"
             f"\n{comment}{turned}")),
         "inav.txt": (units.counts, raw, lambda: inav_cli(
-            cal, units, comment + offsets_only + partial.get("inav.txt", "") + turned)),
+            cal, units, comment + offsets_only + partial.get("inav.txt", "") + turned_raw)),
         "betaflight.txt": (units.counts, raw, lambda: betaflight_cli(
-            cal, units, comment + offsets_only + partial.get("betaflight.txt", "") + turned)),
+            cal, units, comment + offsets_only + partial.get("betaflight.txt", "") + turned_raw)),
     }
     for name, (possible, why, make) in makers.items():
         if not possible:
@@ -749,11 +750,12 @@ def nearest_rotation(R: np.ndarray) -> tuple[int, float]:
     return best, _angle_deg(R @ rotation_matrix(best).T)
 
 
-def rotation_note(cal: Calibration, rotation: int | None = None) -> str:
+def rotation_note(cal: Calibration, rotation: int | None = None, holds: str = "S") -> str:
     """For a heading-true ``cal`` (``A = R S``): the header lines of a firmware file, which
     holds ``S`` turned by the standard ``rotation`` (or by nothing), saying the rotation left
     out, ``R M_r^T``, the heading error if it is ignored, and the standard rotation to set
-    instead when one is within :data:`ORIENT_TOLERANCE_DEG`; "" for a symmetric ``cal``."""
+    instead when one is within :data:`ORIENT_TOLERANCE_DEG`; "" for a symmetric ``cal``.
+    ``holds``: what the file holds of the correction, in words."""
     if cal.alignment is None:
         return ""
     R = np.asarray(cal.alignment, float)
@@ -762,7 +764,7 @@ def rotation_note(cal: Calibration, rotation: int | None = None) -> str:
     if left < 1e-6:
         return ""
     text = ("\ncalibration.json's A = R S also turns the field to the IMU's axes (R); this file "
-            "holds S" + (f" turned by {ROTATIONS[int(rotation)][0]}" if rotation is not None
+            f"holds {holds}" + (f" turned by {ROTATIONS[int(rotation)][0]}" if rotation is not None
                          else "") + f": the remaining {left:.2f} deg rotation is not "
             f"representable here (heading error up to {left:.2f} deg if ignored)")
     best, off = nearest_rotation(R)
