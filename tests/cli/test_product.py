@@ -377,3 +377,18 @@ def test_help_and_ranking_notes_are_never_cut_mid_sentence():
     row = {"rank": 1, "algorithm": "fang", "model": "full", "J_r_in": 1.0, "J_r_out": 1.0,
            "J_r_worst": 1.0, "p95_out_pct": 1.0, "tie": False, "note": note}
     assert _table([row]).endswith(note)
+
+
+def test_a_finished_sweep_folder_keeps_no_lock_and_a_held_one_is_refused(tmp_path):
+    from magbench.engine.sweep import FolderBusy, folder_lock
+
+    with folder_lock(tmp_path):
+        assert (tmp_path / ".lock").exists()
+        with pytest.raises(FolderBusy, match="is in use by a running magbench"), \
+                folder_lock(tmp_path):
+            pass
+        assert (tmp_path / ".lock").exists()            # the refusal leaves the holder's file
+    assert not (tmp_path / ".lock").exists()
+    with folder_lock(tmp_path):                         # and the folder can be taken again
+        pass
+    assert list(tmp_path.iterdir()) == []
