@@ -392,3 +392,33 @@ def test_a_finished_sweep_folder_keeps_no_lock_and_a_held_one_is_refused(tmp_pat
     with folder_lock(tmp_path):                         # and the folder can be taken again
         pass
     assert list(tmp_path.iterdir()) == []
+
+
+def test_without_an_atomic_exchange_a_kill_between_the_renames_is_undone(tmp_path, monkeypatch):
+    """The fallback for systems without renameat2: out moved aside, then the new folder moved
+    in; a kill between the two leaves no out, and the next hold() puts the old one back."""
+    import magbench.cli.outfolder as outfolder
+
+    out = tmp_path / "o"
+    with hold(out, overwrite=False) as staging:
+        (staging.path / "calibration.json").write_text('{"file": "old.csv"}')
+        staging.commit()
+    monkeypatch.setattr(outfolder, "_exchange", lambda a, b: False)
+    renames = []
+
+    def rename_then_die(src, dst):
+        renames.append((src, dst))
+        if len(renames) == 2:
+            raise KeyboardInterrupt          # the kill, after out was moved aside
+        os.replace(src, dst)
+
+    monkeypatch.setattr(outfolder.os, "rename", rename_then_die)
+    with pytest.raises(KeyboardInterrupt), hold(out, overwrite=True) as staging:
+        (staging.path / "calibration.json").write_text('{"file": "new.csv"}')
+        staging.commit()
+    assert not out.exists()
+    monkeypatch.setattr(outfolder.os, "rename", os.replace)
+    with hold(out, overwrite=True):
+        assert json.loads((out / "calibration.json").read_text())["file"] == "old.csv"
+    assert check_manifest(out) == ""
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["o"]
