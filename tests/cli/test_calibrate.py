@@ -14,6 +14,7 @@ import pandas as pd
 import pytest
 
 from magbench.cli import main
+from magbench.cli.outfolder import check_manifest
 from magbench.core.exports import GAUGE
 from magbench.core.geometry import fibonacci_sphere
 from magbench.core.model import Calibration
@@ -37,6 +38,10 @@ def save(path, y: np.ndarray, names=("mx", "my", "mz")):
     frame.insert(0, "t", np.arange(len(y)) * 0.02)
     frame.to_csv(path, index=False)
     return path
+
+
+#: What a FAIL writes: the reasons, the ranking and the picture (no correction, no firmware).
+FAIL_FILES = {"calibration.json", "ranking.csv", "calibration.png", "manifest.json"}
 
 
 def calibrate(*args):
@@ -325,11 +330,14 @@ def test_px4_params_of_a_gauss_recording_give_back_the_corrected_samples(tmp_pat
 
 
 def test_counts_without_a_unit_write_no_ardupilot_or_px4_file(tmp_path, capsys):
-    path = save(tmp_path / "counts.csv", recording())
+    # A field of 1060 fits no physical unit (530 would be inferred as mGauss).
+    path = save(tmp_path / "counts.csv", 2 * recording())
     assert calibrate(f"file={path}", "method=ellipsoid", f"out={tmp_path / 'o'}") == 0
     out = capsys.readouterr().out
     assert out.count("not writing ardupilot.param, px4.params (unit unknown: pass units=") == 1
-    assert "field strength 530.2 (file units, unit unknown)" in out
+    assert out.splitlines()[1].startswith("units: unknown, and the field strength 1060 fits no "
+                                          "physical unit")
+    assert "field strength 1060 (file units, unit unknown)" in out
     assert not (tmp_path / "o" / "ardupilot.param").exists()
     assert (tmp_path / "o" / "calibration.h").exists()
     assert calibrate(f"file={path}", "method=ellipsoid", f"out={tmp_path / 'c'}",
@@ -340,6 +348,7 @@ def test_counts_without_a_unit_write_no_ardupilot_or_px4_file(tmp_path, capsys):
     b = np.array(json.loads((tmp_path / "c" / "calibration.json").read_text())["b"])
     assert all(f"set magzero_{a} = {round(v)}" in inav for a, v in zip("xyz", b, strict=True))
     # 16 counts per uT: 530 counts are 33 uT = 331 mGauss, which ArduPilot takes.
+    path = save(tmp_path / "counts1.csv", recording())
     assert calibrate(f"file={path}", "method=ellipsoid", f"out={tmp_path / 's'}",
                      "units=0.0625uT") == 0
     p = (tmp_path / "s" / "ardupilot.param").read_text()
@@ -358,11 +367,14 @@ def test_an_existing_calibration_folder_is_kept_without_overwrite(tmp_path, caps
     assert err == (f"magbench: error: out={out} already holds a calibration (calibration.json); "
                    "pass overwrite=true to replace it, or choose another out=")
     assert (out / "calibration.json").read_text() == before
-    # Replaced with overwrite=true; the ArduPilot file of the first run (now unitless) goes.
+    # Replaced with overwrite=true, as a whole: the folder holds the second run's files only.
+    (out / "inav.txt").write_text("an earlier run's\n")
     assert calibrate(f"file={path}", "method=twostep", f"out={out}", "overwrite=true",
-                     "bootstrap=0") == 0
+                     "bootstrap=0", "units=counts") == 0
     assert json.loads((out / "calibration.json").read_text())["method"] == "twostep"
     assert not (out / "ardupilot.param").exists()
+    assert "an earlier run's" not in (out / "inav.txt").read_text()
+    assert check_manifest(out) == ""
 
 
 def test_two_compasses_exit_2_naming_them_and_instance_picks_one(tmp_path, capsys):
@@ -557,7 +569,7 @@ def test_8_samples_fail_with_exit_3_and_write_only_the_reasons(tmp_path, capsys)
     assert code == 3 and data["status"] == "FAIL" and out[0].startswith("FAIL  ")
     assert "nothing to flash" in out[0]
     assert any("8 distinct directions (< 10)" in r for r in data["fitness"]["reasons"])
-    assert files == {"calibration.json"}
+    assert files == FAIL_FILES
     assert "A" not in data and "b" not in data and "A" in data["rejected"]
     assert main(["apply", f"calibration={tmp_path / 'rec-out' / 'calibration.json'}",
                  f"file={tmp_path / 'rec.csv'}", f"out={tmp_path / 'x.csv'}"]) == 2
@@ -576,7 +588,7 @@ def test_a_60_degree_cap_warns_with_its_gap(tmp_path, capsys):
     assert FIRMWARE - {"ardupilot.param"} <= files
     # the same cap under a stricter gate fails
     code, data, files = status_of(tmp_path, y, "gate.fail_gap_deg=100", name="strict")
-    assert code == 3 and data["status"] == "FAIL" and files == {"calibration.json"}
+    assert code == 3 and data["status"] == "FAIL" and files == FAIL_FILES
 
 
 def test_an_offset_only_fit_never_prints_a_zero_interval_for_A(tmp_path, capsys):
@@ -639,7 +651,9 @@ def test_an_ardupilot_logs_rotation_is_relative_so_it_is_not_written():
     assert _export_rotation({"file": "a.ulg", "mounting_rotation": found}) == (6, "")
     assert _export_rotation({"file": "a.csv", "mounting_rotation": found}) == (6, "")
     rotation, line = _export_rotation({"file": "a.BIN", "mounting_rotation": found})
-    assert rotation is None and "ROTATION_YAW_270 is on top of the current setting" in line
+    assert rotation is None and line.startswith("mounting: set COMPASS_ORIENT = 6 "
+                                                 "(ROTATION_YAW_270) if it is 0")
+    assert "comes on top of its current value" in line
     assert _export_rotation({"file": "a.csv", "mounting_rotation": {"id": None}}) == (None, "")
     assert _export_rotation({"file": "a.csv"}) == (None, "")
 

@@ -208,7 +208,8 @@ def test_a_fail_caused_by_the_current_says_what_the_terms_would_give(tmp_path, c
     terms = json.loads((out / "calibration.json").read_text())["time_varying"]
     assert terms["kept"]
     np.testing.assert_allclose(np.array(terms["C"])[:, 0], [300.0, -200.0, 100.0], rtol=0.01)
-    assert sorted(p.name for p in out.iterdir()) == ["calibration.json"]
+    assert sorted(p.name for p in out.iterdir()) == ["calibration.json", "calibration.png",
+                                                     "manifest.json", "ranking.csv"]
 
 
 def test_a_regressor_column_left_out_is_named_with_the_reason(tmp_path, capsys):

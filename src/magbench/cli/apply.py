@@ -103,7 +103,14 @@ def run_apply(cfg: DictConfig) -> int:
                          "python -m magbench calibrate")
     if not cfg.get("file"):
         raise UsageError("apply needs file=PATH, a CSV of magnetometer samples to correct")
-    cal, recorded = load_calibration(Path(str(cfg.calibration)))
+    where = Path(str(cfg.calibration))
+    from magbench.cli.outfolder import check_manifest
+
+    problem = check_manifest(where.parent) if where.name == "calibration.json" else ""
+    if problem:
+        raise UsageError(f"{problem}; rerun calibrate, or copy calibration.json out alone "
+                         "if you changed it on purpose")
+    cal, recorded = load_calibration(where)
     path = Path(str(cfg.file))
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")

@@ -6,8 +6,11 @@ allows, every candidate fitted on all samples and on interleaved time-block fold
 that holds out of sample, trimming around the chosen fit, refusal of collapsed fits, verdict,
 intervals and the PASS / WARN / FAIL gate; its module notes say how each is decided); this
 command reads the file, prints the answer first (status, held-out error, method, folder), then
-the reasons and the details, and writes. FAIL exits 3 and writes only ``calibration.json``
-with the reasons (thresholds: the ``gate.*`` keys, :func:`check_gate`).
+the reasons and the details, and writes. FAIL exits 3 and writes ``calibration.json`` with
+the reasons, the ranking and the picture, no correction (thresholds: the ``gate.*`` keys,
+:func:`check_gate`; a field strength the Earth does not give in the declared unit,
+:func:`magbench.core.units.unit_check`). Every file goes to a staging folder put in place as
+``out`` in one step, under a lock (:mod:`magbench.cli.outfolder`).
 The candidates are the registered methods except the review's printed variants (family
 ``variant``: benchmark-only, wrong as printed) and, without gyro data, the gyro-aided ones.
 By default (``candidates=auto``) they are fitted in two rounds: the closed forms and Wu-Shi NM
@@ -18,12 +21,15 @@ first, the iterative rest only when they could change the choice (the rule is in
 The chosen (or the named) calibration is written in the safe gauge of
 :mod:`magbench.core.gauge`: the correction a firmware applies is ``m = A (y - b)`` with
 ``A = (T T^T)^(-1/2)`` symmetric positive definite and ``b = h``, in the recording's units
-(never rotated, never a mirror image; the rotation removed from the method's own ``T^-1`` is
-reported). Beside ``calibration.json`` (:func:`magbench.core.exports.to_json_dict`) go
-``calibration.h`` and ``ardupilot.param`` (the latter only where ArduPilot accepts the values,
-see :mod:`magbench.core.exports`), ``ranking.csv`` and ``calibration.png`` (the data before and
-after, and the field directions covered). The default folder is ``<name>-calibration`` with
-``name`` the file's stem, or its folder's name for a file called ``data.csv``.
+(never a mirror image; the rotation removed from the method's own ``T^-1`` is reported), or,
+when the inertial columns fix the rotation, heading-true ``A = R S``
+(:mod:`magbench.cli.direction`; the firmware files then say what part of R they leave out).
+Beside ``calibration.json`` (:func:`magbench.core.exports.to_json_dict`) go ``calibration.h``,
+the firmware files that accept the values (:mod:`magbench.core.exports`), ``ranking.csv``,
+``manifest.json`` and ``calibration.png`` (the data before and after, kept, thinned and
+outlying samples apart, and the field directions covered). The default folder is
+``<name>-calibration`` with ``name`` the file's stem,
+or its folder's name for a file called ``data.csv``.
 The preprocessing is ``centre`` (remove the sphere-fit centre and radius first), which the
 real-data sweep found necessary for MAG.I.C.AL and Dorveaux when the offset exceeds the field
 radius; ``preprocess=scale`` selects the review's.
@@ -32,6 +38,7 @@ radius; ``preprocess=scale`` selects the review's.
 from __future__ import annotations
 
 import json
+import os
 import sys
 import time
 import warnings
@@ -52,16 +59,16 @@ from magbench.cli.config import (
     check_integer,
     check_number,
     check_options,
-    check_out_calibration,
     check_site,
     check_units,
+    did_you_mean,
+    overwrite_wanted,
     picture_wanted,
-    writable_folder,
 )
 from magbench.cli.direction import direction_lines, mark_vetoes
+from magbench.cli.outfolder import Staging, hold
 from magbench.cli.picture import PictureWorker, draw_picture
 from magbench.core.exports import (
-    FIRMWARE_FILES,
     MOTOR_REGRESSORS,
     MotorCompensation,
     c_header,
@@ -72,7 +79,7 @@ from magbench.core.exports import (
 from magbench.core.files import write_records_csv, write_text_atomic
 from magbench.core.gauge import safe_gauge
 from magbench.core.model import Calibration
-from magbench.core.units import UNKNOWN, Units, parse_units
+from magbench.core.units import UNKNOWN, Units, parse_units, unit_check
 from magbench.core.verdict import Gate, with_reason
 from magbench.methods.api import calibrate as magbench_calibrate
 from magbench.methods.registry import get_method, methods
@@ -312,7 +319,7 @@ def _table(ranked: list[dict]) -> str:
         lines.append(f"{rank:>4}  {r['algorithm']:<12}{r['model']:<9}"
                      f"{_fmt(r['J_r_in'], 9, '.2e')}{_fmt(r['J_r_out'], 9, '.2e')}"
                      f"{_fmt(r['J_r_worst'], 9, '.2e')}{_fmt(r['p95_out_pct'], 7, '.2f')}  "
-                     f"{note.rstrip('; ')[:48]}")
+                     f"{note.rstrip('; ')}")
     return "\n".join(lines)
 
 
@@ -345,13 +352,24 @@ def check_gate(cfg: DictConfig) -> Gate:
 def run_calibrate(cfg: DictConfig, picture: PictureWorker | None = None) -> int:
     """The ``calibrate`` command; a bad file or value raises :class:`UsageError`.
 
-    Returns 0 for PASS and WARN, 3 for FAIL (only ``calibration.json`` written, with the
-    reasons). ``picture``: a started :class:`~magbench.cli.picture.PictureWorker` draws
-    ``calibration.png`` in parallel (:func:`magbench.cli.main.main` starts one); without it
-    the picture is drawn here. The file is the same either way.
+    Returns 0 for PASS and WARN, 3 for FAIL (``calibration.json`` with the reasons, the
+    ranking and the picture; no correction, no firmware file). ``picture``: a started
+    :class:`~magbench.cli.picture.PictureWorker` draws ``calibration.png`` in parallel
+    (:func:`magbench.cli.main.main` starts one); without it the picture is drawn here. The file
+    is the same either way. Every file goes to a staging folder put in place as ``out`` at the
+    end, under a lock taken before the overwrite check (:mod:`magbench.cli.outfolder`).
     """
     start = time.perf_counter()
     run = _settings(cfg)
+    with hold(run.out, run.overwrite) as staging:
+        code = _calibrate_into(cfg, run, staging, picture, start)
+        staging.commit()
+    return code
+
+
+def _calibrate_into(cfg: DictConfig, run: _Run, staging: Staging,
+                    picture: PictureWorker | None, start: float) -> int:
+    """The work of :func:`run_calibrate`, writing into ``staging``; the exit status."""
     rec = _read(run)
     n_file = rec.K
     candidates, second = _candidates(cfg, rec.has_gyro)
@@ -371,6 +389,9 @@ def run_calibrate(cfg: DictConfig, picture: PictureWorker | None = None) -> int:
     if offsets is not None:
         rec = rec.rows(np.flatnonzero(offsets.keep))
     veto = DirectionVeto()
+    if _nothing_cached():
+        print("magbench: compiling the fitting kernels on this first run (once; later runs "
+              "reuse them)", file=sys.stderr, flush=True)
     result = calibrate_recording(rec, candidates, preprocess=run.preprocess, options=options,
                                  seed=run.common["seed"],
                                  call_timeout_s=run.common["call_timeout_s"], bootstrap=0,
@@ -378,51 +399,95 @@ def run_calibrate(cfg: DictConfig, picture: PictureWorker | None = None) -> int:
                                  gate=run.gate, expected_field=run.expected, extra=veto)
     mark_vetoes(result.ranked, veto)
     if result.chosen is None:
-        print(_table(result.ranked))
+        _print_skipped(result.ranked)
         raise UsageError("no method produced a calibration that can be written ("
                          + ("no out-of-sample score: name one with method=NAME, or record "
                             "longer" if not run.name else "see the table")
                          + "); check that the sensor was turned through many orientations "
                          "in a steady field"
                          + ("; " + offsets.warning() if offsets is not None else ""))
-    out = writable_folder(run.out, "out")
+    out, folder = run.out, staging.path
     if offsets is not None:
         # A calibration of a minority of the recording describes a state the vehicle
         # mostly was not in: it is not written.
         result.fitness = with_reason(result.fitness, offsets.warning(),
                                      fail=offsets.kept_share < 0.5)
+    T, h = estimate(result.chosen)
+    units = unit_check(field_strength(Calibration(T, h)), run.units)
+    if units.fail:
+        result.fitness = with_reason(result.fitness, units.fail, fail=True)
     payload = calibration_json(result, file=str(run.path), columns=list(rec.columns),
-                               n_file=n_file, preprocess=run.preprocess, units=run.units,
+                               n_file=n_file, preprocess=run.preprocess, units=units.units,
                                expected_field=run.expected)
+    if units.inferred:
+        payload["unit"]["inferred"] = True
     payload |= _instance_keys(rec)
     varying, corrected = _add_time_varying(result, payload, run.compensate, options)
+    first = [units.note] if units.note else []
     if payload["status"] == "FAIL":
-        _write_fail(result, payload, out, n_file, start, [varying, _cure_line(payload)])
+        job = _picture_job(result, payload, folder)
+        write_records_csv(result.ranked, folder / "ranking.csv")
+        write_text_atomic(json.dumps(payload, indent=2) + "\n", folder / "calibration.json")
+        drawn = _draw(run, picture, job)
+        _report(result, payload, out, n_file, ["calibration.json (the reasons; no correction)",
+                                               "ranking.csv", *drawn], start,
+                [line for line in (varying, _cure_line(payload)) if line], first)
         return 3
     mounting = _add_mounting(result, payload, corrected)
-    job = {"path": out / "calibration.png", "dpi": PICTURE_DPI,
-           "compress_level": PICTURE_COMPRESSION, "kwargs": _picture_arguments(result, payload)}
+    job = _picture_job(result, payload, folder)
     sent = run.picture and picture is not None and picture.send(job)
     # After the picture is handed over, so that its drawing and the refits overlap.
     result.bootstrap = payload["bootstrap"] = bootstrap_check(
         result, run.n_boot, preprocess=run.preprocess, options=options,
         seed=run.common["seed"])
-    T, h = estimate(result.chosen)
     cal, direction = direction_lines(result, Calibration(T, h), payload, veto, run.site, lag)
-    write_text_atomic(json.dumps(payload, indent=2) + "\n", out / "calibration.json")
-    written, notes = _write_exports(cal, payload, out)
+    write_text_atomic(json.dumps(payload, indent=2) + "\n", folder / "calibration.json")
+    written, notes = _write_exports(cal, payload, folder, result)
     offset_line = offsets.line() if offsets is not None else ""
     notes = [line for line in (offset_line, varying, mounting, *direction) if line] + notes
-    write_records_csv(result.ranked, out / "ranking.csv")
-    problem = picture.wait() if sent else ""
+    write_records_csv(result.ranked, folder / "ranking.csv")
+    drawn = _draw(run, picture if sent else None, job, sent=sent)
+    _report(result, payload, out, n_file, ["calibration.json (m = A (y - b))", *written,
+                                          "ranking.csv", *drawn], start, notes, first)
+    return 0
+
+
+def _draw(run: _Run, picture: PictureWorker | None, job: dict, *, sent: bool | None = None
+          ) -> list[str]:
+    """The picture, by the worker if it has (or takes) the job, else here; its name, or none
+    when ``picture=false``."""
+    if not run.picture:
+        return []
+    if sent is None:
+        sent = picture is not None and picture.send(job)
+    problem = picture.wait() if sent and picture is not None else ""
     if problem:
         print(f"magbench: note: {problem}; drawing the picture here", file=sys.stderr)
-    if run.picture and (problem or not sent):
+    if problem or not sent:
         draw_picture(job)
-    _report(result, payload, out, n_file, ["calibration.json (m = A (y - b))", *written,
-                                          "ranking.csv"]
-            + (["calibration.png"] if run.picture else []), start, notes)
-    return 0
+    return ["calibration.png"]
+
+
+def _nothing_cached() -> bool:
+    """Whether numba has cached none of the fitting kernels yet (beside their modules, or in
+    ``NUMBA_CACHE_DIR``): the first run then spends a while compiling, said in one line."""
+    import magbench.methods.algorithms as algorithms
+
+    where = os.environ.get("NUMBA_CACHE_DIR")
+    folder = Path(where) if where else Path(algorithms.__file__).parent / "__pycache__"
+    return (folder.is_dir() and next(folder.rglob("*.nbi"), None) is None) or not folder.is_dir()
+
+
+def _print_skipped(ranked: list[dict]) -> None:
+    """Why no candidate was written: the table when some were ranked, else one line (a
+    5-row file gives every method the same kind of reason)."""
+    if any(r["rank"] is not None for r in ranked):
+        print(_table(ranked))
+        return
+    notes = [str(r["note"] or "no out-of-sample score") for r in ranked]
+    common = max(set(notes), key=notes.count)
+    print(f"no candidate has an out-of-sample score ({len(ranked)} tried), e.g. "
+          f"{ranked[notes.index(common)]['algorithm']}: {common.removeprefix('skipped: ')}")
 
 
 @dataclass(frozen=True)
@@ -444,6 +509,7 @@ class _Run:
     out: Path
     name: str | None
     picture: bool
+    overwrite: bool
 
 
 def _settings(cfg: DictConfig) -> _Run:
@@ -462,10 +528,13 @@ def _settings(cfg: DictConfig) -> _Run:
     if not units.known and not units.counts and is_log(path):
         units = parse_units(log_units(path))    # a log's compass unit is the firmware's
     out = Path(str(cfg.out)) if cfg.get("out") else default_out(path)
-    check_out_calibration(out, cfg.get("overwrite"))
+    overwrite = overwrite_wanted(cfg)
     name = cfg.get("method")
     if name is not None and str(name) not in methods():
-        raise UsageError(f"unknown method {name!r}; expected one of: {', '.join(methods())}")
+        guess = did_you_mean(str(name), methods())
+        raise UsageError(f"unknown method {name!r}" + (f" (did you mean {guess}?)" if guess
+                                                       else "")
+                         + f"; expected one of: {', '.join(methods())}")
     _check_candidates(cfg)
     check_options(cfg, [str(name)] if name is not None else methods())
     return _Run(common, path, preprocess,
@@ -473,7 +542,7 @@ def _settings(cfg: DictConfig) -> _Run:
                 check_integer(cfg.get("bootstrap", 50), "bootstrap", 0, 10_000),
                 check_gate(cfg), check_columns(cfg), units, check_field_strength(cfg, units),
                 check_instance(cfg), check_compensate(cfg), check_site(cfg), out,
-                None if name is None else str(name), picture_wanted(cfg))
+                None if name is None else str(name), picture_wanted(cfg), overwrite)
 
 
 def _read(run: _Run) -> Recording:
@@ -497,17 +566,6 @@ def _read(run: _Run) -> Recording:
     return rec
 
 
-def _write_fail(result: CalibrationResult, payload: dict, out: Path, n_file: int,
-                start: float, notes: Sequence[str] = ()) -> None:
-    """A FAIL: only ``calibration.json`` with the reasons; an earlier run's files removed.
-    ``notes``: lines printed before the closing one (empty ones skipped)."""
-    write_text_atomic(json.dumps(payload, indent=2) + "\n", out / "calibration.json")
-    for stale in {*FIRMWARE_FILES, "calibration.h", "ranking.csv", "calibration.png"}:
-        (out / stale).unlink(missing_ok=True)       # an earlier run's, now wrong
-    _report(result, payload, out, n_file, ["calibration.json (the reasons; no correction)"],
-            start, [line for line in notes if line])
-
-
 def _held_out_rms_pct(terms: dict) -> dict[str, float]:
     """The held-out RMS field error (%) of ``time_varying``'s static and time-varying fits
     (the dict holds their mean squared norm residuals)."""
@@ -529,11 +587,14 @@ def _cure_line(payload: dict) -> str:
 
 
 def _report(result: CalibrationResult, payload: dict, out: Path, n_file: int,
-            written: list[str], start: float, notes: Sequence[str] = ()) -> None:
-    """Print the answer first, then the reasons, the details and what was written; the
-    coverage advice and other warnings go to stderr."""
+            written: list[str], start: float, notes: Sequence[str] = (),
+            first: Sequence[str] = ()) -> None:
+    """Print the answer first, then the reasons, ``first`` (the unit's line: it decides
+    which firmware files exist), the details and what was written; the coverage advice and
+    other warnings go to stderr."""
     lines = [answer_line(payload, out)]
     lines += [f"  {payload['status'].lower()}: {r}" for r in payload["fitness"]["reasons"]]
+    lines += list(first)
     lines += detail_lines(result, payload, n_file)
     lines += list(notes)
     lines.append(f"wrote {out}/: {', '.join(written)} (in {time.perf_counter() - start:.2f} s)")
@@ -601,7 +662,8 @@ def _add_time_varying(result: CalibrationResult, payload: dict, wanted: list[str
     return line, corrected
 
 
-def _write_exports(cal: Calibration, payload: dict, out: Path) -> tuple[list[str], list[str]]:
+def _write_exports(cal: Calibration, payload: dict, out: Path,
+                   result: CalibrationResult) -> tuple[list[str], list[str]]:
     """calibration.h always; each firmware file of :func:`magbench.core.exports.firmware_files`
     (with the mounting rotation as COMPASS_ORIENT and CAL_MAGn_ROT when it was detected with
     confidence, none when refused) that can be written (one line says why not the others, each
@@ -621,11 +683,10 @@ def _write_exports(cal: Calibration, payload: dict, out: Path) -> tuple[list[str
                                       instance=payload.get("instance_index") or 0,
                                       device_id=payload.get("device_id"), rotation=rotation,
                                       motor=motor, comment=verdict + (
-                                          f"\n{motor_note}" if motor else ""))
+                                          f"\n{motor_note}" if motor else ""),
+                                      samples=result.rec.y[result.inliers])
     for file, text in written.items():
         write_text_atomic(text, out / file)
-    for stale in set(FIRMWARE_FILES) - set(written):
-        (out / stale).unlink(missing_ok=True)
     notes = ["not writing " + "; ".join(
         f"{', '.join(n for n, r in refused.items() if r == reason)} ({reason})"
         for reason in dict.fromkeys(refused.values()))] if refused else []
@@ -649,8 +710,10 @@ def _export_motor(cal: Calibration, payload: dict) -> tuple[Calibration, MotorCo
                            "(they hold one current or throttle term)")
     name = terms["regressors"][0]
     motor = MotorCompensation(name, np.asarray(terms["C"], dtype=float)[:, 0])
+    # The alignment of the static fit goes with it, so that the files' headers say the
+    # rotation calibration.json applies and they do not.
     kept = Calibration(np.linalg.inv(np.asarray(terms["A"], dtype=float)),
-                       np.asarray(terms["b"], dtype=float))
+                       np.asarray(terms["b"], dtype=float), alignment=cal.alignment)
     rms = _held_out_rms_pct(terms)
     others = [n for n in names if n != name]
     alone = (f" alone, as {' and '.join(others)} {'has' if len(others) == 1 else 'have'} no "
@@ -672,9 +735,13 @@ def _export_rotation(payload: dict) -> tuple[int | None, str]:
     found = (payload.get("mounting_rotation") or {}).get("id")
     if found is None or Path(payload["file"]).suffix.lower() not in ARDUPILOT_LOGS:
         return found, ""
-    return None, (f"mounting rotation not written to the firmware files: an ArduPilot log's "
-                  f"MAG is already turned by COMPASS_ORIENT, so "
-                  f"{payload['mounting_rotation']['name']} is on top of the current setting")
+    n = payload.get("instance_index") or 0
+    key = f"COMPASS_ORIENT{'' if n == 0 else n + 1}"
+    name = payload["mounting_rotation"]["name"]
+    payload["mounting_rotation"]["suggested"] = {"parameter": key, "on_top_of_current": True}
+    return None, (f"mounting: set {key} = {found} ({name}) if it is 0 (ROTATION_NONE) now; an "
+                  f"ArduPilot log's MAG is already turned by {key}, so {name} comes on top of "
+                  "its current value (compose the two); not written to the firmware files")
 
 
 #: Samples drawn in the picture: enough to show the shape, few enough to draw fast.
@@ -685,20 +752,43 @@ PICTURE_DPI = 90
 PICTURE_COMPRESSION = 1
 
 
+def _picture_job(result: CalibrationResult, payload: dict, folder: Path) -> dict:
+    """:func:`~magbench.cli.picture.draw_picture`'s job for ``folder/calibration.png``."""
+    return {"path": folder / "calibration.png", "dpi": PICTURE_DPI,
+            "compress_level": PICTURE_COMPRESSION,
+            "kwargs": _picture_arguments(result, payload)}
+
+
 def _picture_arguments(result: CalibrationResult, payload: dict) -> dict:
-    """Keyword arguments of :func:`magbench.figures.calibration.calibration_picture`."""
-    A = np.array(payload["A"])
-    b = np.array(payload["b"])
+    """Keyword arguments of :func:`magbench.figures.calibration.calibration_picture`: kept,
+    thinned and outlying samples apart; on a FAIL the rejected correction and the first
+    reason in the title. When the offset is larger than the field, the "before" row is drawn
+    about the fitted centre (else the data are a small blob far from the unit circle), and its
+    title says so."""
+    fail = payload["status"] == "FAIL"
+    fit = payload["rejected"] if fail else payload
+    A = np.array(fit["A"])
+    b = np.array(fit["b"])
     rec: Recording = result.rec
     step = max(1, rec.K // PICTURE_SAMPLES)
     y = rec.y[::step]
-    keep = result.screen.work[::step]
-    before = y / float(np.mean(np.linalg.norm(y, axis=1)))
+    strength = float(payload["field_strength"])
+    offset = float(np.linalg.norm(b))
+    if offset > strength:
+        before = (y - b) / strength
+        before_title = (f"before, drawn about the fitted offset (|b| = {offset / strength:.1f} "
+                        "x the field), scaled to the field")
+    else:
+        before = y / float(np.mean(np.linalg.norm(y, axis=1)))
+        before_title = None
     after = (y - b) @ A.T
     where = Path(payload["file"])
-    return {"before": before, "after": after,
-            "title": f"{where.parent.name}/{where.name}: {payload['label']} "
-                     f"({payload['model']} model)",
-            "inliers": keep, "directions": (result.work.y - b) @ A.T,
+    title = f"{where.parent.name}/{where.name}: {payload['label']} ({payload['model']} model)"
+    if fail:
+        reason = payload["fitness"]["reasons"][0] if payload["fitness"]["reasons"] else ""
+        title = f"FAIL: {reason[:110]}" + ("..." if len(reason) > 110 else "") + f"\n{title}"
+    return {"before": before, "after": after, "title": title,
+            "inliers": result.screen.inliers[::step], "thinned": ~result.screen.kept[::step],
+            "before_title": before_title, "directions": (result.work.y - b) @ A.T,
             "gap_centre": np.array(result.coverage["gap_centre"]),
             "gap_deg": result.coverage["largest_gap_deg"]}

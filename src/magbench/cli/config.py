@@ -43,7 +43,6 @@ __all__ = [
     "check_integer",
     "check_number",
     "check_options",
-    "check_out_calibration",
     "check_override_keys",
     "check_scale",
     "check_site",
@@ -57,6 +56,7 @@ __all__ = [
     "is_list_of",
     "nominal_point",
     "number",
+    "overwrite_wanted",
     "plain",
     "plain_override",
     "point_checks",
@@ -671,13 +671,11 @@ def check_instance(cfg: DictConfig) -> str | None:
     return str(value)
 
 
-def check_out_calibration(out: Path, overwrite: object) -> None:
-    """Refuse an ``out`` folder that already holds a calibration unless ``overwrite=true``."""
-    if _flag(overwrite if overwrite is not None else False, "overwrite"):
-        return
-    if (Path(out).expanduser() / "calibration.json").exists():
-        raise UsageError(f"out={out} already holds a calibration (calibration.json); pass "
-                         "overwrite=true to replace it, or choose another out=")
+def overwrite_wanted(cfg: DictConfig) -> bool:
+    """``overwrite`` of calibrate (false when unset); checked against the folder under its
+    lock (:func:`magbench.cli.outfolder.hold`)."""
+    value = cfg.get("overwrite")
+    return _flag(value if value is not None else False, "overwrite")
 
 
 def check_site(cfg: DictConfig) -> tuple[Site | None, dt.date | None]:

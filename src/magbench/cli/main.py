@@ -127,6 +127,18 @@ COMMANDS: dict[str, tuple[Callable[..., int], str, str, tuple[str, ...]]] = {
 }
 
 
+#: What ``calibrate`` does, for its --help (docs/calibrate.md says it at length).
+CALIBRATE_STEPS = [
+    "reads the file (CSV, .ulg, .bin, .log) -> thins still stretches and sets outliers aside ->",
+    "fits the candidates on all samples and on interleaved time-block folds -> chooses the",
+    "simplest of those tied out of sample -> judges it PASS / WARN / FAIL (gate.*; a field",
+    "strength the Earth does not give in units= fails) -> writes out/ as one folder:",
+    "calibration.json (m = A (y - b)), calibration.h, ardupilot.param and px4.params (a",
+    "known or inferred unit), inav.txt and betaflight.txt (units=counts), ranking.csv,",
+    "calibration.png and manifest.json. Exit 0 PASS or WARN, 3 FAIL (the reasons, no",
+    "correction), 2 a bad input or a folder in use. Details: docs/calibrate.md.", ""]
+
+
 def _key_help() -> dict[str, tuple[str, str]]:
     """``key -> (default, meaning)`` from the comments of ``conf/config.yaml``; the keys of a
     section (``gate:``) as ``gate.<key>``."""
@@ -152,10 +164,21 @@ def sweep_kinds() -> list[tuple[str, str]]:
 
     out = []
     for path in sorted((config_dir() / "sweep").glob("*.yaml")):
-        first = next((ln.lstrip("# ").strip() for ln in path.read_text().splitlines()
-                      if ln.startswith("#") and "@package" not in ln), "")
-        out.append((path.stem, first))
+        out.append((path.stem, _first_sentence(path.read_text())))
     return out
+
+
+def _first_sentence(text: str) -> str:
+    """The leading comment's first sentence, joined across lines (never cut mid-sentence: a
+    sentence ends at . ? or ! before a capital letter or at the comment's end)."""
+    words = []
+    for line in text.splitlines():
+        if not line.startswith("#"):
+            break
+        if "@package" not in line:
+            words.append(line.lstrip("# ").strip())
+    joined = " ".join(w for w in words if w)
+    return re.split(r"(?<=[.?!])\s+(?=[A-Z])", joined, maxsplit=1)[0]
 
 
 def kind_keys_help() -> list[str]:
@@ -220,8 +243,10 @@ def general_help() -> str:
 def command_help(command: str) -> str:
     _, what, example, keys = COMMANDS[command]
     known = _key_help()
-    lines = [f"python -m magbench {command} [key=value ...]: {what}", f"example: {example}", "",
-             "keys (default, meaning):"]
+    lines = [f"python -m magbench {command} [key=value ...]: {what}", f"example: {example}", ""]
+    if command == "calibrate":
+        lines += CALIBRATE_STEPS
+    lines.append("keys (default, meaning):")
     for key in keys:
         default, meaning = known.get(key, ("", ""))
         if key == "sweep":
@@ -260,12 +285,26 @@ def _plain_keys(args: list[str]) -> list[str]:
             # Added if new, so that a misspelt sweep key reaches the kind's check, which names
             # the keys it reads, instead of Hydra's advice to add it with '+'.
             out.append(f"++{bare}")
+        elif _bare_list(bare):
+            # ``location=52.5,13.4`` as --help writes it: Hydra calls a bare comma list
+            # ambiguous (a sweep or a list); these keys only take lists.
+            key, value = bare.split("=", 1)
+            out.append(f"{key}=[{value}]")
         elif arg.startswith("+") and not arg.startswith("++") and \
                 bare.split("=", 1)[0].split(".", 1)[0] in known:
             out.append(bare)
         else:
             out.append(arg)
     return out
+
+
+#: Keys whose value is a list, so that ``key=a,b`` means ``key=[a,b]``.
+LIST_KEYS = ("location", "columns", "candidates", "algorithms", "compensate", "plugins")
+
+
+def _bare_list(arg: str) -> bool:
+    key, _, value = arg.partition("=")
+    return key in LIST_KEYS and "," in value and not value.startswith(("[", "'", '"'))
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -313,7 +352,11 @@ def _main(argv: Sequence[str] | None) -> int:
         return 0
     bad = [a for a in args if "=" not in a]
     if bad:
-        print(f"magbench: error: unknown command or argument {bad[0]!r}; expected one of "
+        from magbench.cli.config import did_you_mean
+
+        guess = did_you_mean(bad[0], list(COMMANDS))
+        hint = f" (did you mean {guess}?)" if guess else ""
+        print(f"magbench: error: unknown command or argument {bad[0]!r}{hint}; expected one of "
               f"{', '.join(COMMANDS)} followed by key=value pairs (python -m magbench --help)",
               file=sys.stderr)
         return 2
@@ -349,6 +392,8 @@ def _dispatch(command: str, args: list[str], picture: PictureWorker | None) -> i
         # process. One line and a failing status; finished chunks are kept.
         print(f"magbench: error: {exc}", file=sys.stderr)
         return 1
+    except BrokenPipeError:
+        raise                       # the reader went away: main() ends quietly
     except OSError as exc:
         # A file-system refusal the checks could not foresee (a disk that fills, a folder
         # removed under a run): one line naming the path, not a traceback.

@@ -27,7 +27,10 @@ key            meaning
 inertial sensors): ``gauge`` is :data:`GAUGE_HEADING_TRUE`, ``A = R S`` with ``S`` symmetric
 positive definite and ``R`` the rotation to the IMU's axes, and two more keys, ``R`` (3x3) and
 ``S`` (3x3); ``T = A^-1``. A reader of version 1 refuses them rather than mistaking ``A``.
-The firmware parameter files stay symmetric (their matrices are), whatever the gauge.
+The firmware parameter files hold symmetric matrices: from a heading-true calibration they hold
+``S`` (turned by the detected standard mounting rotation, if any), and their header says the
+rotation left out, the heading error if it is ignored, and the standard rotation to set instead
+when one lies within :data:`ORIENT_TOLERANCE_DEG` (:func:`rotation_note`).
 
 Other keys (the method, its verdict, ...) may be added by the writer and are ignored on reading.
 
@@ -38,8 +41,8 @@ The unit of ``y`` (:mod:`magbench.core.units`) is recorded in the JSON (``unit``
 header; the firmware files below need it and are refused, in one line, when it is unknown. The
 field strength ``F = |det T|^(1/3)`` (the recording's field, in its units) is the same in every
 gauge. A firmware that applies a symmetric matrix gets ``F A``, so its corrected field keeps the
-local field's strength in its own unit, as its own calibrator's does; because ``A`` is
-symmetric in the safe gauge, nothing is dropped.
+local field's strength in its own unit, as its own calibrator's does; in the symmetric gauge
+nothing is dropped (a heading-true ``A = R S``: see above).
 
 *ArduPilot* (:func:`ardupilot_params`). ArduPilot's compass driver corrects a raw sample (in
 milligauss, in the sensor's axes after the board rotation) as
@@ -98,11 +101,12 @@ CAL_MAG_COMP_TYP = 2, battery instance 0) or the throttle from 0 to 1 (CAL_MAG_C
 and only while armed; so ``COMP = -k C``, times 1000 for the current (gauss per kA).
 
 *INAV and Betaflight* (:func:`inav_cli`, :func:`betaflight_cli`) hold offsets in raw counts
-and no cross-axis terms, so these files carry ``b`` only (rounded to whole counts) and say so;
-``A`` is not applied. INAV's ``compassUpdate`` (src/main/sensors/compass.c) computes
-``(raw - magzero) * 1024 / maggain`` per axis in the driver's axes before ``align_mag``; the
-file sets ``magzero_x/y/z`` and resets ``maggain_x/y/z`` to 1024 (no scale) so that an older
-calibration's gains do not stay. Betaflight's ``compassUpdate`` subtracts ``mag_calibration``
+and no cross-axis terms, so these files carry ``b`` (rounded to whole counts) and, for INAV,
+the diagonal of ``A``, and say what they leave out and the field error of their own
+correction on the recording (not the full model's). INAV's ``compassUpdate``
+(src/main/sensors/compass.c) computes ``(raw - magzero) * 1024 / maggain`` per axis in the
+driver's axes before ``align_mag``; the file sets ``magzero_x/y/z`` and ``maggain_x/y/z`` =
+``1024 g / A_ii`` (:func:`inav_gains`). Betaflight's ``compassUpdate`` subtracts ``mag_calibration``
 after its sensor alignment, so those offsets are right for a recording in the aligned axes (as
 Betaflight's own raw readout shows them). Both need ``units=counts``: the flight controller's
 own raw readings, in int16.
@@ -133,8 +137,9 @@ __all__ = ["ARDUPILOT_LIMITS", "FIRMWARE_FILES", "FORMAT", "GAUGE", "GAUGE_HEADI
            "MOTOR_REGRESSORS", "PX4_MAX_OFFSET_GAUSS", "SCHEMA_VERSION", "MotorCompensation",
            "ardupilot_param_file",
            "ardupilot_params", "betaflight_cli", "c_header", "field_strength",
-           "firmware_files", "from_json_dict", "inav_cli", "px4_param_file", "px4_params",
-           "to_json_dict"]
+           "firmware_files", "from_json_dict", "inav_cli", "inav_correction", "inav_gains",
+           "nearest_rotation", "partial_error_pct", "px4_param_file", "px4_params",
+           "rotation_note", "to_json_dict"]
 
 FORMAT = "magbench-calibration"
 SCHEMA_VERSION = 2
@@ -422,11 +427,13 @@ def _rotation_id(rotation: object) -> int:
     return int(rotation)
 
 
-def _check_ardupilot(field: float, offsets: np.ndarray, M: np.ndarray) -> None:
+def _check_ardupilot(field: float, offsets: np.ndarray, M: np.ndarray,
+                     firmware: str = "ArduPilot",
+                     names: tuple[str, str] = ("COMPASS_DIA", "COMPASS_ODI")) -> None:
     lo, hi = ARDUPILOT_LIMITS["field_mgauss"]
     if not lo < field < hi:
-        raise ValueError(f"field strength {field:.4g} mGauss is outside ArduPilot's accepted "
-                         f"({lo:g}, {hi:g}) mGauss (the Earth's field is 250-650 mGauss: check "
+        raise ValueError(f"field strength {field:.4g} mGauss is outside {firmware}'s accepted "
+                         f"({lo:g}, {hi:g}) mGauss (the Earth's field is 220-670 mGauss: check "
                          "the units= key)")
     worst = float(np.abs(offsets).max())
     if worst >= ARDUPILOT_LIMITS["offset_mgauss"]:
@@ -435,11 +442,11 @@ def _check_ardupilot(field: float, offsets: np.ndarray, M: np.ndarray) -> None:
     lo, hi = ARDUPILOT_LIMITS["diagonal"]
     diag = np.diag(M)
     if not np.all((diag > lo) & (diag < hi)):
-        raise ValueError(f"COMPASS_DIA values {np.round(diag, 4).tolist()} are outside "
-                         f"ArduPilot's accepted ({lo:g}, {hi:g})")
+        raise ValueError(f"{names[0]} values {np.round(diag, 4).tolist()} are outside "
+                         f"{firmware}'s accepted ({lo:g}, {hi:g})")
     odi = np.array([M[i, j] for i, j in _ODI])
     if np.abs(odi).max() >= ARDUPILOT_LIMITS["off_diagonal"]:
-        raise ValueError(f"COMPASS_ODI values {np.round(odi, 4).tolist()} exceed ArduPilot's "
+        raise ValueError(f"{names[1]} values {np.round(odi, 4).tolist()} exceed {firmware}'s "
                          f"accepted magnitude {ARDUPILOT_LIMITS['off_diagonal']:g}")
 
 
@@ -495,6 +502,10 @@ def px4_params(cal: Calibration, units: Units, *, instance: int = 0,
     n = _instance_suffix(instance, 4, "PX4")
     gauge = safe_gauge(cal.T, cal.h)
     S = field_strength(cal) * gauge.A
+    # PX4's parameters carry no range of their own: the field strength is checked against
+    # the Earth's, and the matrix against the limits ArduPilot's calibrator applies.
+    _check_ardupilot(1000.0 * k * field_strength(cal), np.zeros(3), S, "PX4",
+                     (f"CAL_MAG{n}_*SCALE", f"CAL_MAG{n}_*ODIAG"))
     out: dict[str, float] = {}
     if device_id is not None:
         out[f"CAL_MAG{n}_ID"] = int(device_id)
@@ -551,27 +562,60 @@ _OFFSETS_ONLY = ("holds offsets only: the soft-iron and scale correction A of "
 
 
 def _offsets_file(cal: Calibration, units: Units, firmware: str, comment: str, how: str,
-                  settings: Callable[[list[int]], list[str]]) -> str:
+                  settings: Callable[[list[int]], list[str]], what: str = _OFFSETS_ONLY) -> str:
     """A CLI file of ``set`` lines holding ``b`` in raw counts, saying what is not applied."""
     zero = _raw_offsets(cal, units, firmware)
-    head = _comment(f"{comment}\n{firmware}'s compass model {_OFFSETS_ONLY}; {how}\npaste "
+    head = _comment(f"{comment}\n{firmware}'s compass model {what}; {how}\npaste "
                     f"into the {firmware} CLI")
     return "\n".join([*head, *settings(zero), "save"]) + "\n"
 
 
-def inav_cli(cal: Calibration, units: Units, comment: str = "") -> str:
-    """INAV CLI ``set`` lines: ``magzero_x/y/z`` = ``b`` in raw counts, ``maggain_*`` = 1024.
+#: INAV's unit gain: ``maggain`` 1024 means no scale.
+INAV_UNIT_GAIN = 1024
+
+
+def inav_gains(cal: Calibration) -> list[int]:
+    """INAV's ``maggain_x/y/z`` holding the diagonal of ``A`` (module notes): INAV scales
+    axis ``i`` by ``1024 / maggain_i``, so ``maggain_i = 1024 g / A_ii`` with ``g`` the
+    geometric mean of the diagonal (gains about 1024, as INAV's own calibrator writes).
 
     Raises
     ------
     ValueError
-        The recording is not in raw counts, or an offset does not fit an int16; one line.
+        A gain outside INAV's setting range (1 to 32767); one line.
     """
+    d = np.diag(safe_gauge(cal.T, cal.h).A)
+    gains = [round(INAV_UNIT_GAIN * float(np.cbrt(np.prod(d))) / float(v)) for v in d]
+    if not all(1 <= g <= _INT16[1] for g in gains):
+        raise ValueError(f"INAV maggain values {gains} are outside its range 1-{_INT16[1]}")
+    return gains
+
+
+def inav_correction(zero: list[int], gains: list[int], y: np.ndarray) -> np.ndarray:
+    """What INAV computes from raw samples ``y`` with ``magzero`` and ``maggain``:
+    ``(y - zero) * 1024 / gain`` per axis."""
+    return (np.asarray(y, float) - np.asarray(zero, float)) * INAV_UNIT_GAIN / \
+        np.asarray(gains, float)
+
+
+def inav_cli(cal: Calibration, units: Units, comment: str = "") -> str:
+    """INAV CLI ``set`` lines: ``magzero_x/y/z`` = ``b`` in raw counts and ``maggain_x/y/z``
+    the diagonal of ``A`` (:func:`inav_gains`); the cross-axis terms are not held.
+
+    Raises
+    ------
+    ValueError
+        The recording is not in raw counts, or an offset does not fit an int16, or a gain is
+        out of range; one line.
+    """
+    gains = inav_gains(cal)
     return _offsets_file(
-        cal, units, "INAV", comment, "it subtracts magzero from the driver's raw axes before "
-        "align_mag, and maggain 1024 means no scale",
+        cal, units, "INAV", comment, "it computes (raw - magzero) * 1024 / maggain per axis in "
+        "the driver's raw axes before align_mag: maggain holds the diagonal of A",
         lambda zero: [*(f"set magzero_{a} = {v}" for a, v in zip("xyz", zero, strict=True)),
-                      *(f"set maggain_{a} = 1024" for a in "xyz")])
+                      *(f"set maggain_{a} = {g}" for a, g in zip("xyz", gains, strict=True))],
+        what="holds offsets and per-axis gains only: the cross-axis terms of calibration.json's "
+             "A are not applied")
 
 
 def betaflight_cli(cal: Calibration, units: Units, comment: str = "") -> str:
@@ -595,7 +639,8 @@ FIRMWARE_FILES = ("ardupilot.param", "px4.params", "inav.txt", "betaflight.txt")
 def firmware_files(cal: Calibration, units: Units, *, instance: int = 0,
                    device_id: int | None = None, rotation: int | None = None,
                    motor: MotorCompensation | None = None,
-                   comment: str = "") -> tuple[dict[str, str], dict[str, str]]:
+                   comment: str = "",
+                   samples: np.ndarray | None = None) -> tuple[dict[str, str], dict[str, str]]:
     """Every firmware file the calibration can be written as, and why the others cannot.
 
     Parameters
@@ -615,7 +660,12 @@ def firmware_files(cal: Calibration, units: Units, *, instance: int = 0,
         A current or throttle term fitted with ``cal``: ArduPilot's COMPASS_MOT* and PX4's
         CAL_MAGn_*COMP; INAV's and Betaflight's files say they cannot hold it.
     comment : str
-        Lines put at the head of each file (e.g. the verdict).
+        Lines put at the head of each file (e.g. the verdict). A heading-true ``cal`` (with an
+        alignment ``R``, ``A = R S``) adds to the ArduPilot and PX4 files exactly what they do
+        not hold (:func:`rotation_note`).
+    samples : ndarray, optional
+        Raw samples (file units); the INAV and Betaflight files then quote the field error of
+        their own correction on them (:func:`partial_error_pct`), not the full model's.
 
     Returns
     -------
@@ -646,19 +696,33 @@ def firmware_files(cal: Calibration, units: Units, *, instance: int = 0,
         px4_formula = f"S ((raw + p COMP) - OFF), p {p} (while armed)"
         offsets_only = (f"\nthe {motor.regressor} term C of calibration.json's time_varying is "
                         "not applied either (no such setting)")
+    turned = rotation_note(cal, rotation)
+    turned_raw = rotation_note(cal, None, "offsets in the sensor's axes")
+    partial = {}
+    if samples is not None and units.counts:
+        with np.errstate(all="ignore"):
+            for name, apply in (("inav.txt", _inav_apply), ("betaflight.txt", _offsets_apply)):
+                try:
+                    p95 = float(np.percentile(partial_error_pct(apply(cal, samples)), 95))
+                except ValueError:
+                    continue
+                partial[name] = (f"\nthis file's own correction (not calibration.json's full "
+                                 f"model) gives a field magnitude error of {p95:.2f} % (95th "
+                                 "percentile) on the recording")
     makers = {
         "ardupilot.param": (units.known, physical, lambda: ardupilot_param_file(
             ardupilot_params(cal, units, instance=instance, rotation=rotation, motor=motor),
             f"magbench calibration for ArduPilot: corrected = M (COMPASS_SCALE (raw + OFS)){mot}"
-            f", raw in milligauss{orient}\n{comment}")),
+            f", raw in milligauss{orient}\n{comment}{turned}")),
         "px4.params": (units.known, physical, lambda: px4_param_file(
             px4_params(cal, units, instance=instance, device_id=device_id, rotation=rotation,
                        motor=motor),
             f"magbench calibration for PX4: corrected = {px4_formula}, raw in gauss{rot}"
-            f"\n{comment}")),
-        "inav.txt": (units.counts, raw, lambda: inav_cli(cal, units, comment + offsets_only)),
-        "betaflight.txt": (units.counts, raw,
-                           lambda: betaflight_cli(cal, units, comment + offsets_only)),
+            f"\n{comment}{turned}")),
+        "inav.txt": (units.counts, raw, lambda: inav_cli(
+            cal, units, comment + offsets_only + partial.get("inav.txt", "") + turned_raw)),
+        "betaflight.txt": (units.counts, raw, lambda: betaflight_cli(
+            cal, units, comment + offsets_only + partial.get("betaflight.txt", "") + turned_raw)),
     }
     for name, (possible, why, make) in makers.items():
         if not possible:
@@ -669,3 +733,63 @@ def firmware_files(cal: Calibration, units: Units, *, instance: int = 0,
         except ValueError as exc:
             refused[name] = str(exc)
     return written, refused
+
+
+#: A standard rotation within this angle of a heading-true alignment is suggested for it.
+ORIENT_TOLERANCE_DEG = 5.0
+
+
+def _angle_deg(R: np.ndarray) -> float:
+    return float(np.degrees(np.arccos(np.clip((np.trace(R) - 1) / 2, -1.0, 1.0))))
+
+
+def nearest_rotation(R: np.ndarray) -> tuple[int, float]:
+    """The standard rotation id (:data:`magbench.core.mounting.ROTATIONS`) nearest to ``R``
+    and the angle between them (deg)."""
+    best = min(ROTATIONS, key=lambda r: _angle_deg(R @ rotation_matrix(r).T))
+    return best, _angle_deg(R @ rotation_matrix(best).T)
+
+
+def rotation_note(cal: Calibration, rotation: int | None = None, holds: str = "S") -> str:
+    """For a heading-true ``cal`` (``A = R S``): the header lines of a firmware file, which
+    holds ``S`` turned by the standard ``rotation`` (or by nothing), saying the rotation left
+    out, ``R M_r^T``, the heading error if it is ignored, and the standard rotation to set
+    instead when one is within :data:`ORIENT_TOLERANCE_DEG`; "" for a symmetric ``cal``.
+    ``holds``: what the file holds of the correction, in words."""
+    if cal.alignment is None:
+        return ""
+    R = np.asarray(cal.alignment, float)
+    Mr = np.eye(3) if rotation is None else rotation_matrix(_rotation_id(rotation))
+    left = _angle_deg(R @ Mr.T)
+    if left < 1e-6:
+        return ""
+    text = ("\ncalibration.json's A = R S also turns the field to the IMU's axes (R); this file "
+            f"holds {holds}" + (f" turned by {ROTATIONS[int(rotation)][0]}" if rotation is not None
+                         else "") + f": the remaining {left:.2f} deg rotation is not "
+            f"representable here (heading error up to {left:.2f} deg if ignored)")
+    best, off = nearest_rotation(R)
+    if off <= ORIENT_TOLERANCE_DEG and (rotation is None or best != int(rotation)) and best:
+        text += (f"; the nearest standard rotation is {ROTATIONS[best][0]} ({off:.2f} deg from "
+                 "R): set it as COMPASS_ORIENT (ArduPilot, external compass), CAL_MAGn_ROT "
+                 "(PX4, external) or the board rotation AHRS_ORIENT / SENS_BOARD_ROT "
+                 f"(internal), leaving {off:.2f} deg")
+    return text
+
+
+def partial_error_pct(corrected: np.ndarray) -> np.ndarray:
+    """The field magnitude error (%) of a correction that does not scale to the field: the
+    norms against their median (a firmware that holds offsets only leaves the scale as is)."""
+    norms = np.linalg.norm(np.asarray(corrected, float), axis=1)
+    norms = norms[np.isfinite(norms)]
+    if norms.size == 0:
+        raise ValueError("no finite sample")
+    return 100.0 * np.abs(norms / np.median(norms) - 1.0)
+
+
+def _offsets_apply(cal: Calibration, y: np.ndarray) -> np.ndarray:
+    return np.asarray(y, float) - np.round(safe_gauge(cal.T, cal.h).b)
+
+
+def _inav_apply(cal: Calibration, y: np.ndarray) -> np.ndarray:
+    zero = [round(float(v)) for v in safe_gauge(cal.T, cal.h).b]
+    return inav_correction(zero, inav_gains(cal), y)

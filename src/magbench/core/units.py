@@ -11,6 +11,17 @@ the flight controller's raw counts). :func:`parse_units` reads the ``units`` key
 * nothing (``null``): the unit is unknown, and no firmware file that needs it is written.
 
 1 gauss = 100 uT = 1e5 nT = 1000 mgauss = 1e-4 T.
+
+*The Earth's field as a unit check* (:func:`unit_check`). At the surface the main field lies
+between about 22 uT (South Atlantic) and 67 uT (near the magnetic poles): :data:`EARTH_FIELD_UT`.
+A fitted field strength outside that range, widened by :data:`EARTH_MARGIN` for local
+disturbance and scale error, in a declared physical unit means the unit is wrong, and no
+firmware file may be written from it. The physical units are at least ten times apart and the
+widened range spans less than a factor of five, so a magnitude fits at most one of them; an
+undeclared unit is *inferred* when one fits (and said). Raw counts (``units=counts``) have no
+size to check, but an int16 magnetometer's count is at most a few tenths of a uT (the coarsest
+common gains give over a hundred counts for the Earth's field), so a field of fewer than
+:data:`MIN_COUNTS_FIELD` "counts" is a physical unit given as counts.
 """
 
 from __future__ import annotations
@@ -19,7 +30,20 @@ import math
 import re
 from dataclasses import dataclass
 
-__all__ = ["GAUSS_PER", "UNKNOWN", "Units", "infer_units", "parse_field", "parse_units"]
+__all__ = [
+    "EARTH_FIELD_UT",
+    "EARTH_MARGIN",
+    "GAUSS_PER",
+    "MIN_COUNTS_FIELD",
+    "UNKNOWN",
+    "UnitCheck",
+    "Units",
+    "earth_unit",
+    "infer_units",
+    "parse_field",
+    "parse_units",
+    "unit_check",
+]
 
 #: Gauss per unit (the canonical keys).
 GAUSS_PER = {"gauss": 1.0, "mgauss": 1e-3, "ut": 1e-2, "nt": 1e-5, "mt": 10.0, "t": 1e4}
@@ -185,3 +209,101 @@ def infer_units(strength: float, expected_gauss: float, tol: float = 0.25) -> Un
         if abs(strength * gauss / expected_gauss - 1.0) <= tol:
             return Units(_SHOWN[key], gauss)
     return UNKNOWN
+
+
+#: The Earth's main field at the surface, uT (minimum and maximum, module notes).
+EARTH_FIELD_UT = (22.0, 67.0)
+#: Relative widening of :data:`EARTH_FIELD_UT` before a unit is refused or inferred.
+EARTH_MARGIN = 0.2
+#: Fewest raw counts a magnetometer gives for the Earth's field (module notes).
+MIN_COUNTS_FIELD = 100.0
+#: The units an undeclared file is inferred to be in, most common first.
+_INFERRED = ("ut", "gauss", "mgauss", "nt", "t")
+
+
+def _earth_range_ut() -> tuple[float, float]:
+    low, high = EARTH_FIELD_UT
+    return low * (1 - EARTH_MARGIN), high * (1 + EARTH_MARGIN)
+
+
+def earth_unit(strength: float) -> Units:
+    """The one physical unit in which ``strength`` lies in the Earth's (widened) range, or
+    :data:`UNKNOWN` when none does (module notes: at most one can)."""
+    if not (math.isfinite(strength) and strength > 0):
+        return UNKNOWN
+    low, high = _earth_range_ut()
+    for key in _INFERRED:
+        if low <= strength * GAUSS_PER[key] * 100.0 <= high:
+            return Units(_SHOWN[key], GAUSS_PER[key])
+    return UNKNOWN
+
+
+@dataclass(frozen=True)
+class UnitCheck:
+    """What :func:`unit_check` decided.
+
+    Attributes
+    ----------
+    units : Units
+        The unit to write the calibration in (the declared one, or the inferred one).
+    fail : str
+        One line when the field strength is impossible in the declared unit, else ``""``.
+    note : str
+        One line saying an inference (or why none was made), else ``""``.
+    inferred : bool
+        Whether ``units`` was inferred rather than declared.
+    """
+
+    units: Units
+    fail: str = ""
+    note: str = ""
+    inferred: bool = False
+
+
+def _likely(strength: float) -> str:
+    found = earth_unit(strength)
+    if found.known:
+        return f"it fits {found.name} (pass units={found.name})"
+    return ("it fits no physical unit: raw counts? (pass units=counts, or one count's size "
+            "such as units=0.0625uT)")
+
+
+def unit_check(strength: float, units: Units) -> UnitCheck:
+    """Check a fitted field strength (file units) against the Earth's field (module notes).
+
+    Parameters
+    ----------
+    strength : float
+        The calibration's field strength ``|det T|^(1/3)`` in the file's units.
+    units : Units
+        The declared unit (:data:`UNKNOWN` when not given).
+
+    Returns
+    -------
+    UnitCheck
+        A declared unit in which the field is impossible gives ``fail`` naming the likely
+        unit; an unknown unit is replaced by the one the magnitude fits, if any.
+    """
+    low, high = _earth_range_ut()
+    earth = f"the Earth's field is {EARTH_FIELD_UT[0]:g}-{EARTH_FIELD_UT[1]:g} uT"
+    if units.known:
+        ut = strength * units.gauss * 100.0
+        if low <= ut <= high:
+            return UnitCheck(units)
+        shown = units.show(strength) + ("" if units.name == "uT" else f" = {ut:.4g} uT")
+        return UnitCheck(units, fail=f"field strength {shown}, but {earth}: "
+                                     f"the file is not in {units.describe()}; {_likely(strength)}")
+    if units.counts:
+        if strength >= MIN_COUNTS_FIELD:
+            return UnitCheck(units)
+        return UnitCheck(units, fail=f"field strength {strength:.4g} counts is too few for a "
+                                     f"magnetometer's raw counts (at least {MIN_COUNTS_FIELD:g} "
+                                     f"for the Earth's field); {_likely(strength)}")
+    found = earth_unit(strength)
+    if found.known:
+        return UnitCheck(found, note=f"units: inferred {found.name} from the field strength "
+                                     f"{strength:.4g} ({earth}); pass units= if that is wrong "
+                                     "(units=counts for raw readings)", inferred=True)
+    return UnitCheck(units, note=f"units: unknown, and the field strength {strength:.4g} fits "
+                                 f"no physical unit ({earth}): raw counts? pass units=counts, or "
+                                 "one count's size such as units=0.0625uT")

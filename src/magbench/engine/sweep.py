@@ -128,6 +128,14 @@ def _lock_exclusive(handle: IO[str]) -> bool:
     return True
 
 
+def _names(path: Path, handle: IO[str]) -> bool:
+    """Whether ``path`` still names the open file ``handle`` (not removed or replaced)."""
+    try:
+        return os.stat(path).st_ino == os.fstat(handle.fileno()).st_ino
+    except FileNotFoundError:
+        return False
+
+
 @contextlib.contextmanager
 def folder_lock(folder: Path) -> Iterator[None]:
     """Hold an exclusive lock on ``folder`` (``.lock``) for the block; :class:`FolderBusy` if
@@ -137,8 +145,15 @@ def folder_lock(folder: Path) -> Iterator[None]:
     folder.mkdir(parents=True, exist_ok=True)
     path = folder / ".lock"
     handle = open(path, "a+")
+    held = _lock_exclusive(handle)
+    # The file is removed while held (below), so a finished folder keeps no .lock; a file
+    # opened just before that removal is an orphan, and its holder takes the new one instead.
+    while held and not _names(path, handle):
+        handle.close()
+        handle = open(path, "a+")
+        held = _lock_exclusive(handle)
     try:
-        if not _lock_exclusive(handle):
+        if not held:
             handle.seek(0)
             holder = handle.read().strip() or "another process"
             raise FolderBusy(f"{folder} is in use by a running magbench ({holder}); wait for "
@@ -149,6 +164,9 @@ def folder_lock(folder: Path) -> Iterator[None]:
         handle.flush()
         yield
     finally:
+        if held:
+            with contextlib.suppress(OSError):      # Windows keeps an open file
+                path.unlink()
         handle.close()
 
 

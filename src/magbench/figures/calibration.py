@@ -94,6 +94,8 @@ def picture_layout(rows: int = 3) -> PictureLayout:
 
 def calibration_picture(before: np.ndarray, after: np.ndarray, title: str = "", *,
                         inliers: np.ndarray | None = None,
+                        thinned: np.ndarray | None = None,
+                        before_title: str | None = None,
                         directions: np.ndarray | None = None,
                         gap_centre: np.ndarray | None = None,
                         gap_deg: float | None = None,
@@ -103,7 +105,9 @@ def calibration_picture(before: np.ndarray, after: np.ndarray, title: str = "", 
     Rows 1-2: the three 2-D projections before (scaled to unit mean norm, so both rows share
     the unit circle as reference) and after; a good calibration puts the points of every
     projection inside the circle and the outermost ones on it (a sphere's projection is a
-    filled disc). Samples set aside as outliers (``inliers`` False) are drawn as red crosses.
+    filled disc). Samples set aside as outliers (``inliers`` False) are drawn as red crosses,
+    samples dropped by thinning (``thinned`` True: their direction was sampled enough) as grey
+    dots under the kept ones. ``before_title`` replaces the first row's title.
     Row 3 (with ``directions``): the corrected field directions as longitude and latitude in
     the sensor's axes (longitude from +X toward +Y, latitude toward +Z), and the largest
     uncovered cap (centre ``gap_centre``, radius ``gap_deg``) outlined.
@@ -117,13 +121,21 @@ def calibration_picture(before: np.ndarray, after: np.ndarray, title: str = "", 
     fig, axes = layout.fig, layout.axes
     circle = np.linspace(0, 2 * np.pi, 361)
     good = np.ones(len(before), bool) if inliers is None else np.asarray(inliers, bool)
+    thin = np.zeros(len(before), bool) if thinned is None else np.asarray(thinned, bool) & good
+    kept = good & ~thin
+    if before_title:
+        axes[1].set_title(before_title, fontsize=9)
     for row, data in enumerate([before, after]):
         lim = max(1.2, 1.05 * float(np.abs(data[good]).max()))
         for col, (i, j, _, _) in enumerate(_PAIRS):
             ax = axes[3 * row + col]
             ax.plot(np.cos(circle), np.sin(circle), color="crimson", lw=1.0, label="unit circle")
+            if thin.any():
+                ax.plot(data[thin, i], data[thin, j], ".", ms=1.5, alpha=0.4, color="0.6",
+                        label="thinned (direction already sampled)")
             # plot() with small markers draws far faster than scatter() for thousands of points
-            ax.plot(data[good, i], data[good, j], ".", ms=1.5, alpha=0.5, color="#4c72b0")
+            ax.plot(data[kept, i], data[kept, j], ".", ms=1.5, alpha=0.5, color="#4c72b0",
+                    label="kept")
             if not good.all():
                 ax.plot(np.clip(data[~good, i], -lim, lim), np.clip(data[~good, j], -lim, lim),
                         "x", ms=4, color="crimson", label="set aside (outlier)")

@@ -728,10 +728,26 @@ def _plain_header(path: Path, layout: dict, sniffed: dict) -> list[str] | None:
     return stripped
 
 
+#: Other common spellings of the magnetometer axes, matched without regard to case.
+MAG_ALIASES = (("x", "y", "z"), ("magx", "magy", "magz"), ("mag_x", "mag_y", "mag_z"),
+               ("mag.x", "mag.y", "mag.z"), ("bx", "by", "bz"))
+
+
+def _named_axes(header: list[str]) -> list[int] | None:
+    """The positions of one spelling of :data:`MAG_ALIASES` in ``header``, or None."""
+    lower = [h.strip().lower() for h in header]
+    for names in MAG_ALIASES:
+        if all(lower.count(n) == 1 for n in names):
+            return [lower.index(n) for n in names]
+    return None
+
+
 def _magnetometer_columns(columns: Sequence[object] | None, header: list[str] | None,
                           n_cols: int) -> tuple[list[int], list[str]]:
     """The positions and names of the three magnetometer columns."""
     mag = _select(columns, header, n_cols, "columns", MAG_COLUMNS)
+    if mag is None and columns is None and header:
+        mag = _named_axes(header)
     if mag is None:
         if n_cols != 3:
             shown = ", ".join(header) if header else f"{n_cols} unnamed columns"

@@ -92,6 +92,11 @@ def applicability(name: str, rec: Recording) -> str:
              and p.default is inspect.Parameter.empty
              and p.name not in ("angular_rate", "time", "rng")]
     if needs:
+        held = [n for n in needs if getattr(rec, n, None) is not None]
+        if held:
+            return (f"skipped: {name} also needs {', '.join(needs)}; the recording holds "
+                    f"{', '.join(held)}, but calibrate does not pass it to a candidate's fit "
+                    "(it aligns the chosen fit to the IMU afterwards instead)")
         return f"skipped: {name} also needs {', '.join(needs)}, which a recording does not hold"
     return ""
 
