@@ -79,20 +79,19 @@ from magbench.core.exports import (
 from magbench.core.files import write_records_csv, write_text_atomic
 from magbench.core.gauge import safe_gauge
 from magbench.core.model import Calibration
-from magbench.core.units import UNKNOWN, Units, parse_units, unit_check
-from magbench.core.verdict import Gate, with_reason
+from magbench.core.units import UNKNOWN, Units, parse_units
+from magbench.core.verdict import Gate
 from magbench.methods.api import calibrate as magbench_calibrate
 from magbench.methods.registry import get_method, methods
 from magbench.sources.logs import is_log, log_units
 from magbench.sources.recordings import Recording, read_samples
-from magbench.studies.alignment import DirectionVeto, inertial_of, lag_corrected, offset_check
 from magbench.studies.auto import candidate_rounds
 from magbench.studies.calibration import (
     CalibrationResult,
     bootstrap_check,
-    calibrate_recording,
     estimate,
 )
+from magbench.studies.decision import decide
 from magbench.studies.flight import (
     check_regressors,
     mounting_rotation,
@@ -378,25 +377,16 @@ def _calibrate_into(cfg: DictConfig, run: _Run, staging: Staging,
         reason = applicability(run.name, rec)
         if reason:
             raise UsageError(reason.removeprefix("skipped: "))
-    has_inertial = inertial_of(rec).source != "none"
-    rec, lag = lag_corrected(rec) if has_inertial else (rec, 0.0)
-    # An offset that follows the current, throttle or temperature is what the time-varying
-    # terms fit: only without such a regressor is a changed offset a cut.
-    offsets = (offset_check(rec)
-               if has_inertial and not usable_regressors(rec, run.compensate) else None)
-    if offsets is not None and not offsets.changed:
-        offsets = None
-    if offsets is not None:
-        rec = rec.rows(np.flatnonzero(offsets.keep))
-    veto = DirectionVeto()
     if _nothing_cached():
         print("magbench: compiling the fitting kernels on this first run (once; later runs "
               "reuse them)", file=sys.stderr, flush=True)
-    result = calibrate_recording(rec, candidates, preprocess=run.preprocess, options=options,
-                                 seed=run.common["seed"],
-                                 call_timeout_s=run.common["call_timeout_s"], bootstrap=0,
-                                 second_round=second, max_samples=run.max_samples,
-                                 gate=run.gate, expected_field=run.expected, extra=veto)
+    decision = decide(rec, candidates, second_round=second, preprocess=run.preprocess,
+                      options=options, seed=run.common["seed"],
+                      call_timeout_s=run.common["call_timeout_s"], max_samples=run.max_samples,
+                      gate=run.gate, expected_field=run.expected, compensate=run.compensate,
+                      units=run.units)
+    rec, result, lag, offsets, veto = (decision.rec, decision.result, decision.lag_s,
+                                       decision.offsets, decision.veto)
     mark_vetoes(result.ranked, veto)
     if result.chosen is None:
         _print_skipped(result.ranked)
@@ -407,15 +397,7 @@ def _calibrate_into(cfg: DictConfig, run: _Run, staging: Staging,
                          "in a steady field"
                          + ("; " + offsets.warning() if offsets is not None else ""))
     out, folder = run.out, staging.path
-    if offsets is not None:
-        # A calibration of a minority of the recording describes a state the vehicle
-        # mostly was not in: it is not written.
-        result.fitness = with_reason(result.fitness, offsets.warning(),
-                                     fail=offsets.kept_share < 0.5)
-    T, h = estimate(result.chosen)
-    units = unit_check(field_strength(Calibration(T, h)), run.units)
-    if units.fail:
-        result.fitness = with_reason(result.fitness, units.fail, fail=True)
+    units = decision.units
     payload = calibration_json(result, file=str(run.path), columns=list(rec.columns),
                                n_file=n_file, preprocess=run.preprocess, units=units.units,
                                expected_field=run.expected)
@@ -440,7 +422,8 @@ def _calibrate_into(cfg: DictConfig, run: _Run, staging: Staging,
     result.bootstrap = payload["bootstrap"] = bootstrap_check(
         result, run.n_boot, preprocess=run.preprocess, options=options,
         seed=run.common["seed"])
-    cal, direction = direction_lines(result, Calibration(T, h), payload, veto, run.site, lag)
+    cal, direction = direction_lines(result, Calibration(*estimate(result.chosen)), payload,
+                                     veto, run.site, lag)
     write_text_atomic(json.dumps(payload, indent=2) + "\n", folder / "calibration.json")
     written, notes = _write_exports(cal, payload, folder, result)
     offset_line = offsets.line() if offsets is not None else ""

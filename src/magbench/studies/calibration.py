@@ -265,12 +265,12 @@ def retrim(rec: Recording, current: Screen, chosen: Mapping) -> Screen:
 
 def judge(result: CalibrationResult, gate: Gate,
           expected_field: float | tuple[float, float] | None = None,
-          heading_deg: float | None = None, whole: np.ndarray | None = None) -> None:
+          heading_deg: float | None = None) -> None:
     """Verdict, model-based intervals and fitness of the choice (module notes, step 5);
     ``heading_deg``: the choice's held-out heading RMS against a reference attitude, when
-    measured (recorded in the verdict and judged by the gate); ``whole``: the samples whose
-    field-magnitude spread the correction must narrow (default every sample of
-    ``result.rec``; a caller that cut the recording passes the uncut one)."""
+    measured (recorded in the verdict and judged by the gate). The correction must narrow
+    the field magnitude's spread over every sample of ``result.rec``
+    (:func:`magbench.core.verdict.fitness`)."""
     chosen = result.chosen
     work = result.work
     name = str(chosen["algorithm"])
@@ -284,7 +284,7 @@ def judge(result: CalibrationResult, gate: Gate,
     result.verdict["heading_measured_deg"] = heading_deg
     model = get_method(name).model
     result.intervals = fisher_intervals(work.y, T, h, model)
-    spreads = _spreads(result.rec.y if whole is None else whole, T, h)
+    spreads = _spreads(result.rec.y, T, h)
     noise = noise_p95_pct(result.rec.y, result.screen.radius)
     result.verdict["spread_pct"] = {"corrected": spreads[0], "uncorrected": spreads[1],
                                     "kept": CENTRAL_SHARE}
@@ -352,7 +352,7 @@ def _spreads(y: np.ndarray, T: np.ndarray, h: np.ndarray) -> tuple[float, float]
 
 def _next_that_passes(result: CalibrationResult, gate: Gate,
                       expected_field: float | tuple[float, float] | None,
-                      headings: Mapping[str, float], whole: np.ndarray | None = None) -> None:
+                      headings: Mapping[str, float]) -> None:
     """When the chosen fit FAILs the gate, the next eligible candidate in the ranking that
     does not (and is not refused) is chosen instead, and the table says why; unchanged when
     none passes (a reason of the recording's, coverage say, fails them all)."""
@@ -363,7 +363,7 @@ def _next_that_passes(result: CalibrationResult, gate: Gate,
                 refusal_reason(*estimate(row), result.work.y, result.screen.centre):
             continue
         trial = replace(result, choice=Choice(result.ranked, dict(row), result.how))
-        judge(trial, gate, expected_field, headings.get(str(row["algorithm"])), whole)
+        judge(trial, gate, expected_field, headings.get(str(row["algorithm"])))
         if trial.fitness["status"] != "FAIL":
             ranked = [dict(r) for r in result.ranked]
             for r in ranked:
@@ -402,8 +402,7 @@ def calibrate_recording(rec: Recording, candidates: Sequence[str], *,
                         second_round: Sequence[str] = (), max_samples: int | None = None,
                         gate: Gate | None = None,
                         expected_field: float | tuple[float, float] | None = None,
-                        extra: ExtraScore | None = None,
-                        whole: np.ndarray | None = None) -> CalibrationResult:
+                        extra: ExtraScore | None = None) -> CalibrationResult:
     """Thin, screen, fit, choose, trim and judge (module notes).
 
     Parameters
@@ -434,9 +433,6 @@ def calibrate_recording(rec: Recording, candidates: Sequence[str], *,
         mapping (method -> held-out heading RMS, deg, as
         :class:`magbench.studies.alignment.DirectionVeto`), the choice's entry goes to the
         gate.
-    whole : ndarray of shape (n, 3), optional
-        Samples whose field-magnitude spread the correction must narrow, or the result FAILs
-        (default every sample of ``rec``; :func:`judge`).
     """
     options = options or {}
     current = screen(rec.y)
@@ -480,10 +476,9 @@ def calibrate_recording(rec: Recording, candidates: Sequence[str], *,
     if result.chosen is None:
         return result
     scores = getattr(extra, "scores", {})
-    judge(result, gate or Gate(), expected_field, scores.get(str(result.chosen["algorithm"])),
-          whole)
+    judge(result, gate or Gate(), expected_field, scores.get(str(result.chosen["algorithm"])))
     if result.fitness["status"] == "FAIL" and not named:
-        _next_that_passes(result, gate or Gate(), expected_field, scores, whole)
+        _next_that_passes(result, gate or Gate(), expected_field, scores)
     _halves_reason(result, gate or Gate())
     result.bootstrap = bootstrap_check(result, bootstrap, preprocess=preprocess,
                                        options=options, seed=seed)

@@ -117,7 +117,7 @@ def eligibility(table: Sequence[Mapping], gap_deg: float, scores: Sequence[str] 
             note = (f"not chosen: a {r['model']} model is not trusted with a {gap_deg:.0f} deg "
                     "gap in coverage")
         out.append({**r, "scored": has and bool(r["meaningful"]), "eligible": not note,
-                    "note": note})
+                    "note": note, "off_scale": note.startswith("not chosen: fitted field")})
     return out
 
 
@@ -245,4 +245,12 @@ def choose(summary: Sequence[Mapping], corrected: Mapping[str, np.ndarray | None
     table = gyro_rule(eligibility(annotate(summary, corrected), gap_deg, scores,
                                   max_field_pct), scores)
     ranked, chosen = pick(find_tie(rank(table, scores), scores), refuse)
+    if chosen is None:
+        # Nothing else can be chosen: the best fit off the data's scale is judged, and the
+        # gate FAILs it with the reason, rather than no answer at all.
+        off = [r for r in ranked if r.get("off_scale")]
+        if off:
+            chosen = dict(min(off, key=lambda r: float(r[scores[0]])))
+            return Choice(ranked, chosen, f"only {chosen['algorithm']} has an out-of-sample "
+                          "score, and its field is off the data's scale")
     return Choice(ranked, chosen, _how(ranked, chosen))

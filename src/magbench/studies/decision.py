@@ -3,11 +3,12 @@
 :func:`decide` is the part of ``python -m magbench calibrate`` between reading the file and
 writing the answer: the magnetometer lag removed against the inertial streams, a hard-iron
 offset that changes within the recording cut (:func:`magbench.studies.alignment.offset_check`),
-the candidates fitted, held out and chosen (:func:`magbench.studies.calibration.\
-calibrate_recording`, with the direction veto when there is a reference attitude), and the
-verdict. The command prints and writes what it returns; the generalisation study
-(:mod:`magbench.studies.generalisation`) scores it, so the study measures the command's own
-choice, exit status included.
+the candidates fitted, held out and chosen
+(:func:`magbench.studies.calibration.calibrate_recording`, with the direction veto when there
+is a reference attitude), and the verdict, with the field strength checked against the
+Earth's in the declared unit. The command prints and writes what it returns; the
+generalisation study (:mod:`magbench.studies.generalisation`) scores it, so the study measures
+the command's own choice, exit status included.
 """
 
 from __future__ import annotations
@@ -17,7 +18,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from magbench.core.exports import field_strength
 from magbench.core.model import Calibration, CalibrationFailed
+from magbench.core.units import UNKNOWN, UnitCheck, Units, unit_check
 from magbench.core.verdict import Gate, with_reason
 from magbench.sources.recordings import Recording
 from magbench.studies.alignment import (
@@ -55,6 +58,9 @@ class Decision:
         The offset cut, when the offset changed within the recording.
     veto : DirectionVeto
         The held-out heading scores and vetoes (empty without an attitude).
+    units : UnitCheck or None
+        The chosen fit's field strength against the Earth's in the declared (or inferred)
+        unit (None without a choice).
     """
 
     rec: Recording
@@ -62,6 +68,7 @@ class Decision:
     lag_s: float
     offsets: OffsetCheck | None
     veto: DirectionVeto
+    units: UnitCheck | None = None
 
     @property
     def status(self) -> str:
@@ -84,12 +91,12 @@ def decide(rec: Recording, candidates: Sequence[str], *, second_round: Sequence[
            preprocess: str = "centre", options: dict | None = None, seed: int = 0,
            call_timeout_s: float | None = None, max_samples: int | None = None,
            gate: Gate | None = None, expected_field: float | None = None,
-           compensate: list[str] | None = None) -> Decision:
+           compensate: list[str] | None = None, units: Units = UNKNOWN) -> Decision:
     """``calibrate``'s decision on ``rec`` (module notes); the block bootstrap is left to the
-    caller (:func:`magbench.studies.calibration.bootstrap_check`)."""
+    caller (:func:`magbench.studies.calibration.bootstrap_check`). ``units``: the declared
+    unit of the samples (a field strength the Earth cannot give in it is a FAIL)."""
     has_inertial = inertial_of(rec).source != "none"
     rec, lag = lag_corrected(rec) if has_inertial else (rec, 0.0)
-    whole = rec.y
     # An offset that follows the current, throttle or temperature is what the time-varying
     # terms fit: only without such a regressor is a changed offset a cut.
     offsets = (offset_check(rec)
@@ -102,14 +109,18 @@ def decide(rec: Recording, candidates: Sequence[str], *, second_round: Sequence[
     result = calibrate_recording(rec, candidates, preprocess=preprocess, options=options,
                                  seed=seed, call_timeout_s=call_timeout_s, bootstrap=0,
                                  second_round=second_round, max_samples=max_samples,
-                                 gate=gate, expected_field=expected_field, extra=veto,
-                                 whole=whole)
-    if offsets is not None and result.fitness is not None:
+                                 gate=gate, expected_field=expected_field, extra=veto)
+    if result.fitness is None:
+        return Decision(rec, result, lag, offsets, veto)
+    if offsets is not None:
         # A calibration of a minority of the recording describes a state the vehicle
         # mostly was not in: it is not written.
         result.fitness = with_reason(result.fitness, offsets.warning(),
                                      fail=offsets.kept_share < 0.5)
-    return Decision(rec, result, lag, offsets, veto)
+    check = unit_check(field_strength(Calibration(*estimate(result.chosen))), units)
+    if check.fail:
+        result.fitness = with_reason(result.fitness, check.fail, fail=True)
+    return Decision(rec, result, lag, offsets, veto, check)
 
 
 def written_correction(decision: Decision) -> Calibration | None:
