@@ -244,7 +244,9 @@ def _interval_lines(payload: dict) -> list[str]:
     if bs:
         lines.append(f"intervals: wider of model-based and block bootstrap ({bs['replicates']} "
                      f"refits, blocks of {bs['block']} samples, residual correlation "
-                     f"{bs['correlation_samples']:.1f} samples)")
+                     f"{bs['correlation_samples']:.1f} samples)"
+                     + ("; b at least as wide as the two halves' offsets are apart"
+                        if "halves_apart_h" in bs else ""))
     return lines
 
 

@@ -314,26 +314,25 @@ def offset_of(y: np.ndarray, T: np.ndarray, h: np.ndarray, iterations: int = 8) 
     return h
 
 
-def halves_offset_change(work: Recording, T: np.ndarray, h: np.ndarray) -> float:
-    """How far (share of the field) the offset of the first half of ``work`` (in time order)
-    lies from that of the second, the shape ``T`` held (:func:`offset_of`): a hard iron that
-    moved (a magnet, a battery, a switched load) during the recording. NaN when a half has
-    fewer than 20 samples."""
+def halves_offsets(work: Recording, T: np.ndarray, h: np.ndarray) -> np.ndarray | None:
+    """The offsets (2, 3) of the first and the second half of ``work`` (in time order), the
+    shape ``T`` held (:func:`offset_of`); None when a half has fewer than 20 samples."""
     half = work.K // 2
     if half < 20:
-        return np.nan
-    h1 = offset_of(work.y[:half], T, h)
-    h2 = offset_of(work.y[half:], T, h)
-    return float(np.linalg.norm(np.linalg.solve(T, h1 - h2)))
+        return None
+    return np.array([offset_of(work.y[:half], T, h), offset_of(work.y[half:], T, h)])
 
 
 def _halves_reason(result: CalibrationResult, gate: Gate) -> None:
     """WARN (FAIL above the gate's field-error FAIL threshold) when the second half of the
-    recording contradicts the first (:func:`halves_offset_change`): a correction fitted on
-    both is a compromise that holds neither state."""
+    recording contradicts the first (:func:`halves_offsets`, apart by a share of the field):
+    a correction fitted on both is a compromise that holds neither state."""
     T, h = estimate(result.chosen)
-    change = halves_offset_change(result.work, T, h)
+    both = halves_offsets(result.work, T, h)
+    change = np.nan if both is None else \
+        float(np.linalg.norm(np.linalg.solve(T, both[0] - both[1])))
     result.verdict["halves_offset_change_pct"] = None if np.isnan(change) else 100 * change
+    result.verdict["halves_offsets"] = None if both is None else both.tolist()
     if not 100 * change > gate.warn_error_pct:
         return
     t = result.work.t
@@ -527,8 +526,24 @@ def bootstrap_check(result: CalibrationResult, B: int, *, preprocess: str = "cen
     fits = [f for f in fits if f is not None]
     if len(fits) < max(10, B // 2):
         return None
-    return _bootstrap_summary(result.intervals, fits, block, correlation_length(residual),
-                              work.K)
+    out = _bootstrap_summary(result.intervals, fits, block, correlation_length(residual),
+                             work.K)
+    return _with_halves(out, (result.verdict or {}).get("halves_offsets"))
+
+
+def _with_halves(summary: dict, halves: list | None) -> dict:
+    """The reported offset half-widths at least the distance between the offsets of the two
+    halves of the recording: an offset that drifts slowly (temperature, a battery) moves less
+    within a block than over the recording, which the block bootstrap cannot see."""
+    if halves is None:
+        return summary
+    apart = np.abs(np.subtract(*np.asarray(halves, dtype=float)))
+    wider = np.asarray(summary["wider_h"], dtype=float)
+    out = {**summary, "halves_apart_h": apart.tolist(),
+           "wider_h": np.maximum(wider, apart).tolist()}
+    if np.mean(apart > wider) > 0.5:
+        out["source_h"] = "time halves"
+    return out
 
 
 def _bootstrap_summary(iv: Intervals, fits: list, block: int, corr: float, K: int) -> dict:

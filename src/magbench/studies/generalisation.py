@@ -32,6 +32,7 @@ where a fixed method would have helped.
 from __future__ import annotations
 
 import time
+import warnings
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -42,6 +43,7 @@ import numpy as np
 from magbench.core.direction import direction_spread, world_field
 from magbench.core.files import write_csv_atomic
 from magbench.core.geometry import coverage, sphere_fit, unit_rows
+from magbench.core.model import Calibration
 from magbench.core.seeding import rng
 from magbench.engine.sweep import Study
 from magbench.engine.trial import run_method
@@ -49,6 +51,7 @@ from magbench.sources.recordings import Recording, load_recording
 from magbench.studies.auto import candidate_rounds
 from magbench.studies.calibration import bootstrap_check
 from magbench.studies.decision import decide, written_correction
+from magbench.studies.holdout import estimate
 from magbench.studies.peers import available_peers, fit_peer
 from magbench.studies.real import DEFAULT_MAX_SAMPLES, applicability, fit_recording, is_usable
 
@@ -229,7 +232,6 @@ def _fixed_rows(rec, protocol, fit, test, raw, names, options, seed, timeout, ra
         error = out.error
         if out.T is not None and not error:
             try:
-                from magbench.core.model import Calibration
                 A, b = Calibration(out.T, out.h).correction()
             except Exception as exc:    # a singular fit is a row with its reason
                 error = f"{type(exc).__name__}: {exc}"
@@ -246,8 +248,9 @@ def _peer_rows(rec, protocol, fit, test, raw, radius, centre):
     for name in available_peers():
         start = time.perf_counter()
         try:
-            from magbench.core.model import Calibration
-            A, b = Calibration(*fit_peer(name, thin.y)).correction()
+            with warnings.catch_warnings():     # a peer's own warnings are not the user's
+                warnings.simplefilter("ignore")
+                A, b = Calibration(*fit_peer(name, thin.y)).correction()
             rows.append(_row(rec, protocol, name, "peer", fit, test, raw, A=A, b=b,
                              status="ok", written=True, method=name, radius=radius,
                              centre=centre))
@@ -280,7 +283,6 @@ def _auto_row(rec, protocol, fit, test, raw, options, seed, timeout, radius, cen
                error="; ".join(str(r) for r in reasons)[:300])
     if A is None and chosen is not None:
         # What the user is left with is the raw data; the ratio is still worth keeping.
-        from magbench.studies.holdout import estimate
         T, _ = estimate(chosen)
         row["field_ratio"] = float(np.cbrt(abs(np.linalg.det(T))) / radius)
     return row, time.perf_counter() - start
@@ -343,7 +345,6 @@ def interval_rows(rec: Recording, *, options: dict | None = None, seed: int = 0,
         iv, bs = d.result.intervals, d.result.bootstrap
         width = np.array(bs["wider_h"]) if bs else np.asarray(iv.h_half)
         source = bs["source_h"] if bs else "model-based"
-        from magbench.studies.holdout import estimate
         halves.append((str(d.result.chosen["algorithm"]), estimate(d.result.chosen)[1], width,
                        source))
     (m1, b1, w1, s1), (m2, b2, w2, s2) = halves
