@@ -48,7 +48,7 @@ def _label(name: str) -> str:
 
 def _style(name: str) -> tuple[str, str]:
     if name == "calibrate":
-        return AUTO_COLOUR, "o"
+        return AUTO_COLOUR, ""
     if "." in name:                     # a peer: its paired method's colour, hollow bars
         base = {"navlib.cal_mag_sphere_fit": "sphere", "navlib.cal_mag_ellipsoid_fit_fang":
                 "fang", "magcal.ellipsoid_fit": "ellipsoid"}.get(name, "sphere")
@@ -60,7 +60,7 @@ def generalisation_figure(cases: pd.DataFrame) -> Figure:
     """Panels (a) and (b) of the module notes; n per protocol on the x axis."""
     protocols = list(dict.fromkeys(cases["protocol"]))
     n = {p: int((cases["protocol"] == p).sum()) for p in protocols}
-    fig = new_figure(11, 7.2)
+    fig = new_figure(11, 7.8)
     ax_a, ax_b = fig.subplots(2, 1)
     x = np.arange(len(protocols))
     ticks = [f"{p}\n(n={n[p]})" for p in protocols]
@@ -78,7 +78,8 @@ def generalisation_figure(cases: pd.DataFrame) -> Figure:
     ax_a.axhline(0.0, color="#777777", lw=0.8)
     ax_a.axhline(0.25, color="#777777", lw=0.8, ls="--",
                  label="tolerance: 0.25 points (or 5 %)")
-    ax_a.set_yscale("symlog", linthresh=0.5)
+    ax_a.set_yscale("symlog", linthresh=1.0)
+    ax_a.set_yticks([-10, -1, 0, 1, 10], ["-10", "-1", "0", "1", "10"])
     ax_a.set_xticks(x, ticks)
     ax_a.set_ylabel("regret, points of held-out spread\n(calibrate - best fixed in hindsight)")
     ax_a.set_title("(a) calibrate against the best fixed method in hindsight, per case",
@@ -95,5 +96,5 @@ def generalisation_figure(cases: pd.DataFrame) -> Figure:
     ax_b.set_ylabel("losses (cases)")
     ax_b.set_title("(b) losses per protocol: calibrate beside always using one fit",
                    loc="left")
-    ax_b.legend(fontsize=7, ncol=2, loc="upper left")
+    ax_b.legend(fontsize=7, ncol=4, loc="upper center", bbox_to_anchor=(0.5, -0.22))
     return fig

@@ -1,0 +1,46 @@
+"""The generalisation section says what the CSV files hold."""
+
+from __future__ import annotations
+
+import pandas as pd
+
+from magbench.report.generalisation import generalisation_section, headline
+
+
+def write(folder, cases):
+    folder.mkdir(parents=True)
+    cases.to_csv(folder / "generalisation_cases.csv", index=False)
+    pd.DataFrame([{"protocol": "half", "cases": len(cases), "regret_median": 0.1,
+                   "regret_max": 2.0, "losses": int(cases["loss"].sum()),
+                   "loss_pct": 50.0, "harmful": 1, "needless_fail": 0, "not_written": 1},
+                  {"protocol": "all", "cases": len(cases), "regret_median": 0.1,
+                   "regret_max": 2.0, "losses": int(cases["loss"].sum()), "loss_pct": 50.0,
+                   "harmful": 1, "needless_fail": 0, "not_written": 1,
+                   "wtl:sphere": "1/0/1"}]).to_csv(folder / "generalisation_summary.csv",
+                                                    index=False)
+    pd.DataFrame({"kind": ["auto"], "entrant": ["calibrate"], "protocol": ["half"],
+                  "direction_deg": [float("nan")]}).to_csv(
+        folder / "generalisation_trials.csv", index=False)
+
+
+def test_the_section_leads_with_the_counts(tmp_path):
+    cases = pd.DataFrame({"dataset": ["a", "b"], "protocol": ["half", "half"],
+                          "status": ["PASS", "FAIL"], "method": ["fang", ""],
+                          "written": [True, False], "auto_pct": [3.0, 9.0],
+                          "raw_pct": [2.0, 9.0], "best_fixed": ["sphere", "sphere"],
+                          "best_fixed_pct": [1.0, 8.0], "regret": [2.0, 1.0],
+                          "loss": [True, False], "harmful": [True, False],
+                          "needless_fail": [False, False],
+                          "auto_direction_deg": [float("nan")] * 2,
+                          "raw_direction_deg": [float("nan")] * 2})
+    assert headline(cases) == {"cases": 2, "losses": 1, "harmful": 1, "needless_fail": 0,
+                               "not_written": 1, "recordings": 2}
+    write(tmp_path / "generalisation", cases)
+    text = generalisation_section(tmp_path)
+    assert "loses to the best fixed method in hindsight in 1 of 2 (50 %)" in text
+    assert "writes a correction worse than the raw data in 1" in text
+    assert "| sphere | 1/0/1 |" in text and "| a | half | PASS | fang |" in text
+
+
+def test_no_study_no_section(tmp_path):
+    assert generalisation_section(tmp_path) == ""
