@@ -165,24 +165,26 @@ def split(rec: Recording, protocol: str, seed: int = 0) -> tuple[Recording, Reco
 # --- scores --------------------------------------------------------------------------------
 
 def _attitude(rec: Recording) -> np.ndarray | None:
+    """The reference attitude (K, 4), NaN rows where it is missing; None without one."""
     names = ("qw", "qx", "qy", "qz")
     if rec.extra is None or not all(n in rec.extra for n in names):
         return None
-    q = np.column_stack([rec.extra[n] for n in names])
-    return q if np.isfinite(q).all() else None
+    return np.column_stack([rec.extra[n] for n in names])
 
 
 def scores(test: Recording, A: np.ndarray | None = None, b: np.ndarray | None = None
            ) -> tuple[float, float]:
-    """Held-out field-magnitude spread (%) and world-frame direction spread (deg RMS, NaN
-    without an attitude) of ``test`` corrected by ``m = A (y - b)`` (raw without ``A``)."""
+    """Held-out field-magnitude spread (%) and world-frame direction spread (deg RMS over the
+    rows with an attitude; NaN without one, or when fewer than half the rows have it) of
+    ``test`` corrected by ``m = A (y - b)`` (raw without ``A``)."""
     m = test.y if A is None else (test.y - b) @ np.asarray(A).T
     norm = np.linalg.norm(m, axis=1)
     spread = float(100 * norm.std() / norm.mean())
     q = _attitude(test)
-    if q is None:
+    known = np.zeros(test.K, dtype=bool) if q is None else np.isfinite(q).all(axis=1)
+    if known.sum() < max(MIN_PART, 0.5 * test.K):
         return spread, float("nan")
-    angles = np.degrees(direction_spread(world_field(m, q)))
+    angles = np.degrees(direction_spread(world_field(m[known], q[known])))
     return spread, float(np.sqrt(np.mean(angles ** 2)))
 
 
