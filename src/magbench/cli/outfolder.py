@@ -41,12 +41,15 @@ from pathlib import Path
 from magbench.cli.config import UsageError, writable_folder
 from magbench.core.files import file_sha256, write_text_atomic
 
-__all__ = ["MANIFEST", "OUTPUTS", "Staging", "check_manifest", "hold"]
+__all__ = ["CARRIED", "MANIFEST", "OUTPUTS", "Staging", "check_manifest", "hold"]
 
 MANIFEST = "manifest.json"
 #: Every file ``calibrate`` may write into its folder (an ``out`` holding others is refused).
 OUTPUTS = ("calibration.json", "calibration.h", "ardupilot.param", "px4.params", "inav.txt",
            "betaflight.txt", "ranking.csv", "calibration.png", MANIFEST)
+#: The recording ``capture`` saves into the folder it then calibrates into: carried into the
+#: new folder (and its manifest), so the calibration stays beside the samples it came from.
+CARRIED = ("capture.csv", "capture.json")
 _AT_FDCWD = -100
 _RENAME_EXCHANGE = 2
 
@@ -140,7 +143,7 @@ def _lock(path: Path) -> int | None:
 
 
 def _foreign(out: Path) -> list[str]:
-    return sorted(p.name for p in out.iterdir() if p.name not in OUTPUTS)
+    return sorted(p.name for p in out.iterdir() if p.name not in OUTPUTS + CARRIED)
 
 
 @contextlib.contextmanager
@@ -181,6 +184,9 @@ def hold(out: Path | str, overwrite: bool) -> Iterator[Staging]:
         staging = Staging(out, parent / f".{out.name}.new-{os.getpid()}")
         shutil.rmtree(staging.path, ignore_errors=True)
         staging.path.mkdir()
+        for name in CARRIED:
+            if (out / name).is_file():
+                shutil.copy2(out / name, staging.path / name)
         yield staging
     finally:
         if staging is not None:
