@@ -58,11 +58,15 @@ def kind_args(kind: str, tmp_path: Path) -> tuple[list[str], str, str]:
     root = tmp_path / "data"
     if not root.exists():
         recordings(root)
+    if kind == "generalisation":
+        return (["sweep=generalisation", f"data_dir={root}", "sweep.protocols=[blocks]",
+                 "sweep.peers=false", "sweep.bootstrap=0"], "generalisation",
+                "generalisation_trials.csv")
     return (["sweep=real", f"data_dir={root}", "sweep.preprocess=[centre]",
              "sweep.max_samples=100"], "real", "real_trials.csv")
 
 
-KINDS = ["review", "gyro", "wushi", "real", "heading", "compensation"]
+KINDS = ["review", "gyro", "wushi", "real", "generalisation", "heading", "compensation"]
 
 
 def kinds_beyond(*fast: str) -> list:

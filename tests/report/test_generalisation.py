@@ -18,7 +18,7 @@ def write(folder, cases):
                    "harmful": 1, "needless_fail": 0, "not_written": 1,
                    "wtl:sphere": "1/0/1"}]).to_csv(folder / "generalisation_summary.csv",
                                                     index=False)
-    pd.DataFrame({"kind": ["auto"], "entrant": ["calibrate"], "protocol": ["half"],
+    pd.DataFrame({"kind": ["auto"], "algorithm": ["calibrate"], "protocol": ["half"],
                   "direction_deg": [float("nan")]}).to_csv(
         folder / "generalisation_trials.csv", index=False)
 

@@ -117,10 +117,10 @@ def _rows(dataset, protocol, auto, fixed, raw=10.0, peers=()):
     base = {"dataset": dataset, "protocol": protocol, "raw_spread_pct": raw,
             "raw_direction_deg": np.nan, "direction_deg": np.nan, "degenerate": False,
             "method": ""}
-    rows = [{**base, "entrant": AUTO, "kind": "auto", "status": "PASS" if auto else "FAIL",
+    rows = [{**base, "algorithm": AUTO, "kind": "auto", "status": "PASS" if auto else "FAIL",
              "written": auto is not None, "spread_pct": auto if auto else np.nan}]
     for kind, table in (("fixed", fixed), ("peer", dict(peers))):
-        rows += [{**base, "entrant": n, "kind": kind, "status": "ok", "written": True,
+        rows += [{**base, "algorithm": n, "kind": kind, "status": "ok", "written": True,
                   "spread_pct": v} for n, v in table.items()]
     return rows
 
@@ -170,10 +170,10 @@ def test_one_unit_scores_every_entrant_under_every_protocol(tmp_path):
     out = study.run_unit("spiral")
     rows = pd.DataFrame(out["trials"])
     assert set(rows["protocol"]) == {"blocks", "band_z", "half"}
-    assert sorted(rows[rows["protocol"] == "blocks"]["entrant"]) == \
+    assert sorted(rows[rows["protocol"] == "blocks"]["algorithm"]) == \
         sorted([AUTO, "sphere", "ellipsoid"])
     assert len(out["times"]) == len(rows) and out["intervals"] == []
-    blocks = rows[rows["protocol"] == "blocks"].set_index("entrant")
+    blocks = rows[rows["protocol"] == "blocks"].set_index("algorithm")
     # the true model is an ellipsoid: the full fit is within the noise, the sphere is not
     assert blocks.loc["ellipsoid", "spread_pct"] < 0.5 * blocks.loc["sphere", "spread_pct"]
     assert blocks.loc[AUTO, "written"] and blocks.loc[AUTO, "status"] in ("PASS", "WARN")

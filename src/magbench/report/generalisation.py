@@ -56,12 +56,12 @@ def _direction_lines(cases: pd.DataFrame, trials: pd.DataFrame) -> list[str]:
     lines = ["", f"Where the recording has a reference attitude ({len(att)} cases of "
              f"{att['dataset'].nunique()} recordings), the world-frame direction spread of the "
              "held-out field (RMS deg about its mean direction; median over the cases):", "",
-             "| protocol | raw | calibrate | " + " | ".join(sorted(peers["entrant"].unique()))
-             + " |", "|---|---:|---:|" + "---:|" * peers["entrant"].nunique()]
+             "| protocol | raw | calibrate | " + " | ".join(sorted(peers["algorithm"].unique()))
+             + " |", "|---|---:|---:|" + "---:|" * peers["algorithm"].nunique()]
     for p, g in att.groupby("protocol", sort=False):
         cells = []
-        for e in sorted(peers["entrant"].unique()):
-            v = peers[(peers["protocol"] == p) & (peers["entrant"] == e)]["direction_deg"]
+        for e in sorted(peers["algorithm"].unique()):
+            v = peers[(peers["protocol"] == p) & (peers["algorithm"] == e)]["direction_deg"]
             cells.append(f"{v.median():.2f}" if len(v) else "-")
         lines.append(f"| {p} | {g['raw_direction_deg'].median():.2f} | "
                      f"{g['auto_direction_deg'].median():.2f} | " + " | ".join(cells) + " |")

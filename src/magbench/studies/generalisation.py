@@ -76,7 +76,7 @@ SPIKE_SHARE = 0.05
 #: Recordings of at least this long (s) enter the interval check (goal: halves agree).
 INTERVAL_MIN_S = 120.0
 
-ROW_COLUMNS = ["dataset", "protocol", "entrant", "kind", "K_fit", "K_test", "status", "ok",
+ROW_COLUMNS = ["dataset", "protocol", "algorithm", "kind", "K_fit", "K_test", "status", "ok",
                "written", "degenerate", "method", "spread_pct", "raw_spread_pct",
                "direction_deg", "raw_direction_deg", "field_ratio", "error"]
 INTERVAL_COLUMNS = ["dataset", "axis", "method_first", "method_second", "b_first", "b_second",
@@ -207,7 +207,7 @@ def _row(rec: Recording, protocol: str, entrant: str, kind: str, fit: Recording,
         # The fitted field strength over the data's own radius: a fit whose scale is far off
         # is a wrong unit or a collapsed fit, whatever its shape.
         ratio = float(1.0 / np.cbrt(abs(np.linalg.det(A))) / radius)
-    return {"dataset": rec.name, "protocol": protocol, "entrant": entrant, "kind": kind,
+    return {"dataset": rec.name, "protocol": protocol, "algorithm": entrant, "kind": kind,
             "K_fit": fit.K, "K_test": test.K, "status": status,
             "ok": status not in ("failed", "ERROR"), "written": bool(written),
             "degenerate": degenerate, "method": method, "spread_pct": spread,
@@ -302,7 +302,7 @@ def evaluate_protocol(rec: Recording, protocol: str, *, fixed: Sequence[str],
         empty = replace(rec, y=np.zeros((0, 3)), t=None, gyro=None, extra=None)
         row = _row(rec, protocol, AUTO, "auto", empty, empty, (np.nan, np.nan),
                    status="SKIPPED", error=parts)
-        return [row], [{"dataset": rec.name, "protocol": protocol, "entrant": AUTO,
+        return [row], [{"dataset": rec.name, "protocol": protocol, "algorithm": AUTO,
                         "time_s": 0.0}]
     fit, test = parts
     raw = scores(test)
@@ -320,7 +320,7 @@ def evaluate_protocol(rec: Recording, protocol: str, *, fixed: Sequence[str],
         r, t = _peer_rows(rec, protocol, fit, test, raw, radius, centre)
         rows += r
         times += t
-    return rows, [{"dataset": rec.name, "protocol": protocol, "entrant": r["entrant"],
+    return rows, [{"dataset": rec.name, "protocol": protocol, "algorithm": r["algorithm"],
                    "time_s": s} for r, s in zip(rows, times, strict=True)]
 
 
@@ -377,7 +377,7 @@ class GeneralisationStudy(Study):
     tables: ClassVar[dict] = {
         "trials": ("generalisation_trials.csv", ROW_COLUMNS),
         "times": ("generalisation_trials_times.csv",
-                  ["dataset", "protocol", "entrant", "time_s"]),
+                  ["dataset", "protocol", "algorithm", "time_s"]),
         "intervals": ("generalisation_intervals.csv", INTERVAL_COLUMNS)}
 
     def units(self) -> list[str]:
@@ -451,7 +451,7 @@ def case_table(trials: pd.DataFrame) -> pd.DataFrame:
         written = bool(auto["written"])
         row = {"dataset": dataset, "protocol": protocol, "status": auto["status"],
                "method": auto["method"], "written": written, "auto_pct": score,
-               "raw_pct": raw, "best_fixed": best["entrant"] if best is not None else "",
+               "raw_pct": raw, "best_fixed": best["algorithm"] if best is not None else "",
                "best_fixed_pct": best_score, "regret": score - best_score,
                "loss": bool(not score <= best_score + tol) if best is not None else False,
                "harmful": bool(written and not score <= raw),
@@ -461,8 +461,8 @@ def case_table(trials: pd.DataFrame) -> pd.DataFrame:
                float(auto["raw_direction_deg"]),
                "raw_direction_deg": float(auto["raw_direction_deg"])}
         for _, r in g[g["kind"] != "auto"].iterrows():
-            row[f"pct:{r['entrant']}"] = _user_score(r) if r["status"] == "ok" else raw
-            row[f"deg:{r['entrant']}"] = float(r["direction_deg"]) if r["status"] == "ok" \
+            row[f"pct:{r['algorithm']}"] = _user_score(r) if r["status"] == "ok" else raw
+            row[f"deg:{r['algorithm']}"] = float(r["direction_deg"]) if r["status"] == "ok" \
                 and not bool(r["degenerate"]) else np.nan
         out.append(row)
     return pd.DataFrame(out)
