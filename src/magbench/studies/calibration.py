@@ -269,8 +269,9 @@ def judge(result: CalibrationResult, gate: Gate,
     """Verdict, model-based intervals and fitness of the choice (module notes, step 5);
     ``heading_deg``: the choice's held-out heading RMS against a reference attitude, when
     measured (recorded in the verdict and judged by the gate). The correction must narrow
-    the field magnitude's spread over every sample of ``result.rec``
-    (:func:`magbench.core.verdict.fitness`)."""
+    the field magnitude's spread over the samples left by thinning, outliers included (a
+    still stretch, one direction, would otherwise weigh as much as the turns:
+    :func:`magbench.core.verdict.fitness`)."""
     chosen = result.chosen
     work = result.work
     name = str(chosen["algorithm"])
@@ -284,7 +285,7 @@ def judge(result: CalibrationResult, gate: Gate,
     result.verdict["heading_measured_deg"] = heading_deg
     model = get_method(name).model
     result.intervals = fisher_intervals(work.y, T, h, model)
-    spreads = _spreads(result.rec.y, T, h)
+    spreads = _spreads(result.rec.y[result.screen.kept], T, h)
     noise = noise_p95_pct(result.rec.y, result.screen.radius)
     result.verdict["spread_pct"] = {"corrected": spreads[0], "uncorrected": spreads[1],
                                     "kept": CENTRAL_SHARE}
