@@ -276,9 +276,9 @@ def test_an_extra_score_can_decide_the_choice():
     assert len(plain.tie) > 1
     loser = plain.chosen["algorithm"]
 
-    def penalise(summary, trials, work):                # e.g. a direction error per method
+    def penalise(summary, trials, work):                # e.g. a direction veto per method
         assert len(trials) and work.K > 0
-        return "direction_deg", [5.0 if r["algorithm"] == loser else 1.0 for r in summary]
+        return "direction_deg", [np.nan if r["algorithm"] == loser else 1.0 for r in summary]
 
     extra = calibrate_recording(rec, ["ellipsoid", "fang", "twostep"], bootstrap=0,
                                 extra=penalise)

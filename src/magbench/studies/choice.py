@@ -19,9 +19,10 @@ join the choice:
    the mean and the worst fold's held-out J_r, :data:`SCORES`): each within
    :data:`TIE_RTOL` of the best's. Another per-candidate score (lower is better) joins by
    adding its column to the table and its name to ``scores``.
-6. :func:`pick`: the simplest of the tie (fewest model parameters, then closed form, then the
-   best mean held-out J_r), skipping refused fits (:func:`magbench.core.robust.refusal_reason`);
-   if all of the tie is refused, the next in the ranking. Fit times are never used, so the same
+6. :func:`pick`: the simplest of the tie (fewest model parameters, then the best mean
+   held-out J_r: a closed form is no simpler where it extrapolates), skipping refused fits
+   (:func:`magbench.core.robust.refusal_reason`); if all of the tie is refused, the next in
+   the ranking. Fit times are never used, so the same
    file gives the same choice.
 
 A simpler model therefore wins only when it is as good out of sample on average *and* on the
@@ -177,7 +178,7 @@ def pick(ranked: Sequence[Mapping], refuse: Callable[[Row], str] | None = None
     the chosen row is a copy."""
     out = [dict(r) for r in ranked]
     tie = sorted((r for r in out if r["tie"]),
-                 key=lambda r: (MODEL_PARAMETERS[r["model"]], r["n_iter"] > 0))
+                 key=lambda r: (MODEL_PARAMETERS[r["model"]], float(r[SCORES[0]])))
     rest = [r for r in out if r["eligible"] and not r["tie"]]
     for r in tie + rest:
         reason = refuse(dict(r)) if refuse else ""
