@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 import platform
@@ -11,8 +12,11 @@ from pathlib import Path
 
 from magbench.core.files import write_text_atomic
 
-__all__ = ["cpu_model", "cpu_seconds", "git_commit", "package_versions", "process_age_s",
-           "write_run_record"]
+__all__ = ["cpu_model", "cpu_seconds", "git_commit", "method_code", "package_versions",
+           "process_age_s", "write_run_record"]
+
+#: The package whose modules count as a method's code (besides the method's own module).
+METHODS_PACKAGE = "magbench.methods.algorithms"
 
 PACKAGES = ("magbench", "numpy", "scipy", "pandas", "matplotlib", "joblib", "hydra-core",
             "numba", "dask", "distributed")
@@ -106,6 +110,82 @@ def package_versions() -> dict[str, str]:
         except metadata.PackageNotFoundError:
             continue
     return out
+
+
+def _module_source(name: str) -> bytes | None:
+    """The source bytes of module ``name`` (None when it has no source file)."""
+    import importlib.util
+
+    module = sys.modules.get(name)
+    origin = getattr(module, "__file__", None)
+    if origin is None:
+        try:
+            spec = importlib.util.find_spec(name)
+        except (ImportError, ValueError):
+            return None
+        origin = spec.origin if spec is not None else None
+    if not origin or not str(origin).endswith(".py"):
+        return None
+    try:
+        return Path(origin).read_bytes()
+    except OSError:
+        return None
+
+
+def _imported_modules(name: str, source: bytes) -> set[str]:
+    """The modules ``source`` (module ``name``) imports, absolute names, relative resolved."""
+    import ast
+
+    try:
+        tree = ast.parse(source)
+    except SyntaxError:
+        return set()
+    package = name.rsplit(".", 1)[0]
+    if name.endswith(".__init__"):
+        package = name
+    found = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            found.update(alias.name for alias in node.names)
+        elif isinstance(node, ast.ImportFrom):
+            base = node.module or ""
+            if node.level:
+                parts = package.split(".")
+                parts = parts[:len(parts) - node.level + 1]
+                base = ".".join([*parts, base] if base else parts)
+            found.add(base)
+            # ``from pkg import module``: the names may be modules themselves.
+            found.update(f"{base}.{alias.name}" for alias in node.names)
+    return found
+
+
+def method_code(module: str) -> str:
+    """SHA-256 (16 hex digits) of the code that computes a method's rows: the source of its
+    module ``module`` and of every module of :data:`METHODS_PACKAGE` it imports, directly or
+    through those, read from disk now.
+
+    An edit to any of these files changes the hash, so rows a method computed before the edit
+    are recomputed rather than reused; code outside them (NumPy, ``magbench.core``) is not
+    followed. A module without a source file hashes to its name alone.
+    """
+    seen: dict[str, bytes] = {}
+    todo = [module]
+    while todo:
+        name = todo.pop()
+        if name in seen:
+            continue
+        source = _module_source(name)
+        if source is None:
+            if name == module:
+                seen[name] = b""
+            continue
+        seen[name] = source
+        todo.extend(m for m in _imported_modules(name, source)
+                    if m.startswith(METHODS_PACKAGE + ".") and m not in seen)
+    digest = hashlib.sha256()
+    for name in sorted(seen):
+        digest.update(name.encode() + b"\0" + hashlib.sha256(seen[name]).digest())
+    return digest.hexdigest()[:16]
 
 
 def write_run_record(out_dir: Path | str, **fields: object) -> Path:

@@ -126,6 +126,12 @@ class ReviewStudy(Study):
     axis: OptionAxis | None = None
 
     @property
+    def method_column(self) -> str | None:
+        """Rows are cached per method (:mod:`magbench.engine.sweep`), except with an option
+        axis, whose extra runs come after every method's and so are not one method's block."""
+        return "algorithm" if self.axis is None else None
+
+    @property
     def tables(self) -> dict:
         columns = ROW_COLUMNS if self.axis is None else [*ROW_COLUMNS, self.axis.column]
         return {"trials": ("trials.csv", columns),
