@@ -667,7 +667,8 @@ class _Staged:
         self.record = {"fingerprint": study.fingerprint(), "methods": order,
                        "keys": {m: source.methods[m]["key"] for m in order},
                        "rows_per_unit": {m: source.methods[m]["rows_per_unit"] for m in order},
-                       "units": source.units, "tables": tables}
+                       "units": source.units, "tables": tables,
+                       "source_fingerprint": source.fingerprint}
         write_text_atomic(json.dumps(self.record), self.record_path)
         return True
 
@@ -681,6 +682,7 @@ class _Source:
     order: list[str]
     methods: dict[str, dict]
     units: int
+    fingerprint: str = ""
 
 
 def _method_keys(study: Study) -> dict[str, dict] | None:
@@ -711,7 +713,8 @@ def _finished_source(study: Study, out_dir: Path, n_units: int) -> _Source | Non
     files = {table: out_dir / file for table, (file, _) in study.tables.items()}
     if _changed_tables(files, record.get("tables") or {}) or not record.get("tables"):
         return None
-    return _Source(out_dir, list(record.get("method_order") or methods), methods, n_units)
+    return _Source(out_dir, list(record.get("method_order") or methods), methods, n_units,
+                   str(record.get("fingerprint", "")))
 
 
 def _stale(out_dir: Path, keys: Mapping[str, dict] | None) -> bool:
@@ -745,6 +748,7 @@ def _method_record(study: Study, keys: Mapping[str, dict], staged: _Staged,
         methods[name] = entry
     return {"base": study.base_fingerprint(), "method_order": list(study.algorithms),
             "methods": methods, "methods_reused": staged.methods,
+            "reused_from": staged.record.get("source_fingerprint", "") if staged.methods else "",
             "methods_computed": [m for m in study.algorithms if m not in staged.methods]}
 
 
