@@ -1,8 +1,9 @@
 """Methods that count their calls, registered only by the tests.
 
-Loaded with ``plugins=[tests.plugins.counting]``. Each call appends the method's name as one line to the file named by the environment variable
-``MAGBENCH_COUNT_CALLS`` (when it is set), from whatever process runs it, so a test can tell
-exactly which methods a run computed and which it reused.
+Loaded with ``plugins=[tests.plugins.counting]``. Each call appends the method's name as one
+line to the file named by the environment variable ``MAGBENCH_COUNT_CALLS`` (when it is set),
+from whatever process runs it, so a test can tell exactly which methods a run computed and
+which it reused.
 """
 
 import os
