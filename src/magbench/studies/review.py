@@ -27,7 +27,7 @@ from magbench.core.metrics import accuracy_cost, summarize, trivial_cost
 from magbench.core.seeding import rng
 from magbench.engine.sweep import Study
 from magbench.engine.trial import H_COLUMNS, T_COLUMNS, estimate_columns, run_method
-from magbench.methods.api import calibrate
+from magbench.methods.api import CheckedSamples, calibrate
 from magbench.methods.registry import get_method
 from magbench.sources.synthetic import Point, make_dataset
 from magbench.studies.selection import write_efficient_selection
@@ -200,11 +200,14 @@ def trial_rows(point: Point, trial: int, seed: int, algorithms: Sequence[str],
     if axis is not None:
         runs += [(axis.method, v) for v in axis.values if axis.method in algorithms]
     rows = []
+    # Checked once for every method on this dataset, outside the methods' timed calls.
+    samples = CheckedSamples(data.y).prepare_for(algorithms)
     for name, value in runs:
         opts = method_options(name, point, options)
         if value is not None:
             opts[axis.option] = value
-        out = run_method(name, lambda o, n=name: calibrate(data.y, n, raw=True, **o), options=opts,
+        out = run_method(name, lambda o, n=name: calibrate(samples, n, raw=True, **o),
+                         options=opts,
                          seed=seed, stream=(point.key, trial), call_timeout_s=call_timeout_s)
         J, J_h, J_T = (accuracy_cost(out.T, out.h, data.T, data.h) if out.calibration
                        else (np.nan, np.nan, np.nan))
