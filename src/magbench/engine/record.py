@@ -12,7 +12,8 @@ from pathlib import Path
 
 from magbench.core.files import write_text_atomic
 
-__all__ = ["cpu_model", "cpu_seconds", "git_commit", "method_code", "package_versions",
+__all__ = ["cpu_model", "cpu_seconds", "fit_module", "git_commit", "method_code",
+           "method_modules", "package_versions",
            "process_age_s", "write_run_record"]
 
 #: The package whose modules count as a method's code (besides the method's own module).
@@ -159,15 +160,19 @@ def _imported_modules(name: str, source: bytes) -> set[str]:
     return found
 
 
-def method_code(module: str) -> str:
-    """SHA-256 (16 hex digits) of the code that computes a method's rows: the source of its
-    module ``module`` and of every module of :data:`METHODS_PACKAGE` it imports, directly or
-    through those, read from disk now.
+def fit_module(fit: object) -> str:
+    """The module that defines a method's ``fit`` (through any ``functools.partial``, which a
+    variant of a method registers)."""
+    import functools
 
-    An edit to any of these files changes the hash, so rows a method computed before the edit
-    are recomputed rather than reused; code outside them (NumPy, ``magbench.core``) is not
-    followed. A module without a source file hashes to its name alone.
-    """
+    while isinstance(fit, functools.partial):
+        fit = fit.func
+    return str(getattr(fit, "__module__", "") or "")
+
+
+def method_modules(module: str) -> dict[str, bytes]:
+    """Module ``module`` and every module of :data:`METHODS_PACKAGE` it imports, directly or
+    through those, with their source bytes as they are on disk now."""
     seen: dict[str, bytes] = {}
     todo = [module]
     while todo:
@@ -182,6 +187,19 @@ def method_code(module: str) -> str:
         seen[name] = source
         todo.extend(m for m in _imported_modules(name, source)
                     if m.startswith(METHODS_PACKAGE + ".") and m not in seen)
+    return seen
+
+
+def method_code(module: str) -> str:
+    """SHA-256 (16 hex digits) of the code that computes a method's rows: the source of its
+    module ``module`` and of every module of :data:`METHODS_PACKAGE` it imports
+    (:func:`method_modules`).
+
+    An edit to any of these files changes the hash, so rows a method computed before the edit
+    are recomputed rather than reused; code outside them (NumPy, ``magbench.core``) is not
+    followed. A module without a source file hashes to its name alone.
+    """
+    seen = method_modules(module)
     digest = hashlib.sha256()
     for name in sorted(seen):
         digest.update(name.encode() + b"\0" + hashlib.sha256(seen[name]).digest())

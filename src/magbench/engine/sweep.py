@@ -56,7 +56,8 @@ from typing import IO, ClassVar
 from magbench.core.files import atomic_path, file_sha256, write_csv_atomic, write_text_atomic
 from magbench.engine.isolation import die_with_parent, run_isolated, watch_calls
 from magbench.engine.plugins import load_plugins
-from magbench.engine.record import method_code, write_run_record
+from magbench.engine.record import fit_module, method_code, write_run_record
+from magbench.engine.warm import warm_methods
 
 __all__ = ["FolderBusy", "ResultsExist", "Study", "TooLarge", "check_capacity", "finished_run",
            "folder_lock", "parallel_backend", "run_lock", "run_study"]
@@ -142,7 +143,7 @@ class Study:
         from magbench.methods.registry import get_method
 
         options = (getattr(self, "options", None) or {}).get(name) or {}
-        module = get_method(name).fit.__module__
+        module = fit_module(get_method(name).fit)
         return {"options": _hash(json.loads(json.dumps(options, default=str))),
                 "code": f"{module}:{method_code(module)}"}
 
@@ -1070,6 +1071,8 @@ def run_study(study: Study, out_dir: Path | str, *, n_jobs: int = 1, chunk_size:
         parts.drop_other_chunking(chunks)
         todo = [c for c in run_chunks if not parts.done(*c)]
         resumed = len(units) - sum(stop - start for start, stop in todo)
+        if todo:        # before the sweep's bar: a cold numba cache says so there
+            warm_methods(getattr(work, "algorithms", None) or (), progress=progress)
         weights = [study.unit_weight(u) for u in units]
         total = sum(sum(weights[a:b]) for a, b in run_chunks)
         with tqdm(total=total, desc=f"{study.name}", unit="trial", file=sys.stderr,

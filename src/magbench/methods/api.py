@@ -121,8 +121,9 @@ class CheckedSamples:
     per kind of method (its ``min_samples`` and whether it fits a bias only) instead of once
     per call, with the same answers and the same errors.
 
-    The arrays handed to the methods are read-only and shared by every call: a method never
-    writes into its samples.
+    Each call hands its method a fresh copy of the checked samples (a copy costs far less than
+    the checks), so a method that writes into its input cannot change another's; the arrays
+    stay writeable, as numba compiles a read-only array's loops anew.
 
     Parameters
     ----------
@@ -153,13 +154,12 @@ class CheckedSamples:
             except ValueError as exc:
                 self._done[key] = str(exc)
             else:
-                for array in (out[0], out[2], out[3]):
-                    array.flags.writeable = False
                 self._done[key] = out
         found = self._done[key]
         if isinstance(found, str):
             raise ValueError(found)
-        return found
+        y, scale, mean, centred = found
+        return y.copy(), scale, mean, centred
 
 
 def calibrate(samples: object, method: str, *, angular_rate: object = None,
