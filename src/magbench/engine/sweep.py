@@ -56,7 +56,7 @@ from typing import IO, ClassVar
 from magbench.core.files import atomic_path, file_sha256, write_csv_atomic, write_text_atomic
 from magbench.engine.isolation import die_with_parent, run_isolated, watch_calls
 from magbench.engine.plugins import load_plugins
-from magbench.engine.record import fit_module, method_code, write_run_record
+from magbench.engine.record import fit_module, method_code, study_code, write_run_record
 from magbench.engine.warm import warm_methods
 
 __all__ = ["FolderBusy", "ResultsExist", "Study", "TooLarge", "check_capacity", "finished_run",
@@ -124,11 +124,13 @@ class Study:
 
     def base_fingerprint(self) -> str:
         """Hash of everything that determines the rows except the methods (their selection,
-        options and plugins): the rows of two runs with the same base are interchangeable
-        method by method (only meaningful with a ``method_column``)."""
+        options, plugins and code): the settings, the tables and the code of the study's
+        module and of the magbench modules it uses (:func:`magbench.engine.record.study_code`).
+        Rows of two runs with the same base are interchangeable method by method."""
         settings = {k: v for k, v in self.describe().items() if k not in self.method_fields}
         return _hash({"study": type(self).__name__, "settings": settings,
-                      "tables": {k: list(v[1]) for k, v in self.tables.items()}})
+                      "tables": {k: list(v[1]) for k, v in self.tables.items()},
+                      "code": study_code(type(self).__module__)})
 
     def with_methods(self, names: Sequence[str]) -> Study:
         """The same study on the methods ``names`` only (their options kept)."""
@@ -688,8 +690,8 @@ class _Source:
 
 def _method_keys(study: Study) -> dict[str, dict] | None:
     """Each selected method's key (:meth:`Study.method_key` and its hash under ``key``), or
-    None for a study whose rows are not cached per method."""
-    if study.method_column is None:
+    None for a study without ``algorithms``."""
+    if not isinstance(getattr(study, "algorithms", None), Sequence):
         return None
     out = {}
     for name in study.algorithms:
@@ -718,19 +720,29 @@ def _finished_source(study: Study, out_dir: Path, n_units: int) -> _Source | Non
                    str(record.get("fingerprint", "")))
 
 
-def _stale(out_dir: Path, keys: Mapping[str, dict] | None) -> bool:
-    """True if ``run.json`` records method keys that differ from ``keys`` (a method's code
-    changed since the run): its rows are recomputed, not reused. A run.json without them (an
-    older magbench) is trusted as before."""
-    if keys is None:
-        return False
+def _recorded(out_dir: Path) -> dict:
+    """``run.json`` of ``out_dir`` ({} when it cannot be read)."""
     try:
-        recorded = json.loads((out_dir / "run.json").read_text()).get("methods")
-    except (OSError, ValueError, AttributeError):
+        record = json.loads((out_dir / "run.json").read_text())
+    except (OSError, ValueError):
+        return {}
+    return record if isinstance(record, dict) else {}
+
+
+def _unchanged(study: Study, out_dir: Path, keys: Mapping[str, dict] | None,
+               trust_older: bool) -> bool:
+    """True if the finished run in ``out_dir`` (of this fingerprint) has the study's base
+    (settings and study code) and every method's key (options and code) as they are now.
+    A run.json without them (an older magbench) counts as unchanged only if
+    ``trust_older``."""
+    record = _recorded(out_dir)
+    methods = record.get("methods")
+    if "base" not in record or not isinstance(methods, dict):
+        return trust_older
+    if record["base"] != study.base_fingerprint():
         return False
-    if not isinstance(recorded, dict):
-        return False
-    return any((recorded.get(m) or {}).get("key") != k["key"] for m, k in keys.items())
+    return keys is None or all((methods.get(m) or {}).get("key") == k["key"]
+                               for m, k in keys.items())
 
 
 def _method_record(study: Study, keys: Mapping[str, dict], staged: _Staged,
@@ -1023,16 +1035,17 @@ def run_study(study: Study, out_dir: Path | str, *, n_jobs: int = 1, chunk_size:
     with _lock_for_run(out_dir):
         before = finished_run(study, out_dir)
         keys = _method_keys(study)
-        if before == "same" and not overwrite and not _stale(out_dir, keys):
-            print(f"{out_dir}: already holds this run (fingerprint {study.fingerprint()}); "
-                  "its tables are reused (overwrite=true recomputes them)", file=sys.stderr)
+        if before == "same" and _unchanged(study, out_dir, keys, trust_older=not overwrite):
+            print(f"{out_dir}: already holds this run (fingerprint {study.fingerprint()}, same "
+                  "settings and code); its tables are reused (another results_dir= recomputes "
+                  "them)", file=sys.stderr)
             return written
         if before is not None and before.startswith("changed: ") and not overwrite:
             raise ResultsExist(f"{out_dir}: {before[9:]}: the finished run's tables were "
                                "changed after it ended; pass overwrite=true to recompute them")
-        source = None if keys is None or overwrite else _finished_source(study, out_dir,
-                                                                           len(units))
-        if source is not None and before is not None:
+        cached = keys is not None and study.method_column is not None
+        source = _finished_source(study, out_dir, len(units)) if cached else None
+        if source is not None and before is not None and not overwrite:
             dropped = [m for m in source.order if m not in keys]
             if dropped:
                 raise ResultsExist(
@@ -1045,10 +1058,8 @@ def run_study(study: Study, out_dir: Path | str, *, n_jobs: int = 1, chunk_size:
         parts = _Parts(out_dir, study)
         staged = _Staged(parts)
         reasons: dict[str, str] = {}
-        if keys is not None:
-            if overwrite:
-                staged.drop()
-            elif not staged.load(study, keys) and source is not None:
+        if cached:
+            if not staged.load(study, keys) and source is not None:
                 same = [m for m in study.algorithms
                         if source.methods.get(m, {}).get("key") == keys[m]["key"]]
                 if same:
@@ -1083,7 +1094,7 @@ def run_study(study: Study, out_dir: Path | str, *, n_jobs: int = 1, chunk_size:
                 bar.update(sum(weights[start:stop]))
 
             _run_todo(work, units, todo, parts, done, n_jobs, backend, scheduler_address)
-        computed = parts.layout(run_chunks) if keys is not None and run_chunks else {}
+        computed = parts.layout(run_chunks) if cached and run_chunks else {}
         if reused:
             if computed is None:
                 raise RuntimeError(f"{study.name}: the new methods' rows do not come one "
