@@ -226,3 +226,19 @@ def test_a_killed_incremental_run_resumes_to_the_same_rows(tmp_path, calls):
         for name in [n for n in _REGISTRY if n.startswith("faulty_")]:
             unregister(name)
         sys.modules.pop("tests.plugins.faulty", None)
+
+
+def test_overwrite_recomputes_only_what_changed(tmp_path, calls, capsys):
+    """overwrite=true (make reproduce) lifts the refusals, not the reuse: an unchanged run is
+    kept as it is, and a dropped method's rows go while the others' stay."""
+    run(study(["counting_a", "counting_b"]), tmp_path)
+    before = lines(tmp_path)
+    calls()
+    run(study(["counting_a", "counting_b"]), tmp_path, overwrite=True)
+    assert calls() == {} and lines(tmp_path) == before
+    assert "already holds this run" in capsys.readouterr().err
+    run(study(["counting_a"]), tmp_path, overwrite=True)
+    assert calls() == {}
+    assert lines(tmp_path) == [before[0], *of(before, "counting_a")]
+    run(study(["counting_a"], trials=TRIALS - 1), tmp_path, overwrite=True)
+    assert calls() == {"counting_a": TRIALS - 1}          # another base: all recomputed
