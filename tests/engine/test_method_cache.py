@@ -242,3 +242,16 @@ def test_overwrite_recomputes_only_what_changed(tmp_path, calls, capsys):
     assert lines(tmp_path) == [before[0], *of(before, "counting_a")]
     run(study(["counting_a"], trials=TRIALS - 1), tmp_path, overwrite=True)
     assert calls() == {"counting_a": TRIALS - 1}          # another base: all recomputed
+
+
+def test_a_study_whose_own_code_changed_is_recomputed_whole(tmp_path, calls, capsys,
+                                                            monkeypatch):
+    """The base holds the study's code: when it changes, the same configuration recomputes
+    every row (said so), without overwrite and without refusing."""
+    run(study(["counting_a", "counting_b"]), tmp_path)
+    calls()
+    monkeypatch.setattr(engine, "study_code", lambda module: "edited")
+    capsys.readouterr()
+    run(study(["counting_a", "counting_b"]), tmp_path)
+    assert calls() == {"counting_a": TRIALS, "counting_b": TRIALS}
+    assert "the code that computes this run changed" in capsys.readouterr().err

@@ -1052,7 +1052,12 @@ def run_study(study: Study, out_dir: Path | str, *, n_jobs: int = 1, chunk_size:
                     f"{out_dir} holds a run with {', '.join(dropped)}, which this run does not "
                     "select; select them too to reuse every method's rows, or choose another "
                     "results_dir= or pass overwrite=true to replace it")
-        if before is not None and source is None and not overwrite:
+        if before == "same" and source is None:
+            # The same settings, but code that computes the rows changed since: stale rows
+            # are recomputed, never reused, and not refused either.
+            print(f"{out_dir}: the code that computes this run changed since it finished; "
+                  "every row is recomputed", file=sys.stderr)
+        elif before is not None and source is None and not overwrite:
             raise ResultsExist(f"{out_dir} holds {before}; choose another results_dir= or "
                                "pass overwrite=true to replace it")
         parts = _Parts(out_dir, study)
