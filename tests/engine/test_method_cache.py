@@ -255,3 +255,26 @@ def test_a_study_whose_own_code_changed_is_recomputed_whole(tmp_path, calls, cap
     run(study(["counting_a", "counting_b"]), tmp_path)
     assert calls() == {"counting_a": TRIALS, "counting_b": TRIALS}
     assert "the code that computes this run changed" in capsys.readouterr().err
+
+
+def test_a_whole_run_differing_only_in_its_plugins_is_reused(tmp_path, calls, capsys):
+    """A study not cached per method (here: an option axis) whose methods, options, code and
+    settings are unchanged is reused whole when only the plugins loaded differ."""
+    from magbench.studies.review import OptionAxis
+
+    axis = OptionAxis("counting_a", "shift", (0.5,))
+    run(ReviewStudy("baseline", [Point(K=40)], TRIALS, 7, ("counting_a",), {},
+                    plugins=(COUNTING,), axis=axis), tmp_path)
+    before = lines(tmp_path)
+    calls()
+    capsys.readouterr()
+    again = ReviewStudy("baseline", [Point(K=40)], TRIALS, 7, ("counting_a",), {},
+                        plugins=(COUNTING, "tests.plugins.faulty"), axis=axis)
+    try:
+        run(again, tmp_path)
+    finally:
+        for name in [n for n in _REGISTRY if n.startswith("faulty_")]:
+            unregister(name)
+        sys.modules.pop("tests.plugins.faulty", None)
+    assert calls() == {} and lines(tmp_path) == before
+    assert "only the plugins loaded differ" in capsys.readouterr().err

@@ -745,6 +745,17 @@ def _unchanged(study: Study, out_dir: Path, keys: Mapping[str, dict] | None,
                                for m, k in keys.items())
 
 
+def _same_methods(study: Study, out_dir: Path, keys: Mapping[str, dict] | None) -> bool:
+    """True if the finished run in ``out_dir`` has the study's base and exactly its methods,
+    in its order, with their keys: it differs at most in the plugins loaded, which determine
+    no row of a method it ran (the plugins' own methods have keys of their own)."""
+    record = _recorded(out_dir)
+    return (keys is not None and record.get("method_order") == list(keys)
+            and _unchanged(study, out_dir, keys, trust_older=False)
+            and _changed_tables({t: out_dir / f for t, (f, _) in study.tables.items()},
+                                record.get("tables") or {}) == [])
+
+
 def _method_record(study: Study, keys: Mapping[str, dict], staged: _Staged,
                    computed: Mapping[str, list] | None) -> dict:
     """run.json's per-method part: the base, the method order, each method's key, options and
@@ -1039,6 +1050,11 @@ def run_study(study: Study, out_dir: Path | str, *, n_jobs: int = 1, chunk_size:
             print(f"{out_dir}: already holds this run (fingerprint {study.fingerprint()}, same "
                   "settings and code); its tables are reused (another results_dir= recomputes "
                   "them)", file=sys.stderr)
+            return written
+        if (before is not None and before.startswith("a run of another configuration")
+                and study.method_column is None and _same_methods(study, out_dir, keys)):
+            print(f"{out_dir}: already holds this run (the same settings, methods and code; "
+                  "only the plugins loaded differ); its tables are reused", file=sys.stderr)
             return written
         if before is not None and before.startswith("changed: ") and not overwrite:
             raise ResultsExist(f"{out_dir}: {before[9:]}: the finished run's tables were "

@@ -578,12 +578,11 @@ def added_method_seconds(results_dir: Path | str, name: str = ADDED_METHOD) -> f
     """Seconds spent in ``name``'s own calls under ``results_dir``: its trials' ``time_s``
     (every ``*times.csv`` sidecar) and its timing-pass calls (``spent_s`` of ``timing.csv``)."""
     total = 0.0
-    for path in Path(results_dir).glob("*/*times.csv"):
-        frame = pd.read_csv(path, usecols=["algorithm", "time_s"])
-        total += float(frame.loc[frame["algorithm"] == name, "time_s"].sum())
-    for path in Path(results_dir).glob("*/timing.csv"):
-        frame = pd.read_csv(path, usecols=["algorithm", "spent_s"])
-        total += float(frame.loc[frame["algorithm"] == name, "spent_s"].sum())
+    for pattern, column in (("*/*times.csv", "time_s"), ("*/timing.csv", "spent_s")):
+        for path in Path(results_dir).glob(pattern):
+            frame = pd.read_csv(path)
+            if {"algorithm", column} <= set(frame.columns):   # not reproduce_times.csv
+                total += float(frame.loc[frame["algorithm"] == name, column].sum())
     return total
 
 
