@@ -20,10 +20,12 @@ from magbench.engine.sweep import ResultsExist, run_study
 from magbench.methods.registry import _REGISTRY, unregister
 from magbench.sources.synthetic import Point
 from magbench.studies.review import ReviewStudy
-from tests.plugins.counting import CALLS_FILE
 
 REPO = Path(__file__).resolve().parents[2]
 COUNTING = "tests.plugins.counting"
+#: The environment variable the counting methods append their calls to (not imported from the
+#: plugin: importing it registers its methods for every test that follows).
+CALLS_FILE = "MAGBENCH_COUNT_CALLS"
 TRIALS = 6
 
 
@@ -41,6 +43,9 @@ def calls(tmp_path, monkeypatch):
         return {n: names.count(n) for n in sorted(set(names))}
 
     yield read
+    for name in ("counting_a", "counting_b"):
+        unregister(name)
+    sys.modules.pop(COUNTING, None)
 
 
 def study(algorithms, options=None, plugins=(COUNTING,), trials=TRIALS) -> ReviewStudy:
