@@ -193,10 +193,12 @@ def test_a_kill_while_the_merged_tables_are_written_resumes_exactly(tmp_path, ca
     assert not (tmp_path / "inc" / "parts").exists()
 
 
+@pytest.mark.slow
 @pytest.mark.usefixtures("blank_figures")
 def test_a_killed_incremental_run_resumes_to_the_same_rows(tmp_path, calls):
     """SIGKILL while the added method runs; the rerun finishes only what is missing and the
-    table is byte-identical to one run of every method."""
+    table is byte-identical to one run of every method. Slow (three command-line runs and a
+    killed process, ~11 s): the kill just before run.json above shows the same in CI."""
     from magbench.cli import main
 
     def args(results: Path, algorithms: str) -> list[str]:
