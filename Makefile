@@ -9,7 +9,7 @@ SWEEPS := baseline gamma beta K sigma coverage p0 wushi gyro real
 
 SWEEP_TARGETS := $(addprefix sweep-,$(SWEEPS))
 
-.PHONY: help install test test-all lint bench reproduce $(SWEEP_TARGETS) report clean-parts
+.PHONY: help install warmup test test-all lint bench reproduce $(SWEEP_TARGETS) report clean-parts
 
 help: ## List the targets
 	@grep -E '^[a-zA-Z_%-]+:.*## ' $(MAKEFILE_LIST) | awk 'BEGIN {FS = ":.*## "}; {printf "  %-16s %s\n", $$1, $$2}'
@@ -17,6 +17,9 @@ help: ## List the targets
 install: ## Create .venv and install magbench with its dev tools (the README's set-up)
 	$(PYTHON) -m venv $(VENV)
 	$(VENV)/bin/pip install -e '.[dev]'
+
+warmup: ## Compile the methods' numba kernels now (a first run does it itself, and says so)
+	$(PYTHON) -m magbench warmup $(ARGS)
 
 test: ## Run the test suite (what CI runs; slow tests excluded)
 	$(PYTHON) -m pytest -q
@@ -39,15 +42,17 @@ $(filter-out sweep-real,$(SWEEP_TARGETS)): sweep-%:
 sweep-NAME: ## Run one sweep, e.g. `make sweep-gamma` (extra overrides: ARGS="trials=20")
 	@echo "use one of: $(SWEEP_TARGETS)"
 
-# `make reproduce` recomputes every sweep (overwrite=true) in one process, so that the worker
+# `make reproduce` runs every sweep (overwrite=true) in one process, so that the worker
 # processes start and load the compiled loops once, and draws each figure once, in the report;
-# it prints the wall and CPU time of every step and writes them to
+# rows whose sweep settings, method options and code are unchanged are reused, so it computes
+# only what changed (ARGS="results_dir=/tmp/fresh" recomputes all into an empty folder). It
+# prints the wall and CPU time of every step and writes them to
 # results/bench/reproduce_times.csv (run it on a quiet machine for numbers worth quoting).
 # The sweep-NAME targets above run one sweep each, as before.
-reproduce: ## Recompute every sweep at its committed size, then the report; times each step
+reproduce: ## Every sweep at its committed size (what changed), then the report; times each step
 	$(PYTHON) -m magbench reproduce $(ARGS)
 
-bench: ## Time every method, peers, scaling with K and the parallel speed-up (results/bench/)
+bench: ## Time methods, peers, scaling, parallel speed-up, first run and reproduce (results/bench/)
 	$(PYTHON) -m magbench bench $(ARGS)
 
 report: ## Regenerate tables, figures and results/report.md from the CSV files

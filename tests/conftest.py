@@ -32,3 +32,14 @@ def blank_figures(monkeypatch):
     from matplotlib.figure import Figure
 
     monkeypatch.setattr(Figure, "savefig", lambda self, fname, *a, **k: Path(fname).touch())
+
+
+@pytest.fixture(scope="session", autouse=True)
+def numba_loops_compiled_once():
+    """Compile (or load from numba's cache) every method's loops once, before any test: on a
+    fresh clone the suite pays the compilation here, once, and the processes the tests start
+    load the cached code instead of compiling it again side by side."""
+    from magbench.engine.warm import compiled_methods, warm_methods
+    from magbench.methods.registry import methods
+
+    warm_methods(compiled_methods(methods()), progress=False)

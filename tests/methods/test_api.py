@@ -1,3 +1,5 @@
+import re
+
 import numpy as np
 import pytest
 
@@ -147,3 +149,34 @@ def test_the_raw_output_of_some_methods_is_rotated_or_mirrored():
     raw = {m: magbench.calibrate(y, m, raw=True).T for m in ("vasconcelos", "dorveaux",
                                                              "magical", "wu_shi")}
     assert any(not np.allclose(T, T.T, atol=1e-6) for T in raw.values())
+
+
+@pytest.mark.parametrize("case", ["good", "coplanar", "few", "nan", "duplicates"])
+def test_checked_samples_give_every_method_the_answer_and_error_of_a_plain_call(case, nominal):
+    """Samples checked once (CheckedSamples) for methods of every kind of check (full, sphere,
+    bias-only): the same estimate, bit for bit, or the same ValueError as a plain call."""
+    from magbench.methods.api import CheckedSamples, calibrate
+
+    y = nominal.y[:60].copy()
+    if case == "coplanar":
+        y[:, 2] = 0.5
+    elif case == "few":
+        y = y[:7]
+    elif case == "nan":
+        y[3, 1] = np.nan
+    elif case == "duplicates":
+        y = np.repeat(y[:6], 10, axis=0)
+    names = ["fang", "sphere", "magical", "ellipsoid"]
+    checked = CheckedSamples(y).prepare_for(names)
+    for name in names:
+        try:
+            plain = calibrate(y, name, raw=True)
+        except ValueError as exc:
+            with pytest.raises(ValueError, match=f"^{re.escape(str(exc))}$"):
+                calibrate(checked, name, raw=True)
+            continue
+        assert case in ("good", "few", "duplicates")
+        once = calibrate(checked, name, raw=True)
+        assert np.array_equal(once.T, plain.T) and np.array_equal(once.h, plain.h)
+        assert (once.converged, once.message, once.n_iter) == (plain.converged, plain.message,
+                                                               plain.n_iter)

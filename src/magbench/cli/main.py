@@ -78,6 +78,12 @@ def _extract(cfg: DictConfig) -> int:
     return run_extract(cfg)
 
 
+def _warmup(cfg: DictConfig) -> int:
+    from magbench.cli.warmup import run_warmup
+
+    return run_warmup(cfg)
+
+
 def _methods(cfg: DictConfig) -> int:
     from magbench.cli.config import check_common
 
@@ -124,6 +130,8 @@ COMMANDS: dict[str, tuple[Callable[..., int], str, str, tuple[str, ...]]] = {
                                            "timing_check", "sweep", "scale", "n_jobs")),
     "methods": (_methods, "list the registered calibration methods and their options",
                 "python -m magbench methods", ("plugins",)),
+    "warmup": (_warmup, "compile the methods' numba loops now (a first run does it itself)",
+               "python -m magbench warmup", ("algorithms", "plugins", "progress")),
 }
 
 
@@ -265,7 +273,7 @@ def command_help(command: str) -> str:
         lines += ["", "sweeps:"] + [f"  {n:<10} {w}" for n, w in sweep_kinds()]
     if command == "run":
         lines += ["", *kind_keys_help()]
-    if command in ("run", "calibrate", "capture", "bench"):
+    if command in ("run", "calibrate", "capture", "bench", "warmup"):
         from magbench.methods.registry import methods
 
         lines += ["", "methods (algorithms=[...] or method=NAME; details: python -m "

@@ -17,14 +17,29 @@ every study:
   the lock is the operating system's, so a killed run leaves no stale lock behind;
 * a finished run is never silently replaced: rerun with the same fingerprint, its tables are
   reused as they are (and it says so); with another configuration the run is refused
-  (:class:`ResultsExist`) unless ``overwrite=True``.
+  (:class:`ResultsExist`) unless ``overwrite=True``;
+* rows are cached per method where the study allows it (``method_column``): each method's
+  rows are keyed by the study's other settings (:meth:`Study.base_fingerprint`) and by the
+  method's own key (its name, options and code, :meth:`Study.method_key`). A run of another
+  selection of methods into a finished run's folder reuses, byte for byte, the rows of every
+  method whose key is unchanged and computes only the others (a new method, changed options,
+  changed code); it says which. It is refused, as before, when it would drop a method of the
+  finished run or when any other setting differs.
+
+How a cached run goes: the rows it reuses are first copied out of the finished tables into
+``parts/reused.*`` (with a checksummed record), the other methods run as a study of their own
+(:meth:`Study.with_methods`) in chunks as usual, and the merge interleaves both per unit in the
+study's method order: the tables are those a full run would write (its times aside). A kill at
+any point resumes from the parts.
 """
 
 from __future__ import annotations
 
 import contextlib
+import csv
 import dataclasses
 import hashlib
+import io
 import json
 import os
 import shutil
@@ -36,12 +51,13 @@ import warnings
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import IO
+from typing import IO, ClassVar
 
 from magbench.core.files import atomic_path, file_sha256, write_csv_atomic, write_text_atomic
 from magbench.engine.isolation import die_with_parent, run_isolated, watch_calls
 from magbench.engine.plugins import load_plugins
-from magbench.engine.record import write_run_record
+from magbench.engine.record import fit_module, method_code, study_code, write_run_record
+from magbench.engine.warm import warm_methods
 
 __all__ = ["FolderBusy", "ResultsExist", "Study", "TooLarge", "check_capacity", "finished_run",
            "folder_lock", "parallel_backend", "run_lock", "run_study"]
@@ -73,6 +89,14 @@ class Study:
     plugins: Sequence[str]
     tables: Mapping[str, tuple[str, Sequence[str]]]
 
+    #: The column naming the method of every row of every table, for a study whose rows are
+    #: cached per method (it has ``algorithms`` and ``options`` fields, and each unit gives
+    #: each method the same number of rows, one method after another in ``algorithms``
+    #: order, which depend on nothing but the unit and that method); None: whole runs only.
+    method_column: ClassVar[str | None] = None
+    #: Settings that are not part of :meth:`base_fingerprint`: the methods' own.
+    method_fields: ClassVar[tuple[str, ...]] = ("algorithms", "options", "plugins")
+
     def units(self) -> list:
         """The work units, in the order their rows appear in the results."""
         raise NotImplementedError
@@ -95,10 +119,40 @@ class Study:
 
     def fingerprint(self) -> str:
         """Hash of the settings and tables: parts of another configuration are never reused."""
-        text = json.dumps({"study": type(self).__name__, "settings": self.describe(),
-                           "tables": {k: list(v[1]) for k, v in self.tables.items()}},
-                          sort_keys=True, default=str)
-        return hashlib.sha256(text.encode()).hexdigest()[:16]
+        return _hash({"study": type(self).__name__, "settings": self.describe(),
+                      "tables": {k: list(v[1]) for k, v in self.tables.items()}})
+
+    def base_fingerprint(self) -> str:
+        """Hash of everything that determines the rows except the methods (their selection,
+        options, plugins and code): the settings, the tables and the code of the study's
+        module and of the magbench modules it uses (:func:`magbench.engine.record.study_code`).
+        Rows of two runs with the same base are interchangeable method by method."""
+        settings = {k: v for k, v in self.describe().items() if k not in self.method_fields}
+        return _hash({"study": type(self).__name__, "settings": settings,
+                      "tables": {k: list(v[1]) for k, v in self.tables.items()},
+                      "code": study_code(type(self).__module__)})
+
+    def with_methods(self, names: Sequence[str]) -> Study:
+        """The same study on the methods ``names`` only (their options kept)."""
+        options = getattr(self, "options", None) or {}
+        return dataclasses.replace(self, algorithms=tuple(names),
+                                   options={k: v for k, v in options.items() if k in names})
+
+    def method_key(self, name: str) -> dict[str, str]:
+        """What determines the rows of method ``name`` besides the base: its options in this
+        study and its code (:func:`magbench.engine.record.method_code` of its module), each
+        hashed."""
+        from magbench.methods.registry import get_method
+
+        options = (getattr(self, "options", None) or {}).get(name) or {}
+        module = fit_module(get_method(name).fit)
+        return {"options": _hash(json.loads(json.dumps(options, default=str))),
+                "code": f"{module}:{method_code(module)}"}
+
+def _hash(data: object) -> str:
+    """SHA-256 (16 hex digits) of ``data`` as sorted JSON."""
+    text = json.dumps(data, sort_keys=True, default=str)
+    return hashlib.sha256(text.encode()).hexdigest()[:16]
 
 
 def _lock_exclusive(handle: IO[str]) -> bool:
@@ -326,11 +380,14 @@ def _run_chunk(study: Study, units: list, start: int, parent_pid: int | None = N
 class _Parts:
     """The part files of one study run under ``<out_dir>/parts``."""
 
-    def __init__(self, out_dir: Path, study: Study) -> None:
+    def __init__(self, out_dir: Path, study: Study, work: Study | None = None) -> None:
+        # ``work`` computes the chunks: the study itself, or its methods not reused from a
+        # finished run; the manifest names the study, each chunk's record the work.
         self.dir = out_dir / "parts"
         self.study = study
         manifest = self.dir / "manifest.json"
-        self.fingerprint = fingerprint = study.fingerprint()
+        fingerprint = study.fingerprint()
+        self.fingerprint = (work or study).fingerprint()
         if self.dir.exists():
             try:
                 found = json.loads(manifest.read_text()).get("fingerprint")
@@ -409,12 +466,74 @@ class _Parts:
         import pandas as pd
 
         sums: dict[str, object] = {"fingerprint": self.fingerprint}
+        column = self.study.method_column
+        layout = {}
         for table, (_, columns) in self.study.tables.items():
             path = self.path(start, stop, table)
             write_csv_atomic(pd.DataFrame(rows.get(table, []), columns=list(columns)), path)
             sums[table] = {"rows": len(rows.get(table, [])), "sha256": file_sha256(path)}
+            if column is not None:
+                layout[table] = _layout(rows.get(table, []), stop - start, column)
+        if column is not None:
+            sums["layout"] = layout
         # The record goes last: a chunk counts as done only once all its tables are in place.
         write_text_atomic(json.dumps(sums), self.dir / f"{self._stem(start, stop)}.json")
+
+    def layout(self, chunks: Sequence[tuple[int, int]]) -> dict[str, list] | None:
+        """The rows per unit of each method in every table, ``{table: [[method, n], ...]}``,
+        if every chunk gives the same (None otherwise, or for a study without
+        ``method_column``)."""
+        found = None
+        for start, stop in chunks:
+            try:
+                layout = json.loads((self.dir / f"{self._stem(start, stop)}.json")
+                                    .read_text()).get("layout")
+            except (OSError, ValueError, AttributeError):
+                return None
+            if not layout or any(v is None for v in layout.values()):
+                return None
+            if found is None:
+                found = layout
+            elif layout != found:
+                return None
+        return found
+
+    def merge_with(self, chunks: Sequence[tuple[int, int]], table: str, dest: Path,
+                   staged: _Staged, computed: Sequence[tuple[str, int]],
+                   order: Sequence[str]) -> int:
+        """Interleave, unit by unit, the reused rows (``staged``) and the chunks' rows (whose
+        methods give ``computed`` rows per unit) into ``dest``, methods in ``order``."""
+        reused = staged.layout(table)
+        column = self.study.method_column
+        n = 0
+        with atomic_path(dest) as tmp, open(tmp, "w", newline="") as out, \
+                open(staged.path(table), newline="") as old:
+            header = old.readline()
+            out.write(header)
+            index = next(csv.reader([header])).index(column)
+            old_records = _records(old)
+            for start, stop in chunks:
+                with open(self.path(start, stop, table), newline="") as part:
+                    if part.readline() != header:
+                        raise ValueError(f"{part.name}: header differs from the reused rows'")
+                    new_records = _records(part)
+                    for _ in range(start, stop):
+                        unit = _take(old_records, reused, index, old.name)
+                        unit.update(_take(new_records, computed, index, part.name))
+                        for method in order:
+                            for record in unit.get(method, ()):
+                                out.write(record)
+                                n += 1
+            if not chunks:
+                for _ in range(staged.units):
+                    unit = _take(old_records, reused, index, old.name)
+                    for method in order:
+                        for record in unit.get(method, ()):
+                            out.write(record)
+                            n += 1
+            if next(old_records, None) is not None:
+                raise ValueError(f"{old.name}: more rows than its record says")
+        return n
 
     def merge(self, chunks: Sequence[tuple[int, int]], table: str, dest: Path) -> int:
         """Concatenate the chunks' parts of ``table`` into ``dest`` on disk; rows written."""
@@ -429,6 +548,263 @@ class _Parts:
                         out.write(line)
                         n += 1
         return n
+
+
+def _layout(rows: Sequence[dict], n_units: int, column: str) -> list[list] | None:
+    """``[[method, rows per unit], ...]`` when each of ``n_units`` units gave the same rows
+    per method, one method after another (the rows' ``column`` repeats one pattern); else
+    None, and the rows are not cached per method."""
+    if n_units <= 0 or len(rows) % n_units:
+        return None if rows else []
+    per = len(rows) // n_units
+    names = [str(r.get(column)) for r in rows]
+    if names != names[:per] * n_units:
+        return None
+    runs: list[list] = []
+    for name in names[:per]:
+        if runs and runs[-1][0] == name:
+            runs[-1][1] += 1
+        elif any(r[0] == name for r in runs):
+            return None                 # a method's rows split by another's
+        else:
+            runs.append([name, 1])
+    return runs
+
+
+def _records(handle: IO[str]) -> Iterator[str]:
+    """The raw CSV records of ``handle`` (read with ``newline=""``), each with its line end:
+    a quoted field may hold line breaks, so lines are joined while a quote is open."""
+    pending = ""
+    for line in handle:
+        pending += line
+        if pending.count('"') % 2 == 0:
+            yield pending
+            pending = ""
+    if pending:
+        yield pending
+
+
+def _take(records: Iterator[str], layout: Sequence[tuple[str, int]], index: int,
+          where: str) -> dict[str, list[str]]:
+    """One unit's records from ``records``: ``n`` of each method of ``layout`` in turn, each
+    checked to name its method in column ``index``."""
+    unit: dict[str, list[str]] = {}
+    for method, n in layout:
+        got = unit.setdefault(method, [])
+        for _ in range(n):
+            record = next(records, None)
+            if record is None:
+                raise ValueError(f"{where}: fewer rows than its layout says")
+            if next(csv.reader(io.StringIO(record)))[index] != method:
+                raise ValueError(f"{where}: a row of another method where {method}'s was due")
+            got.append(record)
+    return unit
+
+
+class _Staged:
+    """The rows a run reuses from a finished run of the same base: ``parts/reused.<table>.csv``
+    (only the reused methods, unit by unit, in the study's method order) and
+    ``parts/reused.json`` (the methods, their keys and rows per unit, each file's rows and
+    SHA-256). Written before the finished tables are replaced, so a kill at any later point
+    finds them."""
+
+    def __init__(self, parts: _Parts) -> None:
+        self.parts = parts
+        self.record_path = parts.dir / "reused.json"
+        self.record: dict = {}
+
+    def path(self, table: str) -> Path:
+        return self.parts.dir / f"reused.{table}.csv"
+
+    @property
+    def methods(self) -> list[str]:
+        return list(self.record.get("methods", []))
+
+    @property
+    def units(self) -> int:
+        return int(self.record.get("units", 0))
+
+    def layout(self, table: str) -> list[tuple[str, int]]:
+        per = self.record["rows_per_unit"]
+        return [(m, int(per[m][table])) for m in self.methods]
+
+    def load(self, study: Study, keys: Mapping[str, str]) -> bool:
+        """Take an intact ``reused.json`` of this study whose keys still hold; False (and
+        the files removed) otherwise."""
+        try:
+            record = json.loads(self.record_path.read_text())
+            ok = (record["fingerprint"] == study.fingerprint()
+                  and all(keys[m]["key"] == record["keys"][m] for m in record["methods"])
+                  and all(file_sha256(self.path(t)) == record["tables"][t]["sha256"]
+                          for t in study.tables))
+        except (OSError, ValueError, KeyError, TypeError, AttributeError):
+            ok = False
+        if ok:
+            self.record = record
+            return True
+        if self.record_path.exists():
+            _warn(f"{self.record_path}: reused rows damaged or stale; they are taken from the "
+                  "finished run again or recomputed")
+        self.drop()
+        return False
+
+    def drop(self) -> None:
+        self.record = {}
+        self.record_path.unlink(missing_ok=True)
+        for path in self.parts.dir.glob("reused.*.csv"):
+            path.unlink(missing_ok=True)
+
+    def extract(self, study: Study, source: _Source, methods: Sequence[str]) -> bool:
+        """Copy ``methods``' rows out of the finished tables of ``source``; False (nothing
+        staged, with a warning) if those tables do not hold what their record says."""
+        order = [m for m in study.algorithms if m in methods]
+        column = study.method_column
+        tables = {}
+        try:
+            for table, (file, _) in study.tables.items():
+                layout = [(m, int(source.methods[m]["rows_per_unit"][table]))
+                          for m in source.order]
+                dest = self.path(table)
+                with atomic_path(dest) as tmp, open(tmp, "w", newline="") as out, \
+                        open(source.folder / file, newline="") as old:
+                    header = old.readline()
+                    out.write(header)
+                    index = next(csv.reader([header])).index(column)
+                    records = _records(old)
+                    n = 0
+                    for _ in range(source.units):
+                        unit = _take(records, layout, index, old.name)
+                        for method in order:
+                            out.writelines(unit[method])
+                            n += len(unit[method])
+                    if next(records, None) is not None:
+                        raise ValueError(f"{old.name}: more rows than its record says")
+                tables[table] = {"rows": n, "sha256": file_sha256(dest)}
+        except (OSError, ValueError, KeyError, TypeError, IndexError) as exc:
+            _warn(f"{source.folder}: the finished run's rows cannot be reused ({exc}); every "
+                  "method is recomputed")
+            self.drop()
+            return False
+        self.record = {"fingerprint": study.fingerprint(), "methods": order,
+                       "keys": {m: source.methods[m]["key"] for m in order},
+                       "rows_per_unit": {m: source.methods[m]["rows_per_unit"] for m in order},
+                       "units": source.units, "tables": tables,
+                       "source_fingerprint": source.fingerprint}
+        write_text_atomic(json.dumps(self.record), self.record_path)
+        return True
+
+
+@dataclasses.dataclass
+class _Source:
+    """A finished run whose rows may be reused: its folder, method order and per-method
+    records (``key``, ``rows_per_unit``) from its ``run.json``."""
+
+    folder: Path
+    order: list[str]
+    methods: dict[str, dict]
+    units: int
+    fingerprint: str = ""
+
+
+def _method_keys(study: Study) -> dict[str, dict] | None:
+    """Each selected method's key (:meth:`Study.method_key` and its hash under ``key``), or
+    None for a study without ``algorithms``."""
+    if not isinstance(getattr(study, "algorithms", None), Sequence):
+        return None
+    out = {}
+    for name in study.algorithms:
+        parts = study.method_key(name)
+        out[name] = {**parts, "key": _hash(parts)}
+    return out
+
+
+def _finished_source(study: Study, out_dir: Path, n_units: int) -> _Source | None:
+    """The finished run in ``out_dir`` if its rows can be reused by ``study``: same base, a
+    per-method record, tables intact (checksums in run.json); None otherwise."""
+    try:
+        record = json.loads((out_dir / "run.json").read_text())
+        methods = record["methods"]
+        ok = (record.get("base") == study.base_fingerprint()
+              and record.get("units") == n_units and isinstance(methods, dict)
+              and all(isinstance(v.get("rows_per_unit"), dict) for v in methods.values()))
+    except (OSError, ValueError, KeyError, TypeError, AttributeError):
+        return None
+    if not ok:
+        return None
+    files = {table: out_dir / file for table, (file, _) in study.tables.items()}
+    if _changed_tables(files, record.get("tables") or {}) or not record.get("tables"):
+        return None
+    return _Source(out_dir, list(record.get("method_order") or methods), methods, n_units,
+                   str(record.get("fingerprint", "")))
+
+
+def _recorded(out_dir: Path) -> dict:
+    """``run.json`` of ``out_dir`` ({} when it cannot be read)."""
+    try:
+        record = json.loads((out_dir / "run.json").read_text())
+    except (OSError, ValueError):
+        return {}
+    return record if isinstance(record, dict) else {}
+
+
+def _unchanged(study: Study, out_dir: Path, keys: Mapping[str, dict] | None,
+               trust_older: bool) -> bool:
+    """True if the finished run in ``out_dir`` (of this fingerprint) has the study's base
+    (settings and study code) and every method's key (options and code) as they are now.
+    A run.json without them (an older magbench) counts as unchanged only if
+    ``trust_older``."""
+    record = _recorded(out_dir)
+    methods = record.get("methods")
+    if "base" not in record or not isinstance(methods, dict):
+        return trust_older
+    if record["base"] != study.base_fingerprint():
+        return False
+    return keys is None or all((methods.get(m) or {}).get("key") == k["key"]
+                               for m, k in keys.items())
+
+
+def _same_methods(study: Study, out_dir: Path, keys: Mapping[str, dict] | None) -> bool:
+    """True if the finished run in ``out_dir`` has the study's base and exactly its methods,
+    in its order, with their keys: it differs at most in the plugins loaded, which determine
+    no row of a method it ran (the plugins' own methods have keys of their own)."""
+    record = _recorded(out_dir)
+    return (keys is not None and record.get("method_order") == list(keys)
+            and _unchanged(study, out_dir, keys, trust_older=False)
+            and _changed_tables({t: out_dir / f for t, (f, _) in study.tables.items()},
+                                record.get("tables") or {}) == [])
+
+
+def _method_record(study: Study, keys: Mapping[str, dict], staged: _Staged,
+                   computed: Mapping[str, list] | None) -> dict:
+    """run.json's per-method part: the base, the method order, each method's key, options and
+    code hashes and rows per unit of each table (absent when not known: not reusable later),
+    and which methods this run reused and computed."""
+    methods = {}
+    for name in study.algorithms:
+        entry = {k: keys[name][k] for k in ("key", "options", "code")}
+        if name in staged.methods:
+            entry["rows_per_unit"] = staged.record["rows_per_unit"][name]
+        elif computed is not None:
+            entry["rows_per_unit"] = {t: dict(map(tuple, computed.get(t, []))).get(name, 0)
+                                      for t in study.tables}
+        methods[name] = entry
+    return {"base": study.base_fingerprint(), "method_order": list(study.algorithms),
+            "methods": methods, "methods_reused": staged.methods,
+            "reused_from": staged.record.get("source_fingerprint", "") if staged.methods else "",
+            "methods_computed": [m for m in study.algorithms if m not in staged.methods]}
+
+
+def _plan_message(out_dir: Path, reused: Sequence[str], compute: Mapping[str, str]) -> str:
+    """The line that says what a cached run reuses and what it computes."""
+    parts = []
+    if reused:
+        parts.append(f"reusing the rows of {', '.join(reused)} (unchanged)")
+    if compute:
+        why: dict[str, list[str]] = {}
+        for name, reason in compute.items():
+            why.setdefault(reason, []).append(name)
+        parts.append("computing " + "; ".join(f"{', '.join(v)} ({k})" for k, v in why.items()))
+    return f"{out_dir}: {'; '.join(parts) or 'nothing to compute'}"
 
 
 #: Bytes of one value in a CSV row (a float in full precision and its separator), and in
@@ -687,31 +1063,91 @@ def run_study(study: Study, out_dir: Path | str, *, n_jobs: int = 1, chunk_size:
     check_capacity(study, units, out_dir)
     with _lock_for_run(out_dir):
         before = finished_run(study, out_dir)
-        if before == "same" and not overwrite:
-            print(f"{out_dir}: already holds this run (fingerprint {study.fingerprint()}); "
-                  "its tables are reused (overwrite=true recomputes them)", file=sys.stderr)
+        keys = _method_keys(study)
+        if before == "same" and _unchanged(study, out_dir, keys, trust_older=not overwrite):
+            print(f"{out_dir}: already holds this run (fingerprint {study.fingerprint()}, same "
+                  "settings and code); its tables are reused (another results_dir= recomputes "
+                  "them)", file=sys.stderr)
+            return written
+        if (before is not None and before.startswith("a run of another configuration")
+                and study.method_column is None and _same_methods(study, out_dir, keys)):
+            print(f"{out_dir}: already holds this run (the same settings, methods and code; "
+                  "only the plugins loaded differ); its tables are reused", file=sys.stderr)
             return written
         if before is not None and before.startswith("changed: ") and not overwrite:
             raise ResultsExist(f"{out_dir}: {before[9:]}: the finished run's tables were "
                                "changed after it ended; pass overwrite=true to recompute them")
-        if before is not None and not overwrite:
+        cached = keys is not None and study.method_column is not None
+        source = _finished_source(study, out_dir, len(units)) if cached else None
+        if source is not None and before is not None and not overwrite:
+            dropped = [m for m in source.order if m not in keys]
+            if dropped:
+                raise ResultsExist(
+                    f"{out_dir} holds a run with {', '.join(dropped)}, which this run does not "
+                    "select; select them too to reuse every method's rows, or choose another "
+                    "results_dir= or pass overwrite=true to replace it")
+        if before == "same" and source is None:
+            # The same settings, but code that computes the rows changed since: stale rows
+            # are recomputed, never reused, and not refused either.
+            print(f"{out_dir}: the code that computes this run changed since it finished; "
+                  "every row is recomputed", file=sys.stderr)
+        elif before is not None and source is None and not overwrite:
             raise ResultsExist(f"{out_dir} holds {before}; choose another results_dir= or "
                                "pass overwrite=true to replace it")
         parts = _Parts(out_dir, study)
+        staged = _Staged(parts)
+        reasons: dict[str, str] = {}
+        if cached:
+            if not staged.load(study, keys) and source is not None:
+                same = [m for m in study.algorithms
+                        if source.methods.get(m, {}).get("key") == keys[m]["key"]]
+                if same:
+                    staged.extract(study, source, same)
+            for name in study.algorithms:
+                if name in staged.methods:
+                    continue
+                old = (source.methods.get(name) if source else None) or {}
+                reasons[name] = ("new" if not old else "code changed"
+                                 if old.get("code") != keys[name]["code"] else
+                                 "options changed" if old.get("options") != keys[name]["options"]
+                                 else "not reusable")
+        reused = staged.methods
+        compute = [m for m in study.algorithms if m not in reused] if reused else None
+        work = study if compute is None else study.with_methods(compute)
+        parts.fingerprint = work.fingerprint()
+        if source is not None or reused:
+            print(_plan_message(out_dir, reused, reasons), file=sys.stderr)
+        run_chunks = chunks if compute is None or compute else []
         parts.drop_other_chunking(chunks)
-        todo = [c for c in chunks if not parts.done(*c)]
+        todo = [c for c in run_chunks if not parts.done(*c)]
         resumed = len(units) - sum(stop - start for start, stop in todo)
+        if todo:        # before the sweep's bar: a cold numba cache says so there
+            warm_methods(getattr(work, "algorithms", None) or (), progress=progress)
         weights = [study.unit_weight(u) for u in units]
-        with tqdm(total=sum(weights), desc=f"{study.name}", unit="trial", file=sys.stderr,
-                  disable=not progress, smoothing=0.1) as bar:
-            bar.update(sum(weights) - sum(sum(weights[a:b]) for a, b in todo))
+        total = sum(sum(weights[a:b]) for a, b in run_chunks)
+        with tqdm(total=total, desc=f"{study.name}", unit="trial", file=sys.stderr,
+                  disable=not progress or not run_chunks, smoothing=0.1) as bar:
+            bar.update(total - sum(sum(weights[a:b]) for a, b in todo))
             def done(start: int, stop: int, rows: dict[str, list[dict]]) -> None:
                 parts.write(start, stop, rows)
                 bar.update(sum(weights[start:stop]))
 
-            _run_todo(study, units, todo, parts, done, n_jobs, backend, scheduler_address)
-        counts = {table: parts.merge(chunks, table, written[table]) for table in study.tables}
+            _run_todo(work, units, todo, parts, done, n_jobs, backend, scheduler_address)
+        computed = parts.layout(run_chunks) if cached and run_chunks else {}
+        if reused:
+            if computed is None:
+                raise RuntimeError(f"{study.name}: the new methods' rows do not come one "
+                                   "method after another per unit; they cannot be merged "
+                                   "with the reused rows (overwrite=true recomputes all)")
+            counts = {table: parts.merge_with(run_chunks, table, written[table], staged,
+                                              [tuple(x) for x in computed.get(table, [])],
+                                              list(study.algorithms))
+                      for table in study.tables}
+        else:
+            counts = {table: parts.merge(chunks, table, written[table])
+                      for table in study.tables}
         finished = datetime.now(UTC)
+        extra = {} if keys is None else _method_record(study, keys, staged, computed)
         write_run_record(out_dir, study=study.name, fingerprint=study.fingerprint(),
                          settings=study.describe(), config=dict(config or {}),
                          n_jobs=n_jobs, backend=backend, chunk_size=chunk_size,
@@ -719,6 +1155,7 @@ def run_study(study: Study, out_dir: Path | str, *, n_jobs: int = 1, chunk_size:
                          finished=finished.isoformat(timespec="seconds"),
                          wall_s=round(time.perf_counter() - clock, 3),
                          units=len(units), units_resumed=resumed, rows=counts,
-                         tables=_table_record(written, counts))
+                         tables=_table_record(written, counts), **extra)
         shutil.rmtree(parts.dir)
     return written
+

@@ -17,7 +17,9 @@ sweeps record it, and ``calibrate``'s report names the rotation and mirror image
 
 from __future__ import annotations
 
+import contextlib
 import math
+from collections.abc import Sequence
 
 import numpy as np
 
@@ -26,7 +28,7 @@ from magbench.core.metrics import real_cost, sample_mean, trivial_estimate
 from magbench.core.model import Calibration, CalibrationFailed, as_samples
 from magbench.methods.registry import get_method
 
-__all__ = ["calibrate", "unit_scale"]
+__all__ = ["CheckedSamples", "calibrate", "unit_scale"]
 
 def unit_scale(y: np.ndarray) -> float:
     """Power of two nearest the RMS sample norm: what :func:`calibrate` divides samples by.
@@ -95,6 +97,71 @@ def _check_geometry(y: np.ndarray, min_samples: int, centred: np.ndarray) -> Non
                          "through more directions")
 
 
+def _checked(samples: object, min_samples: int, bias: bool
+             ) -> tuple[np.ndarray, float, np.ndarray, np.ndarray]:
+    """The per-dataset part of :func:`calibrate`: the samples checked for a method that needs
+    ``min_samples`` of them, scaled (by one for a ``bias`` model), their mean and the centred
+    samples; ValueError for bad input."""
+    y = as_samples(samples, min_samples=min_samples)
+    scale = unit_scale(y)
+    if bias:
+        # A bias-only method takes the field magnitude as an input in the samples' unit, so
+        # its data must reach it unscaled.
+        scale = 1.0
+    y = y / scale
+    # The centred samples serve both the geometry check and the trivial estimate's J_r.
+    mean = sample_mean(y)
+    centred = y - mean
+    _check_geometry(y, min_samples, centred)
+    return y, scale, mean, centred
+
+
+class CheckedSamples:
+    """Samples that many methods are called on: :func:`calibrate` checks and scales them once
+    per kind of method (its ``min_samples`` and whether it fits a bias only) instead of once
+    per call, with the same answers and the same errors.
+
+    Each call hands its method a fresh copy of the checked samples (a copy costs far less than
+    the checks), so a method that writes into its input cannot change another's; the arrays
+    stay writeable, as numba compiles a read-only array's loops anew.
+
+    Parameters
+    ----------
+    samples : array_like, shape (K, 3)
+        As :func:`calibrate` takes them.
+    """
+
+    def __init__(self, samples: object) -> None:
+        self.samples = samples
+        self._done: dict[tuple[int, bool], tuple | str] = {}
+
+    def prepare_for(self, methods: Sequence[str]) -> CheckedSamples:
+        """Check the samples now for each of ``methods`` (a bad input's error is kept for
+        their calls), so that no method's timed call pays it; returns self."""
+        for name in methods:
+            spec = get_method(name)
+            with contextlib.suppress(ValueError):
+                self.checked(spec.min_samples, spec.model == "bias")
+        return self
+
+    def checked(self, min_samples: int, bias: bool
+                ) -> tuple[np.ndarray, float, np.ndarray, np.ndarray]:
+        """What :func:`calibrate` computes from the samples for such a method (cached)."""
+        key = (min_samples, bias)
+        if key not in self._done:
+            try:
+                out = _checked(self.samples, min_samples, bias)
+            except ValueError as exc:
+                self._done[key] = str(exc)
+            else:
+                self._done[key] = out
+        found = self._done[key]
+        if isinstance(found, str):
+            raise ValueError(found)
+        y, scale, mean, centred = found
+        return y.copy(), scale, mean, centred
+
+
 def calibrate(samples: object, method: str, *, angular_rate: object = None,
               time: object = None, acceleration: object = None, raw: bool = False,
               **options: object) -> Calibration:
@@ -102,9 +169,10 @@ def calibrate(samples: object, method: str, *, angular_rate: object = None,
 
     Parameters
     ----------
-    samples : array_like, shape (K, 3)
+    samples : array_like, shape (K, 3), or CheckedSamples
         Magnetometer measurements, one per row, in any unit. The result is in the same unit;
-        the field magnitude is normalised to one, so ``T`` absorbs the field strength.
+        the field magnitude is normalised to one, so ``T`` absorbs the field strength. Wrapped
+        in :class:`CheckedSamples`, they are checked once for all the methods called on them.
     method : str
         A name from :func:`methods`.
     angular_rate, time : array_like, optional
@@ -139,17 +207,10 @@ def calibrate(samples: object, method: str, *, angular_rate: object = None,
     if unknown:
         raise ValueError(f"unknown option(s) {', '.join(unknown)} for method {method!r}; it "
                          f"accepts: {', '.join(spec.option_names()) or 'no options'}")
-    y = as_samples(samples, min_samples=spec.min_samples)
-    scale = unit_scale(y)
-    if spec.model == "bias":
-        # A bias-only method takes the field magnitude as an input in the samples' unit, so
-        # its data must reach it unscaled.
-        scale = 1.0
-    y = y / scale
-    # The centred samples serve both the geometry check and the trivial estimate's J_r.
-    mean = sample_mean(y)
-    centred = y - mean
-    _check_geometry(y, spec.min_samples, centred)
+    if isinstance(samples, CheckedSamples):
+        y, scale, mean, centred = samples.checked(spec.min_samples, spec.model == "bias")
+    else:
+        y, scale, mean, centred = _checked(samples, spec.min_samples, spec.model == "bias")
     if spec.randomized and not isinstance(options.get("rng"), np.random.Generator):
         options["rng"] = np.random.default_rng(options.get("rng", 0))
     extra: dict[str, object] = {}

@@ -117,6 +117,8 @@ class GyroStudy(Study):
     plugins: Sequence[str] = ()
     name: str = "gyro"
 
+    #: Rows are cached per method (:mod:`magbench.engine.sweep`): one row per method and unit.
+    method_column: ClassVar[str] = "algorithm"
     tables: ClassVar[dict] = {"trials": ("trials.csv", GYRO_ROW_COLUMNS),
                               "times": ("trials_times.csv", TIME_COLUMNS)}
 

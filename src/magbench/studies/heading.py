@@ -146,6 +146,8 @@ class HeadingStudy(Study):
     plugins: Sequence[str] = ()
     name: str = "heading"
 
+    #: Rows are cached per method (:mod:`magbench.engine.sweep`): one row per method and unit.
+    method_column: ClassVar[str] = "algorithm"
     tables: ClassVar[dict] = {"trials": ("heading_trials.csv", HEADING_ROW_COLUMNS),
                               "times": ("heading_trials_times.csv", TIME_COLUMNS)}
 

@@ -27,7 +27,7 @@ from magbench.core.metrics import accuracy_cost, summarize, trivial_cost
 from magbench.core.seeding import rng
 from magbench.engine.sweep import Study
 from magbench.engine.trial import H_COLUMNS, T_COLUMNS, estimate_columns, run_method
-from magbench.methods.api import calibrate
+from magbench.methods.api import CheckedSamples, calibrate
 from magbench.methods.registry import get_method
 from magbench.sources.synthetic import Point, make_dataset
 from magbench.studies.selection import write_efficient_selection
@@ -126,6 +126,12 @@ class ReviewStudy(Study):
     axis: OptionAxis | None = None
 
     @property
+    def method_column(self) -> str | None:
+        """Rows are cached per method (:mod:`magbench.engine.sweep`), except with an option
+        axis, whose extra runs come after every method's and so are not one method's block."""
+        return "algorithm" if self.axis is None else None
+
+    @property
     def tables(self) -> dict:
         columns = ROW_COLUMNS if self.axis is None else [*ROW_COLUMNS, self.axis.column]
         return {"trials": ("trials.csv", columns),
@@ -194,11 +200,14 @@ def trial_rows(point: Point, trial: int, seed: int, algorithms: Sequence[str],
     if axis is not None:
         runs += [(axis.method, v) for v in axis.values if axis.method in algorithms]
     rows = []
+    # Checked once for every method on this dataset, outside the methods' timed calls.
+    samples = CheckedSamples(data.y).prepare_for(algorithms)
     for name, value in runs:
         opts = method_options(name, point, options)
         if value is not None:
             opts[axis.option] = value
-        out = run_method(name, lambda o, n=name: calibrate(data.y, n, raw=True, **o), options=opts,
+        out = run_method(name, lambda o, n=name: calibrate(samples, n, raw=True, **o),
+                         options=opts,
                          seed=seed, stream=(point.key, trial), call_timeout_s=call_timeout_s)
         J, J_h, J_T = (accuracy_cost(out.T, out.h, data.T, data.h) if out.calibration
                        else (np.nan, np.nan, np.nan))

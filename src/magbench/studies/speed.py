@@ -32,8 +32,9 @@ from magbench.studies.peer_accuracy import peer_accuracy, summarize_peer_accurac
 from magbench.studies.real import DEFAULT_MAX_SAMPLES
 from magbench.studies.review import ReviewStudy
 
-__all__ = ["SIZES", "bench_calibrate", "bench_calibrate_files", "bench_calls",
-           "bench_first_calls", "bench_parallel", "bench_peers", "calls_seconds",
+__all__ = ["ADDED_METHOD", "ADDED_PLUGIN", "SIZES", "added_method_seconds", "bench_calibrate",
+           "bench_calibrate_files", "bench_calls", "bench_first_calls", "bench_parallel",
+           "bench_peers", "bench_reproduce", "calls_seconds",
            "format_reproduce_times", "peer_install_size", "reproduce_times", "rounds_won",
            "run_bench", "synthetic_recording"]
 
@@ -510,11 +511,12 @@ def malloc_thresholds() -> str:
 def run_bench(results_dir: Path | str, names: Sequence[str] | None = None,
               sizes: Sequence[int] = SIZES, parallel_trials: int = 250,
               progress: Callable[[str], None] | None = print,
-              peer_datasets: int = 200) -> Path:
+              peer_datasets: int = 200, reproduce: bool = True) -> Path:
     """Run every benchmark and write ``calls.csv``, ``first_calls.csv``, ``peers.csv``,
     ``peer_accuracy.csv`` and ``peer_accuracy_summary.csv`` (``peer_datasets`` datasets per
     geometry, 0 = none; :mod:`magbench.studies.peer_accuracy`), ``peer_install.csv``,
-    ``calibrate.csv`` and ``parallel.csv`` under ``<results_dir>/bench``."""
+    ``calibrate.csv``, ``parallel.csv`` and, with ``reproduce``, ``reproduce_cases.csv``
+    (:func:`bench_reproduce`) under ``<results_dir>/bench``."""
     folder = Path(results_dir) / "bench"
     folder.mkdir(parents=True, exist_ok=True)
     names = list(names or [m for m in methods() if get_method(m).magnetometer_only])
@@ -551,7 +553,88 @@ def run_bench(results_dir: Path | str, names: Sequence[str] | None = None,
                      f"{row.rounds} rounds")
     if parallel_trials:
         write_csv_atomic(bench_parallel(parallel_trials, names), folder / "parallel.csv")
+    if reproduce:
+        write_csv_atomic(bench_reproduce(data_dir=os.environ.get("MAGBENCH_DATA"),
+                                         progress=progress), folder / "reproduce_cases.csv")
     return folder
+
+
+# --- a new method in seconds: first run, full reproduce, one method added ----------------------
+
+#: The plugin the incremental case adds to a finished reproduce: Fang's fit under a new name.
+ADDED_PLUGIN = """from magbench.methods.registry import get_method, register
+
+_fang = get_method("fang").fit
+
+
+@register("bench_added", label="added method (Fang's fit)", min_samples=10, family="extra")
+def added(samples):
+    return _fang(samples)
+"""
+ADDED_METHOD = "bench_added"
+
+
+def added_method_seconds(results_dir: Path | str, name: str = ADDED_METHOD) -> float:
+    """Seconds spent in ``name``'s own calls under ``results_dir``: its trials' ``time_s``
+    (every ``*times.csv`` sidecar) and its timing-pass calls (``spent_s`` of ``timing.csv``)."""
+    total = 0.0
+    for pattern, column in (("*/*times.csv", "time_s"), ("*/timing.csv", "spent_s")):
+        for path in Path(results_dir).glob(pattern):
+            frame = pd.read_csv(path)
+            if {"algorithm", column} <= set(frame.columns):   # not reproduce_times.csv
+                total += float(frame.loc[frame["algorithm"] == name, column].sum())
+    return total
+
+
+def bench_reproduce(n_jobs: int = 2, data_dir: str | None = None,
+                    progress: Callable[[str], None] | None = print) -> pd.DataFrame:
+    """``make reproduce`` timed three ways, each a fresh ``python -m magbench`` in a temporary
+    folder (never ``results/``): the first run's compilation (``warmup`` with an empty numba
+    cache), a full reproduce into an empty folder, and the same reproduce again with one
+    plugin method added (:data:`ADDED_PLUGIN`), which computes only that method's rows.
+
+    Returns one row per case: ``case``, ``wall_s``, ``cpu_s`` (the process and its workers),
+    ``method_s`` (the added method's own calls, for the incremental case) and
+    ``beyond_method_s`` (wall minus those calls).
+    """
+    from magbench.engine.record import cpu_model
+
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        tmp = Path(tmp)
+        env = dict(os.environ)
+        if data_dir:
+            env["MAGBENCH_DATA"] = str(data_dir)
+        cold = dict(env, NUMBA_CACHE_DIR=str(tmp / "numba"))
+        wall, cpu, _ = _timed_run([sys.executable, "-m", "magbench", "warmup",
+                                   "progress=false"], cold)
+        rows.append({"case": "first run: compile the numba kernels (warmup, empty cache)",
+                     "wall_s": wall, "cpu_s": cpu})
+        out = tmp / "repro"
+        base = [sys.executable, "-m", "magbench", "reproduce", f"results_dir={out}",
+                f"n_jobs={n_jobs}", "progress=false"]
+        wall, cpu, _ = _timed_run(base, env)
+        rows.append({"case": "make reproduce, empty results_dir", "wall_s": wall,
+                     "cpu_s": cpu})
+        if progress:
+            progress(f"make reproduce: {wall:.1f} s wall, {cpu:.1f} CPU-s")
+        (tmp / "plugin").mkdir()
+        (tmp / "plugin" / "bench_added_plugin.py").write_text(ADDED_PLUGIN)
+        added_env = dict(env, PYTHONPATH=os.pathsep.join(
+            filter(None, [str(tmp / "plugin"), env.get("PYTHONPATH")])))
+        wall, cpu, _ = _timed_run([*base, "plugins=[bench_added_plugin]"], added_env)
+        own = added_method_seconds(out)
+        rows.append({"case": "make reproduce again, one plugin method added", "wall_s": wall,
+                     "cpu_s": cpu, "method_s": own, "beyond_method_s": wall - own})
+        if progress:
+            progress(f"one method added: {wall:.1f} s wall ({own:.1f} s in its own calls), "
+                     f"{cpu:.1f} CPU-s")
+    table = pd.DataFrame(rows, columns=["case", "wall_s", "cpu_s", "method_s",
+                                        "beyond_method_s"])
+    table["cpu_model"] = cpu_model()
+    table["cpu_count"] = os.cpu_count()
+    table["load_1min"] = os.getloadavg()[0]
+    return table
 
 
 # --- make reproduce: where its time goes, per sweep ------------------------------------------

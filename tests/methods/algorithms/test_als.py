@@ -82,3 +82,16 @@ def test_centring_and_scaling_change_only_the_conditioning():
     cal = magbench.calibrate(y, "als")
     np.testing.assert_allclose(cal.h, h, atol=1e-12)
     np.testing.assert_allclose(cal.T, T, atol=1e-12)
+
+
+def test_the_adjusted_matrix_is_exactly_quadratic_in_the_noise_variance():
+    """P0 + s P1 + s^2 P2, built once, equals the matrix rebuilt from the samples at each s
+    (to rounding), so the root search may evaluate the polynomial."""
+    from magbench.methods.algorithms.als import adjusted_polynomial
+
+    y = np.random.default_rng(3).standard_normal((200, 3))
+    powers = _powers(y)
+    P = adjusted_polynomial(powers)
+    for s in (0.0, 1e-4, 0.01, 0.3, 2.0):
+        direct = adjusted_matrix(powers, s)
+        assert np.allclose(P[0] + s * P[1] + s * s * P[2], direct, rtol=0, atol=1e-12)

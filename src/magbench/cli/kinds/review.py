@@ -84,11 +84,55 @@ def finish(study, out_dir: Path, common: dict) -> None:
     from magbench.studies.review import write_efficiency
     from magbench.studies.timing import timing_is_current, write_timing
 
-    if not timing_is_current(study, out_dir):
+    if not timing_is_current(study, out_dir) and not _extend_timing(study, out_dir, common):
         write_timing(study, out_dir, progress=common["progress"])
     summary = study.summarize(out_dir)
     write_sweep_tables(study.name, summary, out_dir, delta=study.delta)
     write_efficiency(out_dir, study.name, [] if study.axis is None else [study.axis.column])
+
+
+def _extend_timing(study, out_dir: Path, common: dict) -> bool:
+    """After a run that reused some methods' rows (``run.json``'s ``methods_reused``), keep
+    their cells of the timing pass of the run they came from and time only the methods it
+    computed; False (nothing written) when there is no such pass to extend."""
+    import json
+    import sys
+    import time
+
+    from magbench.core.files import write_csv_atomic
+    from magbench.studies.review import POINT_COLUMNS
+    from magbench.studies.timing import TIMING_FILE, read_timing, time_methods
+
+    try:
+        record = json.loads((out_dir / "run.json").read_text())
+    except (OSError, ValueError):
+        return False
+    reused, source = record.get("methods_reused") or [], record.get("reused_from")
+    old = read_timing(out_dir)
+    if not reused or not source or old is None or "fingerprint" not in old:
+        return False
+    if set(old["fingerprint"].astype(str)) != {source}:
+        return False
+    kept = old[old["algorithm"].isin(reused)]
+    if len(kept) != len(reused) * len(study.points):
+        return False
+    start = time.perf_counter()
+    computed = [m for m in study.algorithms if m not in reused]
+    new = (time_methods(study.points, study.seed, computed, study.options,
+                        call_timeout_s=study.call_timeout_s) if computed else kept.iloc[:0])
+    frame = pd.concat([kept, new], ignore_index=True)
+    # The cells in the order a whole pass writes them: point by point, methods in order.
+    point = {tuple(getattr(p, c) for c in POINT_COLUMNS): i for i, p in enumerate(study.points)}
+    order = {m: i for i, m in enumerate(study.algorithms)}
+    frame["_cell"] = [(point.get(tuple(v[:-1]), 0), order[v[-1]]) for v in
+                      frame[[*POINT_COLUMNS, "algorithm"]].itertuples(index=False)]
+    frame = frame.sort_values("_cell", kind="stable").drop(columns="_cell")
+    frame["fingerprint"] = study.fingerprint()
+    write_csv_atomic(frame, out_dir / TIMING_FILE)
+    if common["progress"]:
+        print(f"{study.name}: timing pass of {', '.join(computed) or 'no method'} (the others' "
+              f"kept), {time.perf_counter() - start:.1f} s", file=sys.stderr)
+    return True
 
 
 def figures(name: str, out_dir: Path) -> list[Path]:

@@ -88,11 +88,40 @@ def adjusted_matrix(powers: np.ndarray, s: float) -> np.ndarray:
     return _PAIR_SCALE * moments[_PAIR_INDEX]
 
 
-def _smallest_eigenvalue(powers: np.ndarray, s: float) -> float:
-    return float(np.linalg.eigvalsh(adjusted_matrix(powers, s))[0])
+def _adjustment_terms(powers: np.ndarray) -> list[list[tuple[int, np.ndarray]]]:
+    """``t_p(y) = sum_d s^d c_pd(y)`` per power p = 0..4: the non-zero ``(d, c_pd)``, each
+    ``c_pd`` of shape (K, 3) (the definitions in the module notes)."""
+    return [[(0, powers[0])], [(0, powers[1])], [(0, powers[2]), (1, -powers[0])],
+            [(0, powers[3]), (1, -3.0 * powers[1])],
+            [(0, powers[4]), (1, -6.0 * powers[2]), (2, 3.0 * powers[0])]]
 
 
-def noise_variance(powers: np.ndarray) -> float:
+def adjusted_polynomial(powers: np.ndarray) -> np.ndarray:
+    """``P`` of shape (3, 10, 10) with ``Psi_als(s) = P[0] + s P[1] + s^2 P[2]`` exactly.
+
+    Every adjusted moment is a product of three ``t_p`` whose degrees in ``s`` are
+    ``floor(p / 2)``, with ``p`` summing to at most 4: so ``Psi_als`` is exactly quadratic in
+    ``s``, and the root search evaluates this polynomial instead of rebuilding the moments from
+    the samples at every trial ``s``.
+    """
+    terms = _adjustment_terms(powers)
+    K = powers.shape[1]
+    moments = np.zeros((3, len(_UNIQUE)))
+    for m, (a, b, c) in enumerate(_UNIQUE):
+        for da, ca in terms[a]:
+            for db, cb in terms[b]:
+                ab = ca[:, 0] * cb[:, 1]
+                for dc, cc in terms[c]:
+                    if da + db + dc <= 2:
+                        moments[da + db + dc, m] += ab @ cc[:, 2]
+    return _PAIR_SCALE * (moments / K)[:, _PAIR_INDEX]
+
+
+def _smallest_eigenvalue(P: np.ndarray, s: float) -> float:
+    return float(np.linalg.eigvalsh(P[0] + s * P[1] + (s * s) * P[2])[0])
+
+
+def noise_variance(powers: np.ndarray, P: np.ndarray | None = None) -> float:
     """KMV's estimate of ``sigma^2``: the smallest ``s >= 0`` where ``Psi_als(s)`` becomes
     singular (its smallest eigenvalue, positive at ``s = 0``, crosses zero).
 
@@ -102,16 +131,17 @@ def noise_variance(powers: np.ndarray) -> float:
     """
     from scipy.optimize import brentq  # here: registering the methods must not load SciPy
 
-    f0 = _smallest_eigenvalue(powers, 0.0)
+    P = adjusted_polynomial(powers) if P is None else P
+    f0 = _smallest_eigenvalue(P, 0.0)
     if f0 <= 1e-15:
         return 0.0            # the samples already lie on a quadric: no noise to remove
     hi = 1e-6
-    while _smallest_eigenvalue(powers, hi) > 0.0:
+    while _smallest_eigenvalue(P, hi) > 0.0:
         hi *= 4.0
         if hi > 1.0:
             raise CalibrationFailed("no noise variance below the data's own variance makes "
                                     "the adjusted moment matrix singular")
-    return float(brentq(lambda s: _smallest_eigenvalue(powers, s), 0.0, hi,
+    return float(brentq(lambda s: _smallest_eigenvalue(P, s), 0.0, hi,
                         xtol=1e-14, rtol=1e-12))
 
 
@@ -148,8 +178,9 @@ def fit(samples: np.ndarray, *, noise_std: float | None = None) -> Calibration:
     scale = float(np.sqrt(np.einsum("ij,ij->", y, y) / (3 * y.shape[0])))
     y = y / scale
     powers = _powers(y)
-    s = noise_variance(powers) if noise_std is None else (noise_std / scale) ** 2
-    vectors = np.linalg.eigh(adjusted_matrix(powers, s))[1]
+    P = adjusted_polynomial(powers)
+    s = noise_variance(powers, P) if noise_std is None else (noise_std / scale) ** 2
+    vectors = np.linalg.eigh(P[0] + s * P[1] + (s * s) * P[2])[1]
     v = vectors[:, 0]
     A = np.array([[v[0], v[3], v[4]], [v[3], v[1], v[5]], [v[4], v[5], v[2]]])
     h, _, T = quadric_to_calibration(A, v[6:9], float(v[9]))

@@ -1,0 +1,287 @@
+"""Rows cached per method: a run adds, or recomputes, only the methods whose key changed.
+
+The counting methods (``tests/plugins/counting.py``) write one line per call, from any
+process, so each test counts exactly which calls a run made.
+"""
+
+from __future__ import annotations
+
+import json
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from magbench.engine import sweep as engine
+from magbench.engine.sweep import ResultsExist, run_study
+from magbench.methods.registry import _REGISTRY, unregister
+from magbench.sources.synthetic import Point
+from magbench.studies.review import ReviewStudy
+
+REPO = Path(__file__).resolve().parents[2]
+COUNTING = "tests.plugins.counting"
+#: The environment variable the counting methods append their calls to (not imported from the
+#: plugin: importing it registers its methods for every test that follows).
+CALLS_FILE = "MAGBENCH_COUNT_CALLS"
+TRIALS = 6
+
+
+@pytest.fixture
+def calls(tmp_path, monkeypatch):
+    """The calls made so far, per method (read from the counting methods' file)."""
+    import tests.plugins.counting  # noqa: F401
+
+    path = tmp_path / "calls.txt"
+    monkeypatch.setenv(CALLS_FILE, str(path))
+
+    def read() -> dict[str, int]:
+        names = path.read_text().split() if path.exists() else []
+        path.unlink(missing_ok=True)
+        return {n: names.count(n) for n in sorted(set(names))}
+
+    yield read
+    for name in ("counting_a", "counting_b"):
+        unregister(name)
+    sys.modules.pop(COUNTING, None)
+
+
+def study(algorithms, options=None, plugins=(COUNTING,), trials=TRIALS) -> ReviewStudy:
+    return ReviewStudy("baseline", [Point(K=40)], trials, 7, tuple(algorithms),
+                       options or {}, plugins=tuple(plugins))
+
+
+def run(s: ReviewStudy, folder: Path, **kw) -> None:
+    run_study(s, folder, chunk_size=2, progress=False, **kw)
+
+
+def lines(folder: Path, name: str = "trials.csv") -> list[str]:
+    return (folder / name).read_text().splitlines()
+
+
+def of(rows: list[str], method: str) -> list[str]:
+    return [r for r in rows if f",{method}," in r]
+
+
+def test_adding_a_method_computes_only_its_rows(tmp_path, calls, capsys):
+    run(study(["counting_a", "sphere"]), tmp_path / "inc")
+    first = lines(tmp_path / "inc")
+    assert calls() == {"counting_a": TRIALS}
+    capsys.readouterr()
+    run(study(["counting_a", "sphere", "counting_b"]), tmp_path / "inc")
+    assert calls() == {"counting_b": TRIALS}           # counting_a's rows were reused
+    said = capsys.readouterr().err
+    assert "reusing the rows of counting_a, sphere (unchanged)" in said
+    assert "computing counting_b (new)" in said
+    after = lines(tmp_path / "inc")
+    for method in ("counting_a", "sphere"):
+        assert of(after, method) == of(first, method) and len(of(first, method)) == TRIALS
+    # The same table, byte for byte, as one run of all three.
+    run(study(["counting_a", "sphere", "counting_b"]), tmp_path / "full")
+    assert after == lines(tmp_path / "full")
+    record = json.loads((tmp_path / "inc" / "run.json").read_text())
+    assert record["methods_reused"] == ["counting_a", "sphere"]
+    assert record["methods_computed"] == ["counting_b"]
+    assert record["rows"] == {"trials": 3 * TRIALS, "times": 3 * TRIALS}
+    # The sidecar of times is merged the same way: the reused rows keep their times.
+    times = lines(tmp_path / "inc", "trials_times.csv")
+    assert of(times, "counting_a") == of(lines(tmp_path / "inc", "trials_times.csv"),
+                                         "counting_a")
+    assert [r.split(",")[1] for r in times[1:4]] == ["counting_a", "sphere", "counting_b"]
+
+
+def test_changing_one_methods_option_recomputes_only_that_method(tmp_path, calls, capsys):
+    run(study(["counting_a", "counting_b"]), tmp_path)
+    calls()
+    before = lines(tmp_path)
+    capsys.readouterr()
+    run(study(["counting_a", "counting_b"], {"counting_b": {"shift": 0.5}}), tmp_path)
+    assert calls() == {"counting_b": TRIALS}
+    assert "computing counting_b (options changed)" in capsys.readouterr().err
+    after = lines(tmp_path)
+    assert of(after, "counting_a") == of(before, "counting_a")
+    assert of(after, "counting_b") != of(before, "counting_b")
+    # Rerun as it is: every row reused, nothing called.
+    run(study(["counting_a", "counting_b"], {"counting_b": {"shift": 0.5}}), tmp_path)
+    assert calls() == {}
+    assert lines(tmp_path) == after
+
+
+EDITED = '''
+import numpy as np
+from magbench.core.model import Calibration
+from magbench.methods.registry import register
+from tests.plugins.counting import _count
+
+@register("edited_m", label="edited", min_samples=5, family="extra", model="sphere")
+def edited(samples):
+    _count("edited_m")
+    h = samples.mean(axis=0)
+    return Calibration({scale} * float(np.sqrt(((samples - h) ** 2).sum(axis=1).mean()))
+                       * np.eye(3), h)
+'''
+
+
+def test_editing_a_methods_module_recomputes_its_rows(tmp_path, calls, monkeypatch, capsys):
+    code = tmp_path / "code"
+    code.mkdir()
+    monkeypatch.syspath_prepend(str(code))
+    module = code / "edited_plugin.py"
+
+    def load(scale: str) -> None:
+        # A new process would import the edited file; this one forgets the old module.
+        unregister("edited_m")
+        sys.modules.pop("edited_plugin", None)
+        module.write_text(EDITED.format(scale=scale))
+
+    try:
+        load("1.0")
+        s = study(["counting_a", "edited_m"], plugins=(COUNTING, "edited_plugin"))
+        run(s, tmp_path / "out")
+        before = lines(tmp_path / "out")
+        assert calls() == {"counting_a": TRIALS, "edited_m": TRIALS}
+        load("1.001")
+        capsys.readouterr()
+        run(s, tmp_path / "out")                 # the same configuration, the code edited
+        assert calls() == {"edited_m": TRIALS}   # stale rows recomputed, never reused
+        assert "computing edited_m (code changed)" in capsys.readouterr().err
+        after = lines(tmp_path / "out")
+        assert of(after, "counting_a") == of(before, "counting_a")
+        assert of(after, "edited_m") != of(before, "edited_m")
+    finally:
+        unregister("edited_m")
+        sys.modules.pop("edited_plugin", None)
+
+
+def test_a_run_that_drops_a_method_or_changes_the_base_is_refused(tmp_path, calls):
+    run(study(["counting_a", "counting_b"]), tmp_path)
+    with pytest.raises(ResultsExist, match="holds a run with counting_b, which this run does "
+                                           "not select"):
+        run(study(["counting_a"]), tmp_path)
+    with pytest.raises(ResultsExist, match="another configuration"):
+        run(study(["counting_a", "counting_b"], trials=TRIALS + 1), tmp_path)
+    # A run whose table was edited after it finished is not a source of rows either.
+    table = tmp_path / "trials.csv"
+    table.write_text(table.read_text().replace("counting_a", "counting_A", 1))
+    with pytest.raises(ResultsExist, match="another configuration"):
+        run(study(["counting_a", "counting_b", "sphere"]), tmp_path)
+    assert calls() == {"counting_a": TRIALS, "counting_b": TRIALS}    # the first run's only
+
+
+def test_a_kill_while_the_merged_tables_are_written_resumes_exactly(tmp_path, calls,
+                                                                    monkeypatch):
+    """Killed after the new trials.csv replaced the finished one, before run.json: the
+    reused rows were staged in parts/, so the rerun merges them again, computing nothing."""
+    run(study(["counting_a", "sphere"]), tmp_path / "inc")
+    run(study(["counting_a", "sphere", "counting_b"]), tmp_path / "full")
+    calls()
+
+    def killed(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    with monkeypatch.context() as patch:
+        patch.setattr(engine, "write_run_record", killed)
+        with pytest.raises(KeyboardInterrupt):
+            run(study(["counting_a", "sphere", "counting_b"]), tmp_path / "inc")
+    assert calls() == {"counting_b": TRIALS}
+    assert lines(tmp_path / "inc") == lines(tmp_path / "full")     # replaced, run.json old
+    run(study(["counting_a", "sphere", "counting_b"]), tmp_path / "inc")
+    assert calls() == {}
+    assert lines(tmp_path / "inc") == lines(tmp_path / "full")
+    assert not (tmp_path / "inc" / "parts").exists()
+
+
+@pytest.mark.slow
+@pytest.mark.usefixtures("blank_figures")
+def test_a_killed_incremental_run_resumes_to_the_same_rows(tmp_path, calls):
+    """SIGKILL while the added method runs; the rerun finishes only what is missing and the
+    table is byte-identical to one run of every method. Slow (three command-line runs and a
+    killed process, ~11 s): the kill just before run.json above shows the same in CI."""
+    from magbench.cli import main
+
+    def args(results: Path, algorithms: str) -> list[str]:
+        return ["sweep=baseline", "trials=8", "nominal.K=40", "chunk_size=1", "n_jobs=1",
+                "progress=false", f"plugins=[{COUNTING},tests.plugins.faulty]",
+                f"algorithms=[{algorithms}]", f"results_dir={results}",
+                *(["options.faulty_slow.delay=0.1"] if "faulty_slow" in algorithms else [])]
+
+    try:
+        assert main(args(tmp_path / "cut", "counting_a,sphere")) == 0
+        assert main(args(tmp_path / "full", "counting_a,sphere,faulty_slow")) == 0
+        calls()
+        proc = subprocess.Popen([sys.executable, "-m", "magbench",
+                                 *args(tmp_path / "cut", "counting_a,sphere,faulty_slow")],
+                                cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        parts = tmp_path / "cut" / "baseline" / "parts"
+        start = time.monotonic()
+        while len(list(parts.glob("c*.json"))) < 2:
+            assert proc.poll() is None, "the run ended before it could be killed"
+            assert time.monotonic() - start < 120
+            time.sleep(0.02)
+        proc.send_signal(signal.SIGKILL)
+        proc.wait(timeout=30)
+        assert calls() == {}                       # only faulty_slow ran, not counting_a
+        assert main(args(tmp_path / "cut", "counting_a,sphere,faulty_slow")) == 0
+        assert calls() == {}           # neither in the trials nor in the timing pass (kept)
+        record = json.loads((tmp_path / "cut" / "baseline" / "run.json").read_text())
+        assert record["units_resumed"] >= 2 and record["methods_computed"] == ["faulty_slow"]
+        cut, full = tmp_path / "cut" / "baseline", tmp_path / "full" / "baseline"
+        assert lines(cut) == lines(full)
+    finally:
+        for name in [n for n in _REGISTRY if n.startswith("faulty_")]:
+            unregister(name)
+        sys.modules.pop("tests.plugins.faulty", None)
+
+
+def test_overwrite_recomputes_only_what_changed(tmp_path, calls, capsys):
+    """overwrite=true (make reproduce) lifts the refusals, not the reuse: an unchanged run is
+    kept as it is, and a dropped method's rows go while the others' stay."""
+    run(study(["counting_a", "counting_b"]), tmp_path)
+    before = lines(tmp_path)
+    calls()
+    run(study(["counting_a", "counting_b"]), tmp_path, overwrite=True)
+    assert calls() == {} and lines(tmp_path) == before
+    assert "already holds this run" in capsys.readouterr().err
+    run(study(["counting_a"]), tmp_path, overwrite=True)
+    assert calls() == {}
+    assert lines(tmp_path) == [before[0], *of(before, "counting_a")]
+    run(study(["counting_a"], trials=TRIALS - 1), tmp_path, overwrite=True)
+    assert calls() == {"counting_a": TRIALS - 1}          # another base: all recomputed
+
+
+def test_a_study_whose_own_code_changed_is_recomputed_whole(tmp_path, calls, capsys,
+                                                            monkeypatch):
+    """The base holds the study's code: when it changes, the same configuration recomputes
+    every row (said so), without overwrite and without refusing."""
+    run(study(["counting_a", "counting_b"]), tmp_path)
+    calls()
+    monkeypatch.setattr(engine, "study_code", lambda module: "edited")
+    capsys.readouterr()
+    run(study(["counting_a", "counting_b"]), tmp_path)
+    assert calls() == {"counting_a": TRIALS, "counting_b": TRIALS}
+    assert "the code that computes this run changed" in capsys.readouterr().err
+
+
+def test_a_whole_run_differing_only_in_its_plugins_is_reused(tmp_path, calls, capsys):
+    """A study not cached per method (here: an option axis) whose methods, options, code and
+    settings are unchanged is reused whole when only the plugins loaded differ."""
+    from magbench.studies.review import OptionAxis
+
+    axis = OptionAxis("counting_a", "shift", (0.5,))
+    run(ReviewStudy("baseline", [Point(K=40)], TRIALS, 7, ("counting_a",), {},
+                    plugins=(COUNTING,), axis=axis), tmp_path)
+    before = lines(tmp_path)
+    calls()
+    capsys.readouterr()
+    again = ReviewStudy("baseline", [Point(K=40)], TRIALS, 7, ("counting_a",), {},
+                        plugins=(COUNTING, "tests.plugins.faulty"), axis=axis)
+    try:
+        run(again, tmp_path)
+    finally:
+        for name in [n for n in _REGISTRY if n.startswith("faulty_")]:
+            unregister(name)
+        sys.modules.pop("tests.plugins.faulty", None)
+    assert calls() == {} and lines(tmp_path) == before
+    assert "only the plugins loaded differ" in capsys.readouterr().err
