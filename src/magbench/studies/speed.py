@@ -67,13 +67,15 @@ def _time_call(fn: Callable[[], object], repeats: int) -> np.ndarray:
     return np.asarray(times)
 
 
-def _method_times(name: str, y: np.ndarray, repeats: int) -> tuple[np.ndarray, str]:
+def _method_times(name: str, y: np.ndarray, repeats: int,
+                  call_timeout_s: float | None = None) -> tuple[np.ndarray, str]:
     """Wall times of ``repeats`` calls of method ``name`` on ``y`` after one untimed warm-up,
     each through the trial loop (a failing call still costs time; keep measuring), and the
     reason when the supervision skipped the method (it ended or seized its process here).
     The clock is read around the method alone, never around the supervision's messages."""
     def call():
-        return run_method(name, lambda o: calibrate(y, name, raw=True, **o))
+        return run_method(name, lambda o: calibrate(y, name, raw=True, **o),
+                          call_timeout_s=call_timeout_s)
 
     times = []
     for k in range(repeats + 1):
@@ -86,7 +88,7 @@ def _method_times(name: str, y: np.ndarray, repeats: int) -> tuple[np.ndarray, s
 
 
 def _calls_of(name: str, sizes: Sequence[int], datasets: int, repeats: int, seed: int,
-              budget_s: float) -> list[dict]:
+              budget_s: float, call_timeout_s: float | None) -> list[dict]:
     """:func:`bench_calls`' rows of one method (a unit of :func:`map_supervised`)."""
     rows, skip = [], False
     for K in sizes:
@@ -96,7 +98,8 @@ def _calls_of(name: str, sizes: Sequence[int], datasets: int, repeats: int, seed
                          "note": "skipped (time budget)" if skip else "K below minimum"})
             continue
         start = time.perf_counter()
-        timed = [_method_times(name, d.y, repeats) for d in _datasets(K, datasets, seed)]
+        timed = [_method_times(name, d.y, repeats, call_timeout_s)
+                 for d in _datasets(K, datasets, seed)]
         reason = next((why for _, why in timed if why), "")
         if reason:      # it ended or seized its process at this K: the row says so
             rows.append({"algorithm": name, "K": K, "n": 0, "median_s": np.nan,
@@ -112,17 +115,21 @@ def _calls_of(name: str, sizes: Sequence[int], datasets: int, repeats: int, seed
 
 def bench_calls(names: Sequence[str], sizes: Sequence[int] = SIZES, datasets: int = 5,
                 repeats: int = 5, seed: int = 0, budget_s: float = 20.0,
-                progress: Callable[[str], None] | None = None) -> pd.DataFrame:
+                progress: Callable[[str], None] | None = None,
+                call_timeout_s: float | None = None) -> pd.DataFrame:
     """Time ``calibrate`` per method and K: ``datasets`` datasets x ``repeats`` calls each.
 
     A method whose calls at one K take more than ``budget_s`` in total is not timed at larger K
     (the row says so) so one slow method cannot stall the benchmark. The calls run in a
     supervised child process, as a sweep's trials do
     (:func:`magbench.engine.isolation.map_supervised`): a method that ends or seizes its
-    process gives a row whose ``note`` says why, and the benchmark goes on.
+    process gives a row whose ``note`` says why, and the benchmark goes on; a call past
+    ``call_timeout_s`` is a failed call, and one that holds its process past that limit's hard
+    end (:func:`magbench.engine.isolation.hard_limit`) a row saying so.
     """
     work = functools.partial(_calls_of, sizes=tuple(sizes), datasets=datasets,
-                             repeats=repeats, seed=seed, budget_s=budget_s)
+                             repeats=repeats, seed=seed, budget_s=budget_s,
+                             call_timeout_s=call_timeout_s)
     rows = []
     for name in names:
         method_rows = map_supervised(work, [name], name="bench",
@@ -296,12 +303,14 @@ def peer_install_size() -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
-def _best_candidate(y: np.ndarray, candidates: Sequence[str]) -> str:
+def _best_candidate(y: np.ndarray, candidates: Sequence[str],
+                    call_timeout_s: float | None = None) -> str:
     """The candidate with the smallest RMS field-magnitude residual on ``y``: the ranking of
     ``calibrate`` (in sample, meaningful fits alike) without its held-out split."""
     best, best_r = candidates[0], np.inf
     for name in candidates:
-        out = run_method(name, lambda o, n=name: calibrate(y, n, raw=True, **o))
+        out = run_method(name, lambda o, n=name: calibrate(y, n, raw=True, **o),
+                         call_timeout_s=call_timeout_s)
         if out.calibration is None:
             continue
         r = float(np.sqrt(np.mean((np.linalg.norm(out.calibration.apply(y), axis=1) - 1.0)
@@ -312,7 +321,8 @@ def _best_candidate(y: np.ndarray, candidates: Sequence[str]) -> str:
 
 
 def bench_peers(sizes: Sequence[int] = (300, 10000), datasets: int = 20, repeats: int = 3,
-                seed: int = 0, large_datasets: int = 5) -> pd.DataFrame:
+                seed: int = 0, large_datasets: int = 5,
+                call_timeout_s: float | None = None) -> pd.DataFrame:
     """Each installed peer against magbench on the same nominal datasets, per K.
 
     Two rows per peer and K: against its counterpart (same algorithm, same samples), and
@@ -327,20 +337,21 @@ def bench_peers(sizes: Sequence[int] = (300, 10000), datasets: int = 20, repeats
     candidates = [m for m in methods() if get_method(m).family != "variant"
                   and get_method(m).magnetometer_only]
     work = functools.partial(_peers_at, datasets=datasets, repeats=repeats, seed=seed,
-                             large_datasets=large_datasets, candidates=tuple(candidates))
+                             large_datasets=large_datasets, candidates=tuple(candidates),
+                             call_timeout_s=call_timeout_s)
     per_size = map_supervised(work, list(sizes), name="bench peers",
                               plugins=plugin_modules(candidates))
     return pd.DataFrame([row for rows in per_size for row in rows])
 
 
 def _peers_at(K: int, *, datasets: int, repeats: int, seed: int, large_datasets: int,
-              candidates: Sequence[str]) -> list[dict]:
+              candidates: Sequence[str], call_timeout_s: float | None) -> list[dict]:
     """:func:`bench_peers`' rows at one K (a unit of :func:`map_supervised`)."""
     rows = []
     registered = set(methods())
     data = _datasets(K, datasets if K <= 1000 else large_datasets, seed)
     stride = math.ceil(K / DEFAULT_MAX_SAMPLES)                      # calibrate's thinning
-    best = _best_candidate(data[0].y[::stride], candidates)
+    best = _best_candidate(data[0].y[::stride], candidates, call_timeout_s)
     for peer, (package, fn, counterpart) in PEERS.items():
         if importlib.util.find_spec(package) is None or counterpart not in registered:
             rows.append({"peer": peer, "K": K, "magbench": counterpart,
@@ -357,11 +368,12 @@ def _peers_at(K: int, *, datasets: int, repeats: int, seed: int, large_datasets:
                 except Exception:
                     failures += 1
                 out = run_method(name, lambda o, y=d.y[::step], n=name:
-                                 calibrate(y, n, raw=True, **o))
+                                 calibrate(y, n, raw=True, **o), call_timeout_s=call_timeout_s)
                 J_ours.append(accuracy_cost(out.T, out.h, d.T, d.h)[0]
                               if out.T is not None else np.nan)
                 t_peer.append(np.median(_time_call(lambda y=d.y, f=fn: f(y), repeats)))
-                t_ours.append(np.median(_method_times(name, d.y[::step], repeats)[0]))
+                t_ours.append(np.median(_method_times(name, d.y[::step], repeats,
+                                                      call_timeout_s)[0]))
             rows.append({"peer": peer, "K": K, "magbench": name,
                          "peer_median_s": np.median(t_peer),
                          "magbench_median_s": np.median(t_ours),
@@ -559,7 +571,7 @@ def malloc_thresholds() -> str:
 def run_bench(results_dir: Path | str, names: Sequence[str] | None = None,
               sizes: Sequence[int] = SIZES, parallel_trials: int = 250,
               progress: Callable[[str], None] | None = print,
-              peer_datasets: int = 200) -> Path:
+              peer_datasets: int = 200, call_timeout_s: float | None = None) -> Path:
     """Run every benchmark and write ``calls.csv``, ``first_calls.csv``, ``peers.csv``,
     ``peer_accuracy.csv`` and ``peer_accuracy_summary.csv`` (``peer_datasets`` datasets per
     geometry, 0 = none; :mod:`magbench.studies.peer_accuracy`), ``peer_install.csv``,
@@ -581,11 +593,11 @@ def run_bench(results_dir: Path | str, names: Sequence[str] | None = None,
                  "faults (python -m magbench sets MALLOC_MMAP_THRESHOLD_ and "
                  "MALLOC_TRIM_THRESHOLD_)")
     write_csv_atomic(bench_first_calls(names, progress=progress), folder / "first_calls.csv")
-    calls = bench_calls(names, sizes, progress=progress)
+    calls = bench_calls(names, sizes, progress=progress, call_timeout_s=call_timeout_s)
     calls["blas_threads"] = threads
     calls["malloc"] = malloc
     write_csv_atomic(calls, folder / "calls.csv")
-    write_csv_atomic(bench_peers(), folder / "peers.csv")
+    write_csv_atomic(bench_peers(call_timeout_s=call_timeout_s), folder / "peers.csv")
     if peer_datasets:
         accuracy = peer_accuracy(PEERS, datasets=peer_datasets)
         write_csv_atomic(accuracy, folder / "peer_accuracy.csv")
