@@ -158,7 +158,8 @@ def test_extract_writes_no_inf_and_counts_its_blank_cells(tmp_path, capsys):
     table = pd.read_csv(out)
     blanks = {c: int(n) for c, n in table.isna().sum().items() if n}
     assert blanks.get("throttle", 0) >= 1
-    assert "or not finite in the log): " + ", ".join(f"{c} {n}" for c, n in blanks.items()) \
+    counted = ", ".join(f"{c} {n}" for c, n in blanks.items())
+    assert f"; no value (outside the stream or in a gap, or not finite in the log): {counted}" \
         in said
 
 

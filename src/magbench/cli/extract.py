@@ -51,7 +51,7 @@ def run_extract(cfg: DictConfig) -> int:
     t = table["t"].to_numpy()
     device = f"device {log.devices[chosen]}, " if chosen in log.devices else ""
     gaps = {c: int(table[c].isna().sum()) for c in table.columns if table[c].isna().any()}
-    missing = ("; blank cells (no value: outside the stream, in a gap"
+    missing = ("; no value (outside the stream or in a gap"
                + (", or not finite in the log" if infinite else "") + "): "
                + ", ".join(f"{c} {n}" for c, n in gaps.items())) if gaps else ""
     for note in log.notes:
