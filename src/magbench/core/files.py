@@ -77,9 +77,14 @@ def write_csv_atomic(frame: pd.DataFrame, path: Path | str) -> None:
     ``to_csv`` (a sweep writes every trial row this way); any other goes to ``to_csv``.
     """
     gz = str(path).endswith(".gz")
-    cells = None if gz else _csv_columns(frame)
+    cells = None if gz else _csv_columns(frame.iloc[:CHUNK_ROWS])
     if cells is not None:
-        _write_rows(path, [str(c) for c in frame.columns], zip(*cells, strict=True))
+        # Formatted CHUNK_ROWS rows at a time: a long table's cells as text would take ten
+        # times its floats.
+        blocks = (zip(*_csv_columns(frame.iloc[a:a + CHUNK_ROWS]), strict=True)
+                  for a in range(0, len(frame), CHUNK_ROWS))
+        _write_rows(path, [str(c) for c in frame.columns],
+                    (row for block in blocks for row in block))
         return
     with atomic_path(path) as tmp:
         frame.to_csv(tmp, index=False, compression="gzip" if gz else None)
