@@ -510,20 +510,20 @@ def _read_dataflash(path: Path) -> FlightLog:
     mags: dict[int, Stream] = {}
     notes: list[str] = []
     parts: list[tuple[int, _Columns]] = []
-    for kind in ("MAG", "MAG2", "MAG3"):
-        if kind not in rows or not len(rows[kind]):
+    for message in ("MAG", "MAG2", "MAG3"):
+        if message not in rows or not len(rows[message]):
             continue
-        columns = rows[kind]
+        columns = rows[message]
         lacking = columns.lacking(MAG_FIELDS)
         if lacking:
-            raise ValueError(f"{path.name}: malformed DataFlash FMT: {kind} has no field "
+            raise ValueError(f"{path.name}: malformed DataFlash FMT: {message} has no field "
                              f"{', '.join(lacking)} (its fields: {', '.join(columns.all)}); "
                              f"expected {', '.join(MAG_FIELDS)}")
-        if kind == "MAG" and "I" in columns:
+        if message == "MAG" and "I" in columns:
             parts += [(int(i), columns.rows(columns["I"] == i))
                       for i in np.unique(columns["I"])]
         else:
-            parts.append((0 if kind == "MAG" else int(kind[-1]) - 1, columns))
+            parts.append((0 if message == "MAG" else int(message[-1]) - 1, columns))
     for i, f in parts:
         raw = np.column_stack([f[f"Mag{a}"] - (f[f"Ofs{a}"] if f"Ofs{a}" in f else 0.0)
                                - (f[f"MO{a}"] if f"MO{a}" in f else 0.0) for a in "XYZ"])
@@ -540,20 +540,21 @@ def _read_dataflash(path: Path) -> FlightLog:
             notes.append(f"{path.name}: {dropped} compass line(s) dropped (fewer fields than "
                          "their format lists)")
     log = FlightLog(path, "dataflash", mags, "milligauss", notes=notes)
-    for kind, group, names, fields in (
+    for message, group, names, fields in (
             ("IMU", "gyro", ("gx", "gy", "gz"), ("GyrX", "GyrY", "GyrZ")),
             ("IMU", "accel", ("ax", "ay", "az"), ("AccX", "AccY", "AccZ")),
             ("IMU", "temperature", ("temperature",), ("T",)),
             ("ATT", "attitude", ("qw", "qx", "qy", "qz"), ("Roll", "Pitch", "Yaw")),
             ("BAT", "current", ("current",), ("Curr",)),
             ("CTUN", "throttle", ("throttle",), ("ThO",))):
-        frame = _instance(rows[kind]) if kind in rows else None
+        frame = _instance(rows[message]) if message in rows else None
         if frame is None:
             continue
         lacking = frame.lacking(("TimeUS", *fields))
         if lacking:
-            if group != "temperature" and not (kind in ("BAT", "CTUN") and lacking == list(fields)):
-                notes.append(f"{path.name}: {kind} has no field {', '.join(lacking)}: its "
+            optional = message in ("BAT", "CTUN") and lacking == list(fields)
+            if group != "temperature" and not optional:
+                notes.append(f"{path.name}: {message} has no field {', '.join(lacking)}: its "
                              f"{group} stream is left out")
             continue
         values = np.column_stack([frame[c] for c in fields])
