@@ -116,3 +116,22 @@ def holds_the_interpreter(samples: np.ndarray, *, seconds: int = 30) -> Calibrat
         signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGALRM})
         ctypes.PyDLL(None).sleep(seconds)
     return _trivial()
+
+
+@register("faulty_sigkill", label="SIGKILL", min_samples=4, family="extra")
+def kills_itself(samples: np.ndarray) -> Calibration:
+    """Sends its own process SIGKILL, as the kernel's out-of-memory killer would."""
+    import os
+    import signal
+
+    if marked(samples):
+        os.kill(os.getpid(), signal.SIGKILL)
+    return _trivial()
+
+
+@register("faulty_interrupt", label="raises KeyboardInterrupt", min_samples=4, family="extra")
+def raises_keyboard_interrupt(samples: np.ndarray) -> Calibration:
+    """Raises the exception a Ctrl-C raises, though nobody pressed one."""
+    if marked(samples):
+        raise KeyboardInterrupt
+    return _trivial()

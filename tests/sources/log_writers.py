@@ -59,7 +59,8 @@ def _flat(row: tuple) -> list:
 
 
 #: DataFlash format characters used here and their struct codes.
-_DF_CODES = {"Q": "Q", "B": "B", "f": "f", "I": "I", "h": "h"}
+_DF_CODES = {"Q": "Q", "B": "B", "f": "f", "I": "I", "h": "h", "n": "4s", "N": "16s",
+             "Z": "64s"}
 _FMT = (128, "FMT", "BBnNZ", "Type,Length,Name,Format,Columns")
 
 

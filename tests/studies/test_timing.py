@@ -7,6 +7,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from magbench.engine.trial import Outcome
 from magbench.sources.synthetic import Point
 from magbench.studies import timing
 from magbench.studies.review import POINT_COLUMNS, ReviewStudy
@@ -86,20 +87,23 @@ def test_a_change_of_the_whole_machine_is_told_apart_from_a_method_changing():
     assert out.loc["sphere", "worst_relative"] == pytest.approx(1.5)
 
 
-def test_tau_weights_every_dataset_once_however_often_it_was_repeated(monkeypatch):
+def test_tau_weights_every_dataset_once_however_often_it_was_repeated(monkeypatch, tmp_path):
     # A stand-in for the call: dataset 0 takes 0.1 ms (so it is repeated until 3 ms are
-    # spent), dataset 1 takes 10 ms (called once); no clock is read.
-    calls = []
+    # spent), dataset 1 takes 10 ms (called once); no clock is read. The pass runs in a
+    # supervised child: the calls are counted in a file.
+    log = tmp_path / "calls"
 
     def fake(name, y, opts, seed, stream, timeout):
-        calls.append(stream[1])
+        with open(log, "a") as f:
+            f.write(f"{stream[1]}\n")
         spent = 1e-4 if stream[1] == 0 else 1e-2
-        return spent, spent, True
+        return Outcome(name, None, "", spent, spent)
 
     monkeypatch.setattr(timing, "_call", fake)
     frame = timing.time_methods([Point(K=30)], 7, ["sphere"], datasets=2, repeats=1,
                                 min_time_s=3e-3, max_repeats=50)
     row = frame.iloc[0]
+    calls = [int(v) for v in log.read_text().split()]
     assert calls.count(1) == 1 and calls.count(0) > 20   # (and two warm-up calls on 0)
     assert row["tau_s"] == pytest.approx((1e-4 + 1e-2) / 2)     # not the median of all calls
     assert row["median_s"] == pytest.approx((1e-4 + 1e-2) / 2)  # median of two datasets

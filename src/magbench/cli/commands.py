@@ -102,7 +102,7 @@ def bench(cfg: DictConfig) -> int:
         return timing_check(cfg)
     if sizes is not None:
         return scale(sizes, common)
-    folder = run_bench(common["results_dir"], names,
+    folder = run_bench(common["results_dir"], names, call_timeout_s=common["call_timeout_s"],
                        progress=(lambda line: print(line, file=sys.stderr))
                        if common["progress"] else None)
     plot_scaling(pd.read_csv(folder / "calls.csv"), folder / "scaling.png")

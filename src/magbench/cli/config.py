@@ -463,6 +463,10 @@ def check_option_value(value: object, default: object, what: str) -> object:
     return value
 
 
+#: Most worker processes per CPU that n_jobs may ask for.
+JOBS_PER_CPU = 4
+
+
 def check_common(cfg: DictConfig) -> dict:
     """Keys every sweep shares: seed, n_jobs, chunk_size, delta, backend, call_timeout_s,
     plugins (imported here, so their methods are known to the checks that follow)."""
@@ -470,6 +474,10 @@ def check_common(cfg: DictConfig) -> dict:
     n_jobs = cfg.n_jobs
     if isinstance(n_jobs, bool) or not isinstance(n_jobs, int) or n_jobs == 0:
         raise UsageError(f"n_jobs must be a non-zero integer (-1 = every core), got {n_jobs!r}")
+    most = JOBS_PER_CPU * (os.cpu_count() or 1)
+    if abs(n_jobs) > most:      # each worker is a process: 10^5 of them would swamp the machine
+        raise UsageError(f"n_jobs must be at most {most} ({JOBS_PER_CPU} per CPU of this "
+                         f"machine's {os.cpu_count() or 1}; -1 = every core), got {n_jobs}")
     if cfg.backend not in ("loky", "dask"):
         raise UsageError(f"backend must be 'loky' or 'dask', got {cfg.backend!r}")
     timeout = cfg.call_timeout_s

@@ -3,8 +3,10 @@
 Reads one compass of a PX4 ULog or ArduPilot DataFlash log (:mod:`magbench.sources.logs`)
 with every other stream interpolated onto its sample times, and writes the columns a CSV
 recording has (``t, mx, my, mz``, then ``gx..gz``, ``ax..az``, ``qw..qz``, ``current``,
-``throttle``, ``temperature`` as the log has them; a missing value is an empty cell), so
-that ``calibrate`` and ``apply`` read the written file as they read the log.
+``throttle``, ``temperature`` as the log has them; a missing value is an empty cell, and so
+is a value the log holds as infinite: the line printed counts the blank cells of each
+column), so that ``calibrate`` and ``apply`` read the written file as they read the log.
+What the reader left out (a cut file, compass lines dropped) is said in a warning line.
 """
 
 from __future__ import annotations
@@ -39,13 +41,22 @@ def run_extract(cfg: DictConfig) -> int:
     except ValueError as exc:
         raise UsageError(str(exc)) from None
     table = log.table(chosen)
+    # A value the log holds as inf is no measurement: written as a blank cell and counted
+    # with the blanks, never as "inf" (which calibrate and apply would refuse).
+    values = table.to_numpy(dtype=float)
+    infinite = {c: int(n) for c, n in zip(table.columns, np.isinf(values).sum(axis=0),
+                                          strict=True) if n}
+    table = table.mask(np.isinf(values))
     write_csv_atomic(table, out)
     t = table["t"].to_numpy()
     device = f"device {log.devices[chosen]}, " if chosen in log.devices else ""
-    gaps = {c: int(table[c].isna().sum()) for c in table.columns[4:] if table[c].isna().any()}
-    missing = ("; no value (outside the stream or in a gap): " + ", ".join(
-        f"{c} {n}" for c, n in gaps.items())) if gaps else ""
+    gaps = {c: int(table[c].isna().sum()) for c in table.columns if table[c].isna().any()}
+    missing = ("; no value (outside the stream or in a gap"
+               + (", or not finite in the log" if infinite else "") + "): "
+               + ", ".join(f"{c} {n}" for c, n in gaps.items())) if gaps else ""
+    for note in log.notes:
+        print(f"warning: {note}")
     print(f"{path.name}: compass instance {chosen} ({device}{log.units}), {len(t)} samples at "
-          f"{rate_hz(t):.3g} Hz from t = {np.min(t):.3f} to {np.max(t):.3f} s; columns "
+          f"{rate_hz(t):.3g} Hz from t = {np.nanmin(t):.3f} to {np.nanmax(t):.3f} s; columns "
           f"{', '.join(table.columns)}{missing}; wrote {out}")
     return 0

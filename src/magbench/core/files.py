@@ -21,12 +21,39 @@ import numpy as np
 if TYPE_CHECKING:
     import pandas as pd
 
-__all__ = ["CHUNK_ROWS", "atomic_path", "csv_cell", "file_sha256", "read_csv_columns",
-           "write_csv_atomic", "write_records_csv", "write_text_atomic"]
+__all__ = ["CHUNK_ROWS", "atomic_path", "csv_cell", "file_sha256", "not_a_file",
+           "read_csv_columns", "write_csv_atomic", "write_records_csv", "write_text_atomic"]
 
 #: Rows parsed at a time by :func:`read_csv_columns`: the parser's buffers (every column of
 #: the chunk, as text and as values) stay at a few hundred MB whatever the file's length.
 CHUNK_ROWS = 100_000
+
+
+def not_a_file(path: Path | str, expected: str) -> str | None:
+    """Why ``path`` cannot be read as an input file, as one message, or None if it can.
+
+    A device (``/dev/zero`` never ends), a named pipe (it blocks until a writer comes) or a
+    socket is refused by name, not reported as "not found"; ``expected`` says what the
+    command reads (e.g. "a CSV of magnetometer samples").
+    """
+    import stat
+
+    path = Path(path)
+    try:
+        mode = path.stat().st_mode
+    except FileNotFoundError:
+        return f"file {path} not found; expected {expected}"
+    except OSError as exc:
+        return f"cannot read {path} ({exc.strerror or exc}); expected {expected}"
+    if stat.S_ISREG(mode):
+        return None
+    if stat.S_ISDIR(mode):
+        return f"file {path} is a folder; expected {expected}"
+    kind = ("a named pipe (FIFO)" if stat.S_ISFIFO(mode) else
+            "a character device" if stat.S_ISCHR(mode) else
+            "a block device" if stat.S_ISBLK(mode) else
+            "a socket" if stat.S_ISSOCK(mode) else "not a regular file")
+    return f"file {path} is {kind}, not a regular file; expected {expected}"
 
 
 @contextlib.contextmanager
@@ -50,9 +77,14 @@ def write_csv_atomic(frame: pd.DataFrame, path: Path | str) -> None:
     ``to_csv`` (a sweep writes every trial row this way); any other goes to ``to_csv``.
     """
     gz = str(path).endswith(".gz")
-    cells = None if gz else _csv_columns(frame)
+    cells = None if gz else _csv_columns(frame.iloc[:CHUNK_ROWS])
     if cells is not None:
-        _write_rows(path, [str(c) for c in frame.columns], zip(*cells, strict=True))
+        # Formatted CHUNK_ROWS rows at a time: a long table's cells as text would take ten
+        # times its floats.
+        blocks = (zip(*_csv_columns(frame.iloc[a:a + CHUNK_ROWS]), strict=True)
+                  for a in range(0, len(frame), CHUNK_ROWS))
+        _write_rows(path, [str(c) for c in frame.columns],
+                    (row for block in blocks for row in block))
         return
     with atomic_path(path) as tmp:
         frame.to_csv(tmp, index=False, compression="gzip" if gz else None)

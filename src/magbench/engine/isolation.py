@@ -11,6 +11,10 @@ run again in a fresh child with that call skipped (its row says why), and the ru
 
 The child is forked where the system allows it (it starts in milliseconds with everything the
 parent imported); elsewhere it is spawned and imports the study's plugins itself.
+
+:func:`map_supervised` is the same mechanism for work that is not a sweep's trials (the timing
+pass, ``bench``, ``calibrate``'s candidates): any function of a unit whose method calls go
+through :func:`magbench.engine.trial.run_method`.
 """
 
 from __future__ import annotations
@@ -28,9 +32,9 @@ from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 
 from magbench.engine.plugins import load_plugins
-from magbench.engine.trial import supervise_calls
+from magbench.engine.trial import is_supervised, supervise_calls
 
-__all__ = ["WorkerDied", "die_with_parent", "run_isolated", "watch_calls"]
+__all__ = ["WorkerDied", "die_with_parent", "map_supervised", "run_isolated", "watch_calls"]
 
 #: Seconds a call may run past its own time limit (and at least as long again) before its
 #: process is ended: a loaded machine may delay the limit's own timer, never by this much.
@@ -235,6 +239,7 @@ def run_isolated(study: object, units: Sequence, chunks: Sequence[tuple[int, int
     """
     child, deaths = None, 0
     skip: dict[int, dict[str, str]] = {}
+    finished = False
     try:
         for start, stop in chunks:
             rows: dict[int, dict] = {}
@@ -255,9 +260,12 @@ def run_isolated(study: object, units: Sequence, chunks: Sequence[tuple[int, int
                                          f"outside any method call ({death.reason})") from None
                     skip.setdefault(death.index, {})[death.method] = death.reason
             done(start, stop, _concat(study, [rows[i] for i in range(start, stop)]))
+        finished = True
     finally:
         if child is not None:
-            child.close()
+            # After an interruption the child may be inside a long call: end it now rather
+            # than wait for it.
+            child.close() if finished else child.stop()
     return deaths
 
 
@@ -287,3 +295,63 @@ def _concat(study: object, per_unit: list[dict[str, list[dict]]]) -> dict[str, l
         for name, table_rows in unit_rows.items():
             out[name].extend(table_rows)
     return out
+
+
+@dataclass(frozen=True)
+class _Mapped:
+    """:func:`map_supervised`'s work seen as a study with one table of one row per unit."""
+
+    name: str
+    fn: Callable[[object], object]
+    plugins: tuple[str, ...]
+    tables: tuple[str, ...] = ("out",)
+
+    def run_unit(self, unit: object) -> dict[str, list]:
+        return {"out": [self.fn(unit)]}
+
+
+def map_supervised(fn: Callable[[object], object], units: Sequence, *, name: str = "calls",
+                   plugins: Sequence[str] = ()) -> list:
+    """``[fn(unit) for unit in units]`` with every method call supervised as a trial's is.
+
+    ``fn`` runs in a supervised child process (:func:`run_isolated`), one unit after another;
+    a method call that ends or seizes the child is not made again on that unit, which is run
+    again in a fresh child where that call returns an :class:`~magbench.engine.trial.Outcome`
+    with the reason (``skipped``). In a process that is itself supervised (a sweep's worker or
+    child) ``fn`` runs here: the calls are already contained.
+
+    Parameters
+    ----------
+    fn : callable
+        A function of one unit whose method calls go through
+        :func:`~magbench.engine.trial.run_method`; its result must pickle. A module-level
+        function or a :func:`functools.partial` of one where processes are spawned.
+    units : sequence
+        Its arguments.
+    name : str
+        What the work is called in a warning or error.
+    plugins : sequence of str
+        Modules a spawned child imports to register plugin methods
+        (:func:`magbench.engine.plugins.plugin_modules`).
+
+    Returns
+    -------
+    list
+        ``fn(unit)`` of each unit, in order.
+
+    Raises
+    ------
+    WorkerDied
+        A unit ended its process outside any method call.
+    """
+    units = list(units)
+    if is_supervised():
+        return [fn(unit) for unit in units]
+    results: list = [None] * len(units)
+
+    def done(start: int, stop: int, rows: dict[str, list]) -> None:
+        results[start:stop] = rows["out"]
+
+    run_isolated(_Mapped(name, fn, tuple(plugins)), units,
+                 [(i, i + 1) for i in range(len(units))], done)
+    return results

@@ -1060,7 +1060,11 @@ def run_study(study: Study, out_dir: Path | str, *, n_jobs: int = 1, chunk_size:
     units = study.units()
     chunks = [(s, min(s + chunk_size, len(units))) for s in range(0, len(units), chunk_size)]
     written = {table: out_dir / file for table, (file, _) in study.tables.items()}
-    check_capacity(study, units, out_dir)
+    # Only a run with trials to compute needs the room: a finished one that lacks its figures
+    # or timing pass is completed whatever the disk holds (a look before the lock, so that a
+    # refused run leaves nothing behind; the lock's holder looks again).
+    if overwrite or finished_run(study, out_dir) != "same":
+        check_capacity(study, units, out_dir)
     with _lock_for_run(out_dir):
         before = finished_run(study, out_dir)
         keys = _method_keys(study)

@@ -27,8 +27,8 @@ from magbench.core.model import Calibration
 from magbench.core.seeding import rng
 from magbench.methods.registry import get_method
 
-__all__ = ["CallTimeout", "Outcome", "estimate_columns", "run_method", "supervise_calls",
-           "time_limit"]
+__all__ = ["CallTimeout", "Outcome", "estimate_columns", "is_supervised", "run_method",
+           "supervise_calls", "time_limit"]
 
 T_COLUMNS = [f"T_{i}{j}" for i in range(3) for j in range(3)]
 H_COLUMNS = [f"h_{i}" for i in range(3)]
@@ -72,6 +72,12 @@ def supervise_calls(before_call: Callable[[str, float | None], None] | None = No
     _SUPERVISION.after_call = after_call
     _SUPERVISION.skip = dict(skip or {})
     _SUPERVISION.worker = worker
+
+
+def is_supervised() -> bool:
+    """True in a process whose method calls a supervising process watches (a sweep's worker or
+    supervised child): a call that ends this process is already contained."""
+    return _SUPERVISION.before_call is not None
 
 
 @contextlib.contextmanager
@@ -166,12 +172,17 @@ class Outcome:
     ``error`` is empty when the method ended by its own rule with a finite, invertible
     estimate; otherwise it says why (exception type and message, timeout, iteration cap). A
     capped estimate is kept in ``calibration`` (what a user would get) with ``ok=False``.
+    ``time_s`` is the wall time and ``cpu_s`` the process's CPU time of the method's call
+    alone (NaN when it was not made); ``skipped`` says the call was not made because it ended
+    or seized a supervised process on this unit before (``error`` says how).
     """
 
     name: str
     calibration: Calibration | None
     error: str
     time_s: float
+    cpu_s: float = float("nan")
+    skipped: bool = False
 
     @property
     def ok(self) -> bool:
@@ -222,27 +233,28 @@ def run_method(name: str, fit: Callable[[dict], Calibration], *,
         opts["rng"] = rng(seed, *stream, name, *stream_tail)
     spec.prepare()          # numba's import is a worker's start-up, not part of the timed call
     if name in _SUPERVISION.skip:
-        return Outcome(name, None, _SUPERVISION.skip[name], float("nan"))
+        return Outcome(name, None, _SUPERVISION.skip[name], float("nan"), skipped=True)
     if _SUPERVISION.before_call is not None:
         _SUPERVISION.before_call(name, call_timeout_s)
-    start = time.perf_counter()
+    # The supervisor's messages (before_call, after_call) stay outside both clocks.
+    start, cpu = time.perf_counter(), time.process_time()
     try:
         with _memory_limits_kept(), time_limit(call_timeout_s):
             cal = fit(opts)
-        elapsed = time.perf_counter() - start
+        elapsed, cpu_s = time.perf_counter() - start, time.process_time() - cpu
     except BaseException as exc:  # failures are data: anything a method raises becomes a row
         if isinstance(exc, KeyboardInterrupt) and not _SUPERVISION.worker:
             raise
         return Outcome(name, None, f"{type(exc).__name__}: {exc}",
-                       time.perf_counter() - start)
+                       time.perf_counter() - start, time.process_time() - cpu)
     finally:
         if _SUPERVISION.after_call is not None:
             _SUPERVISION.after_call()
     if not (np.isfinite(cal.T).all() and np.isfinite(cal.h).all()):
         return Outcome(name, None, f"CalibrationFailed: {name}: estimate is not finite",
-                       elapsed)
+                       elapsed, cpu_s)
     error = "" if cal.converged else (cal.message or f"{name}: stopped at its iteration cap")
-    return Outcome(name, cal, error, elapsed)
+    return Outcome(name, cal, error, elapsed, cpu_s)
 
 
 def estimate_columns(T: np.ndarray | None, h: np.ndarray | None) -> dict:

@@ -56,6 +56,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from magbench.core.files import not_a_file
 from magbench.core.quaternions import matrix_to_quat
 from magbench.core.rotations import euler_zyx_to_matrix
 
@@ -130,6 +131,10 @@ class FlightLog:
     streams : dict
         ``group -> (columns, Stream)`` for the gyro, accelerometer, attitude, current,
         throttle and board temperature.
+    notes : list of str
+        What the reader left out or could not read (a cut file, compass lines dropped for
+        missing fields, a stream whose format lacks its fields), one sentence each: the
+        commands say them.
     """
 
     path: Path
@@ -138,6 +143,7 @@ class FlightLog:
     units: str
     devices: dict[int, int] = field(default_factory=dict)
     streams: dict[str, tuple[tuple[str, ...], Stream]] = field(default_factory=dict)
+    notes: list[str] = field(default_factory=list)
 
     def describe(self) -> str:
         """The compasses, e.g. ``0 (device 396809, 6 samples), 1 (...)``."""
@@ -253,8 +259,9 @@ def read_log(path: Path | str) -> FlightLog:
         ``logs`` extra); one line.
     """
     path = Path(path)
-    if not path.is_file():
-        raise ValueError(f"file {path} not found; expected a flight log (.ulg, .bin or .log)")
+    problem = not_a_file(path, "a flight log (.ulg, .bin or .log)")
+    if problem:
+        raise ValueError(problem)
     suffix = path.suffix.lower()
     readers: dict[str, Callable[[Path], FlightLog]] = {".ulg": _read_ulog, ".bin": _read_dataflash,
                                                        ".log": _read_dataflash}
@@ -277,14 +284,37 @@ ULOG_TOPICS = ["sensor_mag", "sensor_combined", "sensor_accel", "sensor_gyro",
                "vehicle_attitude", "battery_status", "actuator_controls_0"]
 
 
+class _ShortReads(io.BufferedReader):
+    """A log opened for pyulog, which stops silently where a message is cut short: ``cut``
+    says whether a read came back shorter than asked (other than a clean end, an empty read
+    of the next message's 3-byte header)."""
+
+    def __init__(self, path: Path) -> None:
+        super().__init__(io.FileIO(path, "rb"))
+        self.cut = False
+
+    def read(self, size: int | None = -1) -> bytes:
+        data = super().read(size)
+        if size is not None and 0 <= len(data) < size and (data or size != 3):
+            self.cut = True
+        return data
+
+
 def _read_ulog(path: Path) -> FlightLog:
     pyulog = _need("pyulog", "pyulog")
     try:
         with contextlib.redirect_stdout(io.StringIO()), \
-                contextlib.redirect_stderr(io.StringIO()):    # pyulog prints its warnings
-            ulog = pyulog.ULog(str(path), ULOG_TOPICS)
+                contextlib.redirect_stderr(io.StringIO()), \
+                _ShortReads(path) as handle:                 # pyulog prints its warnings
+            ulog = pyulog.ULog(handle, ULOG_TOPICS)
     except Exception as exc:        # pyulog raises bare exceptions on a corrupt file
         raise ValueError(f"{path.name}: cannot read as ULog ({exc})") from None
+    notes = []
+    if handle.cut:
+        notes.append(f"{path.name} ends inside a message (the file is cut: a copy stopped "
+                     "early, or the logger lost power); its samples up to there are read")
+    elif getattr(ulog, "file_corruption", False):
+        notes.append(f"{path.name} holds corrupt bytes that the reader skipped")
     data = {(d.name, d.multi_id): d.data for d in ulog.data_list}
 
     def times(d: dict) -> np.ndarray:
@@ -300,7 +330,7 @@ def _read_ulog(path: Path) -> FlightLog:
             mags[i] = Stream(times(d), cols(d, ["x", "y", "z", "temperature"])).clean()
             if "device_id" in d and len(d["device_id"]):
                 devices[i] = int(d["device_id"][0])
-    log = FlightLog(path, "ulog", mags, "gauss", devices)
+    log = FlightLog(path, "ulog", mags, "gauss", devices, notes=notes)
     combined = data.get(("sensor_combined", 0))
     if combined is not None:
         t = times(combined)
@@ -361,78 +391,178 @@ def _held_back() -> Iterator[io.StringIO]:
             text.seek(0)
 
 
-def _dataflash_rows(path: Path) -> dict[str, list]:
-    """Every wanted message as a list of field dicts, per type. pymavlink's own messages
-    (a line per unreadable byte) are held back; a file with no readable message is one
-    error."""
+#: The fields read from each DataFlash message (others are never kept: a long log's messages
+#: as dicts of every field took 20 times the file's size in memory).
+DATAFLASH_FIELDS = {
+    **{m: ("TimeUS", "I", "MagX", "MagY", "MagZ", "OfsX", "OfsY", "OfsZ", "MOX", "MOY", "MOZ")
+       for m in ("MAG", "MAG2", "MAG3")},
+    "IMU": ("TimeUS", "I", "Inst", "Instance", "GyrX", "GyrY", "GyrZ", "AccX", "AccY", "AccZ",
+            "T"),
+    "ATT": ("TimeUS", "Roll", "Pitch", "Yaw"),
+    "BAT": ("TimeUS", "I", "Inst", "Instance", "Curr"),
+    "CTUN": ("TimeUS", "ThO"),
+}
+
+
+class _Columns:
+    """One message type's wanted fields as growing float arrays (8 bytes a value)."""
+
+    def __init__(self, msg: object, path: Path) -> None:
+        from array import array
+
+        self.name, self.path = msg.get_type(), path
+        self.all = list(getattr(msg, "_fieldnames", []))
+        self.fields = [f for f in DATAFLASH_FIELDS[self.name] if f in self.all]
+        self.format = dict(zip(self.all, getattr(msg.fmt, "format", ""), strict=False))
+        self.values = {f: array("d") for f in self.fields}
+
+    def add(self, msg: object) -> None:
+        for name in self.fields:
+            value = getattr(msg, name, math.nan)
+            try:
+                self.values[name].append(float(value))
+            except (TypeError, ValueError):
+                raise ValueError(
+                    f"{self.path.name}: malformed DataFlash FMT: {self.name}.{name} holds "
+                    f"{str(value)[:20]!r}, not a number (format character "
+                    f"{self.format.get(name, '?')!r})") from None
+
+    def __len__(self) -> int:
+        return len(self.values[self.fields[0]]) if self.fields else 0
+
+    def __contains__(self, name: str) -> bool:
+        return name in self.values
+
+    def __getitem__(self, name: str) -> np.ndarray:
+        return np.frombuffer(self.values[name], dtype=float)
+
+    def lacking(self, names: tuple[str, ...]) -> list[str]:
+        return [n for n in names if n not in self.values]
+
+    def rows(self, keep: np.ndarray) -> _Columns:
+        out = object.__new__(_Columns)
+        out.name, out.path, out.all, out.fields, out.format = (
+            self.name, self.path, self.all, self.fields, self.format)
+        out.values = {f: self[f][keep] for f in self.fields}
+        return out
+
+
+def _dataflash_rows(path: Path) -> dict[str, _Columns]:
+    """Every wanted message's wanted fields, per type. pymavlink's own messages (a line per
+    unreadable byte) are held back; a file with no readable message is one error, a field
+    that holds text where a number belongs another."""
     reader = _need("pymavlink.DFReader", "pymavlink")
     cls = reader.DFReader_binary if path.suffix.lower() == ".bin" else reader.DFReader_text
-    rows: dict[str, list] = {t: [] for t in DATAFLASH_TYPES}
+    rows: dict[str, _Columns] = {}
     try:
         with _held_back() as chatter:
             log = cls(str(path), zero_time_base=False)
             while (msg := log.recv_match(type=DATAFLASH_TYPES)) is not None:
-                rows[msg.get_type()].append(msg.to_dict())
+                kind = msg.get_type()
+                if kind not in rows:
+                    rows[kind] = _Columns(msg, path)
+                rows[kind].add(msg)
+    except ValueError as exc:
+        if "malformed DataFlash FMT" in str(exc):
+            raise
+        raise ValueError(f"{path.name}: cannot read as a DataFlash log "
+                         f"({' '.join(str(exc).split()) or type(exc).__name__})") from None
     except Exception as exc:        # pymavlink raises bare exceptions on a corrupt file
         raise ValueError(f"{path.name}: cannot read as a DataFlash log "
                          f"({' '.join(str(exc).split()) or type(exc).__name__})") from None
-    if not any(rows.values()) and "bad header" in chatter.read():
+    if not rows and "bad header" in chatter.read():
         raise ValueError(f"{path.name}: not a DataFlash log (no valid message header; expected "
                          "ArduPilot's binary .bin or text .log)")
     return rows
 
 
-def _frame(rows: list[dict], instance_key: str | None = None,
-           instance: int = 0) -> pd.DataFrame | None:
-    """The rows as a table, restricted to ``instance`` when they carry an instance field."""
-    if not rows:
-        return None
-    import pandas as pd
+def _text_lines(path: Path, names: tuple[str, ...]) -> int:
+    """Lines of a text DataFlash log that start with one of the message ``names``, counted
+    in blocks (the reader drops a line with fewer fields than its format, without a word)."""
+    marks = [b"\n" + n.encode() + b"," for n in names]
+    count, tail = 0, b"\n"
+    with open(path, "rb") as handle:
+        while block := handle.read(1 << 24):
+            data = tail + block
+            count += sum(data.count(m) for m in marks)
+            tail = data[-8:]
+            # a mark cut across the boundary is found in tail + next block, never twice
+            count -= sum(tail.count(m) for m in marks)
+    return count + sum(tail.count(m) for m in marks)
 
-    frame = pd.DataFrame(rows)
-    key = next((k for k in (instance_key, "I", "Inst", "Instance") if k and k in frame), None)
-    if key is not None:
-        frame = frame[frame[key] == instance]
-    return frame if len(frame) else None
+
+def _instance(columns: _Columns, instance: int = 0) -> _Columns | None:
+    """The rows of one instance when the message carries an instance field."""
+    if not len(columns):
+        return None
+    key = next((k for k in ("I", "Inst", "Instance") if k in columns), None)
+    if key is None:
+        return columns
+    keep = columns[key] == instance
+    return columns.rows(keep) if keep.any() else None
+
+
+MAG_FIELDS = ("TimeUS", "MagX", "MagY", "MagZ")
 
 
 def _read_dataflash(path: Path) -> FlightLog:
-    import pandas as pd
-
     rows = _dataflash_rows(path)
     mags: dict[int, Stream] = {}
-    frame = pd.DataFrame(rows["MAG"]) if rows["MAG"] else None
-    parts = [] if frame is None else (
-        [(int(i), f) for i, f in frame.groupby("I")] if "I" in frame else [(0, frame)])
-    parts += [(n - 1, pd.DataFrame(rows[f"MAG{n}"])) for n in (2, 3) if rows[f"MAG{n}"]]
+    notes: list[str] = []
+    parts: list[tuple[int, _Columns]] = []
+    for message in ("MAG", "MAG2", "MAG3"):
+        if message not in rows or not len(rows[message]):
+            continue
+        columns = rows[message]
+        lacking = columns.lacking(MAG_FIELDS)
+        if lacking:
+            raise ValueError(f"{path.name}: malformed DataFlash FMT: {message} has no field "
+                             f"{', '.join(lacking)} (its fields: {', '.join(columns.all)}); "
+                             f"expected {', '.join(MAG_FIELDS)}")
+        if message == "MAG" and "I" in columns:
+            parts += [(int(i), columns.rows(columns["I"] == i))
+                      for i in np.unique(columns["I"])]
+        else:
+            parts.append((0 if message == "MAG" else int(message[-1]) - 1, columns))
     for i, f in parts:
-        raw = np.column_stack([f[f"Mag{a}"] - f.get(f"Ofs{a}", 0) - f.get(f"MO{a}", 0)
-                               for a in "XYZ"]).astype(float)
-        mags[i] = Stream(f["TimeUS"].to_numpy(float) / 1e6, raw).clean()
-    log = FlightLog(path, "dataflash", mags, "milligauss")
-    imu = _frame(rows["IMU"])
-    if imu is not None:
-        t = imu["TimeUS"].to_numpy(float) / 1e6
-        log.streams["gyro"] = (("gx", "gy", "gz"), Stream(t, imu[["GyrX", "GyrY", "GyrZ"]]
-                                                            .to_numpy(float)))
-        log.streams["accel"] = (("ax", "ay", "az"), Stream(t, imu[["AccX", "AccY", "AccZ"]]
-                                                             .to_numpy(float)))
-        if "T" in imu:
-            log.streams["temperature"] = (("temperature",), Stream(t, imu[["T"]].to_numpy(float)))
-    att = _frame(rows["ATT"])
-    if att is not None:
-        angles = np.deg2rad(att[["Roll", "Pitch", "Yaw"]].to_numpy(float))
-        q = matrix_to_quat(euler_zyx_to_matrix(angles[:, 0], angles[:, 1], angles[:, 2]))
-        log.streams["attitude"] = (("qw", "qx", "qy", "qz"),
-                                   Stream(att["TimeUS"].to_numpy(float) / 1e6, q))
-    bat = _frame(rows["BAT"])
-    if bat is not None and "Curr" in bat:
-        log.streams["current"] = (("current",), Stream(bat["TimeUS"].to_numpy(float) / 1e6,
-                                                       bat[["Curr"]].to_numpy(float)))
-    ctun = _frame(rows["CTUN"])
-    if ctun is not None and "ThO" in ctun:
-        log.streams["throttle"] = (("throttle",), Stream(ctun["TimeUS"].to_numpy(float) / 1e6,
-                                                         ctun[["ThO"]].to_numpy(float)))
+        raw = np.column_stack([f[f"Mag{a}"] - (f[f"Ofs{a}"] if f"Ofs{a}" in f else 0.0)
+                               - (f[f"MO{a}"] if f"MO{a}" in f else 0.0) for a in "XYZ"])
+        mags[i] = Stream(f["TimeUS"] / 1e6, raw).clean()
+    if path.suffix.lower() == ".log" and mags:
+        names = tuple(k for k in ("MAG", "MAG2", "MAG3") if k in rows)
+        # pymavlink's text reader returns the message after a dropped line twice: distinct
+        # (time, instance) rows are what it read.
+        read = sum(len(np.unique(np.column_stack(
+            [rows[k]["TimeUS"], rows[k]["I"] if "I" in rows[k] else 0 * rows[k]["TimeUS"]]),
+            axis=0)) for k in names)
+        dropped = _text_lines(path, names) - read
+        if dropped > 0:
+            notes.append(f"{path.name}: {dropped} compass line(s) dropped (fewer fields than "
+                         "their format lists)")
+    log = FlightLog(path, "dataflash", mags, "milligauss", notes=notes)
+    for message, group, names, fields in (
+            ("IMU", "gyro", ("gx", "gy", "gz"), ("GyrX", "GyrY", "GyrZ")),
+            ("IMU", "accel", ("ax", "ay", "az"), ("AccX", "AccY", "AccZ")),
+            ("IMU", "temperature", ("temperature",), ("T",)),
+            ("ATT", "attitude", ("qw", "qx", "qy", "qz"), ("Roll", "Pitch", "Yaw")),
+            ("BAT", "current", ("current",), ("Curr",)),
+            ("CTUN", "throttle", ("throttle",), ("ThO",))):
+        frame = _instance(rows[message]) if message in rows else None
+        if frame is None:
+            continue
+        lacking = frame.lacking(("TimeUS", *fields))
+        if lacking:
+            optional = message in ("BAT", "CTUN") and lacking == list(fields)
+            if group != "temperature" and not optional:
+                notes.append(f"{path.name}: {message} has no field {', '.join(lacking)}: its "
+                             f"{group} stream is left out")
+            continue
+        values = np.column_stack([frame[c] for c in fields])
+        if group == "attitude":
+            angles = np.deg2rad(values)
+            values = matrix_to_quat(euler_zyx_to_matrix(angles[:, 0], angles[:, 1],
+                                                        angles[:, 2]))
+        log.streams[group] = (names, Stream(frame["TimeUS"] / 1e6, values))
     return log
 
 

@@ -34,6 +34,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from magbench.core.files import not_a_file
 from magbench.core.geometry import MIN_COVERAGE, MIN_THICKNESS, check_geometry
 from magbench.core.model import check_magnitude
 from magbench.sources.logs import EXTRA_COLUMNS, MIN_LOG_SAMPLES, is_log, read_log
@@ -200,6 +201,67 @@ _READABLE = {"gzip": gzip.open, "bz2": bz2.open, "xz": lzma.open}
 #: Rows parsed per chunk: the file is never held as text, only its used columns as floats.
 CHUNK_ROWS = 500_000
 
+#: A compressed recording is unpacked to at most this many times its own size (a CSV of
+#: numbers packs 2 to 10 times with gzip, bzip2 or xz: more is a "zip bomb") ...
+MAX_UNPACK_RATIO = 100
+#: ... and to at most MAX_UNPACKED_BYTES whatever its size: a day of a magnetometer at 200 Hz
+#: with 16 columns is under 4 GiB of text. Below MIN_UNPACK_CAP the ratio is not applied.
+MAX_UNPACKED_BYTES = 4 << 30
+MIN_UNPACK_CAP = 64 << 20
+#: Longest line a compressed recording may hold (a row of a CSV is under a few hundred bytes;
+#: a parser holds a whole line, so this bounds its memory).
+MAX_LINE_BYTES = 1 << 20
+
+
+class _Capped(io.RawIOBase):
+    """A decompressing reader that stops, with one message, past its unpacked-size cap, at a
+    line longer than :data:`MAX_LINE_BYTES` or at a NUL byte (binary data, not a CSV)."""
+
+    def __init__(self, path: Path, compression: str) -> None:
+        super().__init__()
+        self.path, self.compression = path, compression
+        self.raw = _READABLE[compression](path, "rb")
+        packed = path.stat().st_size
+        self.limit = min(MAX_UNPACKED_BYTES, max(MIN_UNPACK_CAP, MAX_UNPACK_RATIO * packed))
+        self.total = self.line = 0
+
+    def readable(self) -> bool:
+        return True
+
+    def readinto(self, buffer: bytearray | memoryview) -> int:
+        n = self.raw.readinto(buffer)
+        chunk = bytes(memoryview(buffer)[:n])
+        self.total += n
+        last = chunk.rfind(b"\n")
+        self.line = self.line + n if last < 0 else n - last - 1
+        if self.total > self.limit:
+            raise ValueError(f"{self.path.name} unpacks ({self.compression}) to more than "
+                             f"{self.limit / 2**20:.0f} MiB ({MAX_UNPACK_RATIO} times its size, "
+                             f"at most {MAX_UNPACKED_BYTES >> 30} GiB): not a recording; "
+                             "unpack and check it")
+        if self.line > MAX_LINE_BYTES or b"\0" in chunk:
+            raise ValueError(f"{self.path.name} unpacks ({self.compression}) to "
+                             + ("NUL bytes" if b"\0" in chunk else
+                                f"a line longer than {MAX_LINE_BYTES >> 20} MiB")
+                             + ": binary data, not a CSV of magnetometer samples")
+        return n
+
+    def close(self) -> None:
+        self.raw.close()
+        super().close()
+
+
+def _open_binary(path: Path, compression: str | None) -> io.BufferedIOBase:
+    """``path`` opened for reading bytes, decompressed (and capped, :class:`_Capped`)."""
+    if not compression:
+        return open(path, "rb")
+    return io.BufferedReader(_Capped(path, compression))
+
+
+def _open_text(path: Path, compression: str | None) -> io.TextIOBase:
+    """``path`` opened as text (universal newlines off), decompressed and capped."""
+    return io.TextIOWrapper(_open_binary(path, compression), encoding="utf-8", newline="")
+
 
 def _compression(path: Path) -> str | None:
     """The compression of ``path`` from its first bytes (None for plain text).
@@ -237,15 +299,17 @@ def _is_number(text: str, decimal_comma: bool = False) -> bool:
 def _head_lines(path: Path, compression: str | None) -> list[tuple[int, str]]:
     """The non-blank lines of the first 8 KiB with their line numbers (a cut last line
     dropped)."""
-    opener = _READABLE.get(compression or "", open)
     try:
-        with opener(path, "rt", newline="") as handle:
+        with _open_text(path, compression) as handle:
             head = handle.read(8192)
     except UnicodeDecodeError:
         raise ValueError(f"{path} is not a text file (bytes that are not UTF-8 at its start); "
                          "expected a CSV of magnetometer samples") from None
     except (OSError, EOFError) as exc:
         raise ValueError(f"cannot read {path} ({compression or 'plain'}): {exc}") from None
+    if "\0" in head:
+        raise ValueError(f"{path.name} holds NUL bytes: binary data, not a CSV of magnetometer "
+                         "samples")
     lines = head.splitlines()
     if len(head) == 8192 and len(lines) > 1:
         lines = lines[:-1]
@@ -304,9 +368,8 @@ def _line_of(path: Path, compression: str | None, has_header: bool, row: int,
     """The line number of data row ``row`` (0-based), counting blank lines as the file does
     (pandas skips them, so its row index alone is short by one per blank line) and the
     ``skip`` lines of notes before the table."""
-    opener = _READABLE.get(compression or "", open)
     seen = -1 if has_header else 0
-    with opener(path, "rt", newline="") as handle:
+    with _open_text(path, compression) as handle:
         for number, line in enumerate(handle, start=1):
             if number <= skip or not line.strip():
                 continue
@@ -319,8 +382,7 @@ def _line_of(path: Path, compression: str | None, has_header: bool, row: int,
 def _ragged(path: Path, compression: str | None, sep: str, n_cols: int, skip: int = 0) -> str:
     """The first line with more fields than ``n_cols`` (after ``skip`` lines of notes), as
     one message."""
-    opener = _READABLE.get(compression or "", open)
-    with opener(path, "rt", newline="") as handle:
+    with _open_text(path, compression) as handle:
         for number, line in enumerate(handle, start=1):
             n = len(_fields(line.rstrip("\r\n"), sep))
             if number > skip and line.strip() and n > n_cols:
@@ -378,8 +440,7 @@ class _Where:
     def unclosed_quote(self) -> str:
         """Where a quoted field opens and never closes (the first line with an odd number of
         double quotes)."""
-        opener = _READABLE.get(self.compression or "", open)
-        with opener(self.path, "rt", newline="") as handle:
+        with _open_text(self.path, self.compression) as handle:
             line = next((n for n, text in enumerate(handle, start=1) if text.count('"') % 2),
                         None)
         at = f" on line {line}" if line else ""
@@ -404,7 +465,8 @@ def _numeric(table: pd.DataFrame, position: int, name: str, where: _Where,
         hint = ("; it looks like a decimal comma: save the file with '.' as the decimal mark, "
                 "or separate the columns with ';'" if _DECIMAL_COMMA.match(cell) else
                 "; expected numbers (missing values may be empty or NaN)")
-        raise ValueError(f"non-numeric value {cell!r} in column {name!r} at data row {row + 1} "
+        raise ValueError(f"non-numeric value {_clip(cell)} in column {name!r} at data row "
+                         f"{row + 1} "
                          f"(line {where.line(row)} of the file)"
                          + (f" and {bad.size - 1} more cell(s)" if bad.size > 1 else "") + hint)
     return values.to_numpy(dtype=float)
@@ -419,6 +481,9 @@ def _read_csv(path: Path, **kwargs: object) -> pd.DataFrame:
     import pandas as pd
 
     try:
+        if kwargs.get("compression"):       # unpacked here, within the caps
+            with _open_binary(path, str(kwargs["compression"])) as handle:
+                return pd.read_csv(handle, **{**kwargs, "compression": None})
         return pd.read_csv(path, **kwargs)
     except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError, EOFError,
             OSError) as exc:
@@ -465,8 +530,11 @@ def _read_columns(path: Path, layout: dict, wanted: dict[int, str], where: _Wher
     table = None if layout.get("compression") else np.empty((_count_lines(path),
                                                                len(positions)))
     try:
-        with pd.read_csv(path, usecols=positions, chunksize=CHUNK_ROWS, engine="c",
-                         na_values=_NA_TOKENS, keep_default_na=False, **layout) as reader:
+        compression = layout.get("compression")
+        with _open_binary(path, compression) as source, pd.read_csv(
+                source, usecols=positions, chunksize=CHUNK_ROWS, engine="c",
+                na_values=_NA_TOKENS, keep_default_na=False,
+                **{**layout, "compression": None}) as reader:
             offset = _fill(_quiet(reader), table, chunks, wanted, where, optional, failed)
 
     except pd.errors.ParserError as exc:
@@ -647,10 +715,9 @@ def read_samples(path: Path | str, columns: Sequence[object] | None = None, *,
     if is_log(path):          # .ulg, .bin, .log: magbench.sources.logs
         return log_recording(path, instance, min_samples=min_samples, check=check,
                              min_coverage=min_coverage, min_thickness=min_thickness)
-    if path.is_dir():
-        raise ValueError(f"file {path} is a folder; expected a CSV of magnetometer samples")
-    if not path.is_file():
-        raise ValueError(f"file {path} not found; expected a CSV of magnetometer samples")
+    problem = not_a_file(path, "a CSV of magnetometer samples")
+    if problem:
+        raise ValueError(problem)
     layout, where, header, n_cols = _open_csv(path)
     mag, names = _magnetometer_columns(columns, header, n_cols)
     t_pos = header.index("t") if header is not None and "t" in header else None
@@ -742,6 +809,12 @@ def _named_axes(header: list[str]) -> list[int] | None:
     return None
 
 
+def _clip(text: str, limit: int = 60, quote: bool = True) -> str:
+    """``text`` for a one-line message: its repr (or itself), cut at ``limit`` characters."""
+    shown = repr(text[:limit]) if quote else text[:limit]
+    return shown + (f"... ({len(text)} characters)" if len(text) > limit else "")
+
+
 def _magnetometer_columns(columns: Sequence[object] | None, header: list[str] | None,
                           n_cols: int) -> tuple[list[int], list[str]]:
     """The positions and names of the three magnetometer columns."""
@@ -750,7 +823,7 @@ def _magnetometer_columns(columns: Sequence[object] | None, header: list[str] | 
         mag = _named_axes(header)
     if mag is None:
         if n_cols != 3:
-            shown = ", ".join(header) if header else f"{n_cols} unnamed columns"
+            shown = _clip(", ".join(header), quote=False) if header else f"{n_cols} unnamed columns"
             raise ValueError(f"cannot tell which columns hold the magnetometer axes: no mx, my, "
                              f"mz header and {n_cols} columns ({shown}); choose them with "
                              "columns=[name,name,name] or columns=[0,1,2]")
@@ -946,6 +1019,8 @@ def log_recording(path: Path | str, instance: object = None, *, min_samples: int
     path = Path(path)
     log = read_log(path)
     chosen = log.choose(instance, max(min_samples, MIN_LOG_SAMPLES) if check else min_samples)
+    for note in log.notes:
+        warnings.warn(note, UserWarning, stacklevel=2)
     table = {c: np.asarray(v, dtype=float) for c, v in log.columns(chosen).items()}
     gyro_cols = list(GYRO_COLUMNS)
     if all(c in table for c in gyro_cols):

@@ -54,6 +54,8 @@ from magbench.core.files import file_sha256, write_csv_atomic
 from magbench.core.geometry import coverage, sphere_fit
 from magbench.core.metrics import real_cost
 from magbench.core.model import Calibration
+from magbench.engine.isolation import map_supervised
+from magbench.engine.plugins import plugin_modules
 from magbench.engine.sweep import Study
 from magbench.engine.trial import H_COLUMNS, T_COLUMNS, estimate_columns, run_method
 from magbench.methods.api import calibrate
@@ -211,6 +213,18 @@ def _fit_row(rec: Recording, part: str, fit: Recording,
     return rows
 
 
+def _method_rows(unit: tuple[str, str], *, rec: Recording, fits: list, spheres: list,
+                 options: dict, seed: int, call_timeout_s: float | None,
+                 coverage_ratio: float, sphere_factor: float) -> list[dict]:
+    """:func:`evaluate_recording`'s rows of one (preprocessing, method)."""
+    how, method = unit
+    rows = []
+    for (part, fit, tests), sphere in zip(fits, spheres, strict=True):
+        rows += _fit_row(rec, part, fit, tests, method, how, dict(options.get(method) or {}),
+                         seed, call_timeout_s, coverage_ratio, sphere_factor, sphere)
+    return rows
+
+
 def evaluate_recording(rec: Recording, algorithms: Sequence[str], preprocess: Sequence[str],
                        *, options: dict | None = None, seed: int = 0,
                        partner: Recording | None = None, call_timeout_s: float | None = None,
@@ -225,14 +239,14 @@ def evaluate_recording(rec: Recording, algorithms: Sequence[str], preprocess: Se
     options = options or {}
     fits = list(splits) if splits is not None else _halves_splits(rec, partner)
     spheres = [_sphere_baseline(fit, tests) for _, fit, tests in fits]
-    rows = []
-    for how in preprocess:
-        for method in algorithms:
-            for (part, fit, tests), sphere in zip(fits, spheres, strict=True):
-                rows += _fit_row(rec, part, fit, tests, method, how,
-                                 dict(options.get(method) or {}), seed, call_timeout_s,
-                                 coverage_ratio, sphere_factor, sphere)
-    return rows
+    work = functools.partial(_method_rows, rec=rec, fits=fits, spheres=spheres,
+                             options=options, seed=seed, call_timeout_s=call_timeout_s,
+                             coverage_ratio=coverage_ratio, sphere_factor=sphere_factor)
+    # The fits run in a supervised child (here, unless this process is already supervised,
+    # as a sweep's worker is): a method that ends its process gives rows with the reason.
+    per_method = map_supervised(work, [(how, m) for how in preprocess for m in algorithms],
+                                name=f"fits of {rec.name}", plugins=plugin_modules(algorithms))
+    return [row for rows in per_method for row in rows]
 
 
 def _halves_splits(rec: Recording, partner: Recording | None) -> list[tuple]:

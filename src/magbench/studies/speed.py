@@ -9,6 +9,7 @@ text: :mod:`magbench.report.speed`).
 
 from __future__ import annotations
 
+import functools
 import importlib.util
 import math
 import os
@@ -24,7 +25,10 @@ import pandas as pd
 
 from magbench.core.files import write_csv_atomic
 from magbench.core.metrics import accuracy_cost
+from magbench.engine.isolation import map_supervised
+from magbench.engine.plugins import plugin_modules
 from magbench.engine.sweep import run_study
+from magbench.engine.trial import run_method
 from magbench.methods.api import calibrate
 from magbench.methods.registry import get_method, methods
 from magbench.sources.synthetic import Point, make_dataset
@@ -64,41 +68,77 @@ def _time_call(fn: Callable[[], object], repeats: int) -> np.ndarray:
     return np.asarray(times)
 
 
-def _safe_call(name: str, y: np.ndarray) -> Callable[[], object]:
-    def call() -> object:
-        try:
-            return calibrate(y, name, raw=True)
-        except Exception as exc:  # a failing dataset still costs time; keep measuring
-            return exc
-    return call
+def _method_times(name: str, y: np.ndarray, repeats: int,
+                  call_timeout_s: float | None = None) -> tuple[np.ndarray, str]:
+    """Wall times of ``repeats`` calls of method ``name`` on ``y`` after one untimed warm-up,
+    each through the trial loop (a failing call still costs time; keep measuring), and the
+    reason when the supervision skipped the method (it ended or seized its process here).
+    The clock is read around the method alone, never around the supervision's messages."""
+    def call():
+        return run_method(name, lambda o: calibrate(y, name, raw=True, **o),
+                          call_timeout_s=call_timeout_s)
+
+    times = []
+    for k in range(repeats + 1):
+        out = call()
+        if out.skipped:
+            return np.full(repeats, np.nan), out.error
+        if k:                                   # the first call is the warm-up
+            times.append(out.time_s)
+    return np.asarray(times), ""
+
+
+def _calls_of(name: str, sizes: Sequence[int], datasets: int, repeats: int, seed: int,
+              budget_s: float, call_timeout_s: float | None) -> list[dict]:
+    """:func:`bench_calls`' rows of one method (a unit of :func:`map_supervised`)."""
+    rows, skip = [], False
+    for K in sizes:
+        if skip or K < get_method(name).min_samples:
+            rows.append({"algorithm": name, "K": K, "n": 0, "median_s": np.nan,
+                         "q25_s": np.nan, "q75_s": np.nan, "min_s": np.nan,
+                         "note": "skipped (time budget)" if skip else "K below minimum"})
+            continue
+        start = time.perf_counter()
+        timed = [_method_times(name, d.y, repeats, call_timeout_s)
+                 for d in _datasets(K, datasets, seed)]
+        reason = next((why for _, why in timed if why), "")
+        if reason:      # it ended or seized its process at this K: the row says so
+            rows.append({"algorithm": name, "K": K, "n": 0, "median_s": np.nan,
+                         "q25_s": np.nan, "q75_s": np.nan, "min_s": np.nan, "note": reason})
+            continue
+        t = np.concatenate([times for times, _ in timed])
+        rows.append({"algorithm": name, "K": K, "n": t.size, "median_s": np.median(t),
+                     "q25_s": np.quantile(t, 0.25), "q75_s": np.quantile(t, 0.75),
+                     "min_s": t.min(), "note": ""})
+        skip = time.perf_counter() - start > budget_s
+    return rows
 
 
 def bench_calls(names: Sequence[str], sizes: Sequence[int] = SIZES, datasets: int = 5,
                 repeats: int = 5, seed: int = 0, budget_s: float = 20.0,
-                progress: Callable[[str], None] | None = None) -> pd.DataFrame:
+                progress: Callable[[str], None] | None = None,
+                call_timeout_s: float | None = None) -> pd.DataFrame:
     """Time ``calibrate`` per method and K: ``datasets`` datasets x ``repeats`` calls each.
 
     A method whose calls at one K take more than ``budget_s`` in total is not timed at larger K
-    (the row says so) so one slow method cannot stall the benchmark.
+    (the row says so) so one slow method cannot stall the benchmark. The calls run in a
+    supervised child process, as a sweep's trials do
+    (:func:`magbench.engine.isolation.map_supervised`): a method that ends or seizes its
+    process gives a row whose ``note`` says why, and the benchmark goes on; a call past
+    ``call_timeout_s`` is a failed call, and one that holds its process past that limit's hard
+    end (:func:`magbench.engine.isolation.hard_limit`) a row saying so.
     """
+    work = functools.partial(_calls_of, sizes=tuple(sizes), datasets=datasets,
+                             repeats=repeats, seed=seed, budget_s=budget_s,
+                             call_timeout_s=call_timeout_s)
     rows = []
     for name in names:
-        skip = False
-        for K in sizes:
-            if skip or K < get_method(name).min_samples:
-                rows.append({"algorithm": name, "K": K, "n": 0, "median_s": np.nan,
-                             "q25_s": np.nan, "q75_s": np.nan, "min_s": np.nan,
-                             "note": "skipped (time budget)" if skip else "K below minimum"})
-                continue
-            start = time.perf_counter()
-            t = np.concatenate([_time_call(_safe_call(name, d.y), repeats)
-                                for d in _datasets(K, datasets, seed)])
-            rows.append({"algorithm": name, "K": K, "n": t.size, "median_s": np.median(t),
-                         "q25_s": np.quantile(t, 0.25), "q75_s": np.quantile(t, 0.75),
-                         "min_s": t.min(), "note": ""})
-            skip = time.perf_counter() - start > budget_s
-            if progress:
-                progress(f"{name} K={K}: median {np.median(t) * 1e3:.3g} ms")
+        method_rows = map_supervised(work, [name], name="bench",
+                                     plugins=plugin_modules([name]))[0]
+        rows += method_rows
+        for row in method_rows if progress else []:
+            if row["n"]:
+                progress(f"{name} K={row['K']}: median {row['median_s'] * 1e3:.3g} ms")
     return pd.DataFrame(rows)
 
 
@@ -147,12 +187,18 @@ def bench_first_calls(names: Sequence[str],
             row: dict[str, object] = {"algorithm": name}
             for column in ("compile_s", "cached_first_s"):
                 out = subprocess.run([sys.executable, "-c", _FIRST_CALL, name], env=env,
-                                     capture_output=True, text=True, check=True)
+                                     capture_output=True, text=True, check=False)
+                if out.returncode != 0:     # the method ended its interpreter: a row says so
+                    row.update(dict.fromkeys(("compile_s", "cached_first_s", "import_s",
+                                              "second_s"), np.nan))
+                    row["note"] = f"interpreter ended with exit status {out.returncode}"
+                    break
                 imported, first, second = (float(v) for v in out.stdout.split()[-3:])
                 row[column] = first
-            row["import_s"], row["second_s"] = imported, second
+            else:
+                row["import_s"], row["second_s"], row["note"] = imported, second, ""
             rows.append(row)
-            if progress:
+            if progress and not row["note"]:
                 progress(f"{name}: first call {row['compile_s'] * 1e3:.4g} ms with an empty "
                          f"numba cache, {row['cached_first_s'] * 1e3:.4g} ms cached, then "
                          f"{second * 1e3:.3g} ms")
@@ -258,23 +304,26 @@ def peer_install_size() -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
-def _best_candidate(y: np.ndarray, candidates: Sequence[str]) -> str:
+def _best_candidate(y: np.ndarray, candidates: Sequence[str],
+                    call_timeout_s: float | None = None) -> str:
     """The candidate with the smallest RMS field-magnitude residual on ``y``: the ranking of
     ``calibrate`` (in sample, meaningful fits alike) without its held-out split."""
     best, best_r = candidates[0], np.inf
     for name in candidates:
-        try:
-            cal = calibrate(y, name, raw=True)
-        except Exception:
+        out = run_method(name, lambda o, n=name: calibrate(y, n, raw=True, **o),
+                         call_timeout_s=call_timeout_s)
+        if out.calibration is None:
             continue
-        r = float(np.sqrt(np.mean((np.linalg.norm(cal.apply(y), axis=1) - 1.0) ** 2)))
+        r = float(np.sqrt(np.mean((np.linalg.norm(out.calibration.apply(y), axis=1) - 1.0)
+                                  ** 2)))
         if r < best_r:
             best, best_r = name, r
     return best
 
 
 def bench_peers(sizes: Sequence[int] = (300, 10000), datasets: int = 20, repeats: int = 3,
-                seed: int = 0, large_datasets: int = 5) -> pd.DataFrame:
+                seed: int = 0, large_datasets: int = 5,
+                call_timeout_s: float | None = None) -> pd.DataFrame:
     """Each installed peer against magbench on the same nominal datasets, per K.
 
     Two rows per peer and K: against its counterpart (same algorithm, same samples), and
@@ -286,44 +335,56 @@ def bench_peers(sizes: Sequence[int] = (300, 10000), datasets: int = 20, repeats
     every sample. K above 1000 uses ``large_datasets`` datasets. A peer that is not installed
     gives one row per K saying so (``pip install 'magbench[peers]'``).
     """
-    rows = []
-    registered = set(methods())
     candidates = [m for m in methods() if get_method(m).family != "variant"
                   and get_method(m).magnetometer_only]
-    for K in sizes:
-        data = _datasets(K, datasets if K <= 1000 else large_datasets, seed)
-        stride = math.ceil(K / DEFAULT_MAX_SAMPLES)                  # calibrate's thinning
-        best = _best_candidate(data[0].y[::stride], candidates)
-        for peer, (package, fn, counterpart) in PEERS.items():
-            if importlib.util.find_spec(package) is None or counterpart not in registered:
-                rows.append({"peer": peer, "K": K, "magbench": counterpart,
-                             "note": f"{package} not installed (pip install 'magbench[peers]')"
-                             if counterpart in registered else f"{counterpart} not registered"})
-                continue
-            for ours in (counterpart, BEST):
-                name, step = (best, stride) if ours == BEST else (ours, 1)
-                t_peer, t_ours, J_peer, J_ours, failures = [], [], [], [], 0
-                for d in data:
-                    try:
-                        T, h = fn(d.y)
-                        J_peer.append(accuracy_cost(T, h, d.T, d.h)[0])
-                    except Exception:
-                        failures += 1
-                    cal = calibrate(d.y[::step], name, raw=True)
-                    J_ours.append(accuracy_cost(cal.T, cal.h, d.T, d.h)[0])
-                    t_peer.append(np.median(_time_call(lambda y=d.y, f=fn: f(y), repeats)))
-                    t_ours.append(np.median(_time_call(
-                        lambda y=d.y[::step], o=name: calibrate(y, o, raw=True), repeats)))
-                rows.append({"peer": peer, "K": K, "magbench": name,
-                             "peer_median_s": np.median(t_peer),
-                             "magbench_median_s": np.median(t_ours),
-                             "speedup": np.median(t_peer) / np.median(t_ours),
-                             "peer_mean_J": np.mean(J_peer) if J_peer else np.nan,
-                             "magbench_mean_J": np.mean(J_ours), "peer_failures": failures,
-                             "magbench_samples": K // step + (K % step > 0),
-                             "note": f"calibrate's choice, 1 sample in {step}"
-                             if ours == BEST else ""})
-    return pd.DataFrame(rows)
+    work = functools.partial(_peers_at, datasets=datasets, repeats=repeats, seed=seed,
+                             large_datasets=large_datasets, candidates=tuple(candidates),
+                             call_timeout_s=call_timeout_s)
+    per_size = map_supervised(work, list(sizes), name="bench peers",
+                              plugins=plugin_modules(candidates))
+    return pd.DataFrame([row for rows in per_size for row in rows])
+
+
+def _peers_at(K: int, *, datasets: int, repeats: int, seed: int, large_datasets: int,
+              candidates: Sequence[str], call_timeout_s: float | None) -> list[dict]:
+    """:func:`bench_peers`' rows at one K (a unit of :func:`map_supervised`)."""
+    rows = []
+    registered = set(methods())
+    data = _datasets(K, datasets if K <= 1000 else large_datasets, seed)
+    stride = math.ceil(K / DEFAULT_MAX_SAMPLES)                      # calibrate's thinning
+    best = _best_candidate(data[0].y[::stride], candidates, call_timeout_s)
+    for peer, (package, fn, counterpart) in PEERS.items():
+        if importlib.util.find_spec(package) is None or counterpart not in registered:
+            rows.append({"peer": peer, "K": K, "magbench": counterpart,
+                         "note": f"{package} not installed (pip install 'magbench[peers]')"
+                         if counterpart in registered else f"{counterpart} not registered"})
+            continue
+        for ours in (counterpart, BEST):
+            name, step = (best, stride) if ours == BEST else (ours, 1)
+            t_peer, t_ours, J_peer, J_ours, failures = [], [], [], [], 0
+            for d in data:
+                try:
+                    T, h = fn(d.y)
+                    J_peer.append(accuracy_cost(T, h, d.T, d.h)[0])
+                except Exception:
+                    failures += 1
+                out = run_method(name, lambda o, y=d.y[::step], n=name:
+                                 calibrate(y, n, raw=True, **o), call_timeout_s=call_timeout_s)
+                J_ours.append(accuracy_cost(out.T, out.h, d.T, d.h)[0]
+                              if out.T is not None else np.nan)
+                t_peer.append(np.median(_time_call(lambda y=d.y, f=fn: f(y), repeats)))
+                t_ours.append(np.median(_method_times(name, d.y[::step], repeats,
+                                                      call_timeout_s)[0]))
+            rows.append({"peer": peer, "K": K, "magbench": name,
+                         "peer_median_s": np.median(t_peer),
+                         "magbench_median_s": np.median(t_ours),
+                         "speedup": np.median(t_peer) / np.median(t_ours),
+                         "peer_mean_J": np.mean(J_peer) if J_peer else np.nan,
+                         "magbench_mean_J": np.mean(J_ours), "peer_failures": failures,
+                         "magbench_samples": K // step + (K % step > 0),
+                         "note": f"calibrate's choice, 1 sample in {step}"
+                         if ours == BEST else ""})
+    return rows
 
 
 def bench_parallel(trials: int = 250, algorithms: Sequence[str] | None = None,
@@ -511,7 +572,8 @@ def malloc_thresholds() -> str:
 def run_bench(results_dir: Path | str, names: Sequence[str] | None = None,
               sizes: Sequence[int] = SIZES, parallel_trials: int = 250,
               progress: Callable[[str], None] | None = print,
-              peer_datasets: int = 200, reproduce: bool = True) -> Path:
+              peer_datasets: int = 200, reproduce: bool = True,
+              call_timeout_s: float | None = None) -> Path:
     """Run every benchmark and write ``calls.csv``, ``first_calls.csv``, ``peers.csv``,
     ``peer_accuracy.csv`` and ``peer_accuracy_summary.csv`` (``peer_datasets`` datasets per
     geometry, 0 = none; :mod:`magbench.studies.peer_accuracy`), ``peer_install.csv``,
@@ -534,11 +596,11 @@ def run_bench(results_dir: Path | str, names: Sequence[str] | None = None,
                  "faults (python -m magbench sets MALLOC_MMAP_THRESHOLD_ and "
                  "MALLOC_TRIM_THRESHOLD_)")
     write_csv_atomic(bench_first_calls(names, progress=progress), folder / "first_calls.csv")
-    calls = bench_calls(names, sizes, progress=progress)
+    calls = bench_calls(names, sizes, progress=progress, call_timeout_s=call_timeout_s)
     calls["blas_threads"] = threads
     calls["malloc"] = malloc
     write_csv_atomic(calls, folder / "calls.csv")
-    write_csv_atomic(bench_peers(), folder / "peers.csv")
+    write_csv_atomic(bench_peers(call_timeout_s=call_timeout_s), folder / "peers.csv")
     if peer_datasets:
         accuracy = peer_accuracy(PEERS, datasets=peer_datasets)
         write_csv_atomic(accuracy, folder / "peer_accuracy.csv")

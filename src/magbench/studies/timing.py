@@ -29,7 +29,10 @@ The budget: each dataset gets at least 3 calls, a fast method more until 3 ms ar
 docs/decisions.md records what this costs per sweep. A method whose second warm-up call
 takes more than ``slow_call_s`` is timed on one dataset, once per point, so a slow or hanging
 method cannot blow the budget. Calls go through the one trial loop
-(:func:`magbench.engine.trial.run_method`), so exactly what a trial times is timed here.
+(:func:`magbench.engine.trial.run_method`), so exactly what a trial times is timed here, in a
+supervised child process as the trials are (:func:`magbench.engine.isolation.map_supervised`):
+a method that ends or seizes its process gives a row with the reason (``error``) and the pass
+goes on. The clocks are read inside the child around the method alone.
 
 The result is ``timing.csv`` in the sweep's folder; figures' speed panels and the report's
 speed columns read it when it is there (``trials_times.csv`` keeps the per-trial times).
@@ -38,6 +41,7 @@ speed columns read it when it is there (``trials_times.csv`` keeps the per-trial
 
 from __future__ import annotations
 
+import os
 import sys
 import time
 from collections.abc import Callable, Sequence
@@ -50,9 +54,12 @@ import pandas as pd
 
 from magbench.core.files import write_csv_atomic
 from magbench.core.seeding import rng
+from magbench.engine.isolation import map_supervised
+from magbench.engine.plugins import plugin_modules
 from magbench.engine.record import cpu_model
-from magbench.engine.trial import run_method
+from magbench.engine.trial import Outcome, run_method
 from magbench.methods.api import calibrate
+from magbench.methods.registry import get_method
 from magbench.sources.synthetic import Point, make_dataset
 from magbench.studies.review import POINT_COLUMNS, ReviewStudy, method_options
 
@@ -69,16 +76,14 @@ TIMING_COLUMNS = POINT_COLUMNS + ["algorithm", "calls", "failed_calls", "spent_s
                                   "tau_all_s",
                                   "ok_datasets", "median_s", "q25_s",
                                   "q75_s", "min_s", "wall_median_s", "speed_hz", "datasets",
-                                  "cpu_model", "fingerprint", "measured"]
+                                  "cpu_model", "fingerprint", "measured", "error"]
 
 
 def _call(name: str, y: np.ndarray, opts: dict, seed: int, stream: tuple,
-          call_timeout_s: float | None) -> tuple[float, float, bool]:
-    """(CPU seconds, wall seconds, ok) of one call through the trial loop."""
-    cpu = time.process_time()
-    out = run_method(name, lambda o: calibrate(y, name, raw=True, **o), options=opts, seed=seed,
-                     stream=stream, call_timeout_s=call_timeout_s)
-    return time.process_time() - cpu, out.time_s, out.ok
+          call_timeout_s: float | None) -> Outcome:
+    """One call through the trial loop; its ``cpu_s`` and ``time_s`` time the method alone."""
+    return run_method(name, lambda o: calibrate(y, name, raw=True, **o), options=opts,
+                      seed=seed, stream=stream, call_timeout_s=call_timeout_s)
 
 
 def time_methods(points: Sequence[Point], seed: int, algorithms: Sequence[str],
@@ -89,6 +94,12 @@ def time_methods(points: Sequence[Point], seed: int, algorithms: Sequence[str],
                  call_timeout_s: float | None = None,
                  clock: Callable[[], str] | None = None) -> pd.DataFrame:
     """Time every method on the first ``datasets`` datasets of each point (the protocol above).
+
+    The calls run in a supervised child process, as a sweep's trials do
+    (:func:`magbench.engine.isolation.map_supervised`): a method that ends or seizes its
+    process is not called again at that point, and its row says why (``error``); the pass and
+    the command go on. Each call's clocks are read around the method alone, inside the child,
+    so the supervision's messages are not timed.
 
     Parameters
     ----------
@@ -119,31 +130,25 @@ def time_methods(points: Sequence[Point], seed: int, algorithms: Sequence[str],
     Returns
     -------
     DataFrame
-        One row per (point, method), columns :data:`TIMING_COLUMNS` (``fingerprint`` empty).
+        One row per (point, method), columns :data:`TIMING_COLUMNS` (``fingerprint`` empty);
+        ``error`` is the first reason a call at that point failed (empty if none did).
     """
     if datasets < 1 or repeats < 1:
         raise ValueError(f"datasets and repeats must be >= 1, got {datasets}, {repeats}")
-    options = options or {}
     names = list(algorithms)
-    budget = _Budget(repeats, min_time_s, max_repeats, long_call_s)
     stamp = (clock or (lambda: datetime.now(UTC).isoformat(timespec="seconds")))()
     machine = cpu_model()
-    slow = _warm_up(points, names, seed, options, slow_call_s, call_timeout_s)
-    rows = []
-    for point in points:
-        data = [make_dataset(rng(seed, point.key, t), point) for t in range(datasets)]
-        calls: dict[str, list[_Calls]] = {n: [] for n in names}
-        for t, d in enumerate(data):
-            for name in names:                   # interleaved: load drift spreads over all
-                if name in slow and t > 0:
-                    continue
-                opts = method_options(name, point, options)
-                calls[name].append(_time_on_dataset(
-                    name, d.y, opts, seed, (point.key, t), call_timeout_s,
-                    budget.once() if name in slow else budget))
-        rows += [{**{c: getattr(point, c) for c in POINT_COLUMNS}, "algorithm": name,
-                  **_tau(calls[name]), "cpu_model": machine, "fingerprint": "",
-                  "measured": stamp} for name in names]
+    work = _PointPass(tuple(points), seed, tuple(names), options or {}, datasets,
+                      _Budget(repeats, min_time_s, max_repeats, long_call_s), slow_call_s,
+                      call_timeout_s)
+    for name in names:      # loaded once here (no call), so each child starts with them
+        get_method(name).prepare()
+    per_point = map_supervised(work, range(len(points)), name="timing pass",
+                               plugins=plugin_modules(names))
+    rows = [{**{c: getattr(point, c) for c in POINT_COLUMNS}, "algorithm": name, **cell,
+             "cpu_model": machine, "fingerprint": "", "measured": stamp}
+            for point, cells in zip(points, per_point, strict=True)
+            for name, cell in zip(names, cells, strict=True)]
     return pd.DataFrame(rows, columns=TIMING_COLUMNS)
 
 
@@ -169,39 +174,77 @@ class _Calls:
     wall: list[float]
     failed: int
     fine: bool
+    error: str = ""
 
 
-def _warm_up(points: Sequence[Point], names: Sequence[str], seed: int, options: dict,
-             slow_call_s: float, call_timeout_s: float | None) -> set[str]:
-    """Two untimed calls per method on the first dataset (the first loads or compiles its
-    loops); the methods whose second call is slower than ``slow_call_s``."""
-    slow: set[str] = set()
-    if not points:
-        return slow
-    first = make_dataset(rng(seed, points[0].key, 0), points[0])
-    for name in names:
-        opts = method_options(name, points[0], options)
-        spent = [_call(name, first.y, opts, seed, (points[0].key, 0), call_timeout_s)[1]
-                 for _ in range(2)]
-        if spent[-1] > slow_call_s:
-            slow.add(name)
-    return slow
+#: Per process and pass: method -> slow (its second warm-up call took longer than
+#: ``slow_call_s``). A fresh supervised child (after a death) warms up again, as a fresh
+#: process must.
+_WARM: dict[tuple[int, int], dict[str, bool]] = {}
+
+
+@dataclass(frozen=True)
+class _PointPass:
+    """The pass at one point (a unit of :func:`map_supervised`): the per-method cells."""
+
+    points: tuple[Point, ...]
+    seed: int
+    names: tuple[str, ...]
+    options: dict
+    datasets: int
+    budget: _Budget
+    slow_call_s: float
+    call_timeout_s: float | None
+
+    def __call__(self, k: int) -> list[dict]:
+        point = self.points[k]
+        slow = {name: self._warm_up(name) for name in self.names}
+        data = [make_dataset(rng(self.seed, point.key, t), point) for t in range(self.datasets)]
+        calls: dict[str, list[_Calls]] = {n: [] for n in self.names}
+        for t, d in enumerate(data):
+            for name in self.names:              # interleaved: load drift spreads over all
+                if slow[name] and t > 0:
+                    continue
+                opts = method_options(name, point, self.options)
+                calls[name].append(_time_on_dataset(
+                    name, d.y, opts, self.seed, (point.key, t), self.call_timeout_s,
+                    self.budget.once() if slow[name] else self.budget))
+        return [_tau(calls[name]) for name in self.names]
+
+    def _warm_up(self, name: str) -> bool:
+        """Two untimed calls on the first dataset (the first loads or compiles the method's
+        loops), once per process; True when the second is slower than ``slow_call_s``."""
+        warm = _WARM.setdefault((os.getpid(), id(self)), {})
+        if name not in warm:
+            first = self.points[0]
+            y = make_dataset(rng(self.seed, first.key, 0), first).y
+            opts = method_options(name, first, self.options)
+            outs = [_call(name, y, opts, self.seed, (first.key, 0), self.call_timeout_s)
+                    for _ in range(2)]
+            if outs[-1].skipped:        # not called here: it ended a process on this point
+                return False
+            warm[name] = outs[-1].time_s > self.slow_call_s
+        return warm[name]
 
 
 def _time_on_dataset(name: str, y: np.ndarray, opts: dict, seed: int, stream: tuple,
                      call_timeout_s: float | None, budget: _Budget) -> _Calls:
     """At least ``budget.repeats`` calls, more for a fast method until ``min_time_s`` is spent:
-    a median of 3 sub-millisecond calls moves with every burst of load, one of 30 does not."""
+    a median of 3 sub-millisecond calls moves with every burst of load, one of 30 does not.
+    A call skipped by the supervision (it ended its process here before) ends the dataset."""
     out = _Calls([], [], 0, True)
     spent = 0.0
     while (len(out.cpu) < budget.repeats and not (out.cpu and out.cpu[0] > budget.long_call_s)
            ) or (spent < budget.min_time_s and len(out.cpu) < budget.max_repeats):
-        cpu, wall, ok = _call(name, y, opts, seed, stream, call_timeout_s)
-        out.cpu.append(cpu)
-        out.wall.append(wall)
-        out.failed += not ok
-        out.fine = out.fine and ok
-        spent += wall
+        call = _call(name, y, opts, seed, stream, call_timeout_s)
+        out.error = out.error or call.error
+        out.failed += not call.ok
+        out.fine = out.fine and call.ok
+        if call.skipped:
+            break
+        out.cpu.append(call.cpu_s)
+        out.wall.append(call.time_s)
+        spent += call.time_s
     return out
 
 
@@ -210,20 +253,27 @@ def _tau(calls: Sequence[_Calls]) -> dict:
 
     The median of a dataset's calls removes the machine's noise; tau is the mean over the
     datasets on which the method ended by its own rule, each weighted once (as eq. (79) times
-    the successful runs); ``tau_all_s`` averages all of them.
+    the successful runs); ``tau_all_s`` averages all that were timed. A dataset with no call
+    made (the method ended its process there) counts in ``datasets`` and ``failed_calls``.
     """
-    per_dataset = [float(np.median(c.cpu)) for c in calls]
-    good = [v for v, c in zip(per_dataset, calls, strict=True) if c.fine]
+    timed = [c for c in calls if c.cpu]
+    per_dataset = [float(np.median(c.cpu)) for c in timed]
+    good = [v for v, c in zip(per_dataset, timed, strict=True) if c.fine]
     tau = float(np.mean(good)) if good else np.nan
-    x = np.concatenate([c.cpu for c in calls])
+    x = np.concatenate([c.cpu for c in timed]) if timed else np.array([])
+    wall = np.concatenate([c.wall for c in timed]) if timed else np.array([])
+    some = x.size > 0
     return {"calls": x.size, "failed_calls": sum(c.failed for c in calls),
             "spent_s": float(x.sum()), "tau_s": tau,
-            "tau_all_s": float(np.mean(per_dataset)), "ok_datasets": len(good),
-            "median_s": float(np.median(per_dataset)), "q25_s": float(np.quantile(x, 0.25)),
-            "q75_s": float(np.quantile(x, 0.75)), "min_s": float(x.min()),
-            "wall_median_s": float(np.median(np.concatenate([c.wall for c in calls]))),
+            "tau_all_s": float(np.mean(per_dataset)) if some else np.nan,
+            "ok_datasets": len(good),
+            "median_s": float(np.median(per_dataset)) if some else np.nan,
+            "q25_s": float(np.quantile(x, 0.25)) if some else np.nan,
+            "q75_s": float(np.quantile(x, 0.75)) if some else np.nan,
+            "min_s": float(x.min()) if some else np.nan,
+            "wall_median_s": float(np.median(wall)) if some else np.nan,
             "speed_hz": 1.0 / tau if good and tau > 0 else np.nan,
-            "datasets": len(per_dataset)}
+            "datasets": len(calls), "error": next((c.error for c in calls if c.error), "")}
 
 
 def timing_is_current(study: ReviewStudy, out_dir: Path | str) -> bool:
