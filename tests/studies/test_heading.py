@@ -124,3 +124,19 @@ def test_correlations_rank_per_dataset_and_pooled():
     assert c.loc["a", "spearman_J"] == pytest.approx(1.0)
     assert c.loc["b", "spearman_J"] == pytest.approx(-1.0)
     assert c.loc["pooled", "n_J"] == 8 and np.isnan(c.loc["a", "spearman_J_r"])
+
+
+def test_a_recording_that_cannot_be_prepared_gives_each_method_a_row_with_the_reason(
+        monkeypatch):
+    import magbench.studies.heading as heading
+
+    def no_lag(*args, **kwargs):
+        raise ValueError("phone: no lag found within 0.1 s")
+
+    monkeypatch.setattr(heading, "_prepared", no_lag)
+    spec = heading.HeadingStudy(root="nowhere", datasets=["phone"], algorithms=["sphere", "fang"])
+    rows = heading.heading_rows(spec, "given", "phone", "", 0)
+    assert [r["algorithm"] for r in rows] == ["sphere", "fang"]
+    assert all(not r["ok"] and r["error"] == "not prepared: phone: no lag found within 0.1 s"
+               for r in rows)
+    assert set(rows[0]) >= set(heading.HEADING_ROW_COLUMNS)

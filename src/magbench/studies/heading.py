@@ -347,10 +347,19 @@ def _method_row(spec: HeadingStudy, scene: Scene, name: str, stream: tuple) -> d
 
 def heading_rows(spec: HeadingStudy, part: str, dataset: str, distortion: str,
                  trial: int) -> list[dict]:
-    """Every selected method on one unit; one row per method (failures included)."""
-    scene = (mc_scene(spec, trial) if part == "mc" else
-             semi_scene(spec, dataset, distortion, trial) if part == "semi" else
-             given_scene(spec, dataset))
+    """Every selected method on one unit; one row per method (failures included: a
+    recording that cannot be prepared, a lag outside the search say, gives each method a row
+    with the reason)."""
+    try:
+        scene = (mc_scene(spec, trial) if part == "mc" else
+                 semi_scene(spec, dataset, distortion, trial) if part == "semi" else
+                 given_scene(spec, dataset))
+    except ValueError as exc:
+        blank = dict.fromkeys(HEADING_ROW_COLUMNS, np.nan)
+        return [{**blank, "part": part, "dataset": dataset, "distortion": distortion,
+                 "trial": int(trial), "seed": int(spec.seed), "algorithm": name,
+                 "inputs": "", "gauge": "", "ok": False, "n_iter": 0, "K_fit": 0,
+                 "error": f"not prepared: {exc}", "time_s": 0.0} for name in spec.algorithms]
     crb = scene.extra.get("crb", (np.nan, np.nan))
     base = {"part": part, "dataset": dataset, "distortion": distortion, "trial": int(trial),
             "seed": int(spec.seed), "heading_floor": _floor(scene), "crb_heading":
