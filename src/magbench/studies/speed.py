@@ -33,6 +33,7 @@ from magbench.methods.api import calibrate
 from magbench.methods.registry import get_method, methods
 from magbench.sources.synthetic import Point, make_dataset
 from magbench.studies.peer_accuracy import peer_accuracy, summarize_peer_accuracy
+from magbench.studies.peers import PEER_FITS
 from magbench.studies.real import DEFAULT_MAX_SAMPLES
 from magbench.studies.review import ReviewStudy
 
@@ -205,43 +206,13 @@ def bench_first_calls(names: Sequence[str],
     return pd.DataFrame(rows)
 
 
-# --- peers: measuring sticks only, imported here and nowhere else -----------------------------
+# --- peers: measuring sticks only (magbench.studies.peers adapts them) ------------------------
 
-def _normalise(T: np.ndarray, h: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """Rescale T so the calibrated samples have unit mean norm (for scale-free peers)."""
-    m = np.linalg.solve(T, (y - h).T)
-    return T * float(np.mean(np.linalg.norm(m, axis=0)))
-
-
-def _navlib_twostep(y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    from navlib.cal.cal_mag import cal_mag_twostep_hsi
-
-    hard_iron, soft_iron = cal_mag_twostep_hsi(y, np.array([1.0, 0.0, 0.0]))[:2]
-    return np.asarray(soft_iron), np.asarray(hard_iron).ravel()  # navlib's soft_iron is T
-
-
-def _navlib_fang(y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    from navlib.cal.cal_mag import cal_mag_ellipsoid_fit_fang
-
-    hard_iron, soft_iron = cal_mag_ellipsoid_fit_fang(y)[:2]
-    h = np.asarray(hard_iron).ravel()
-    return _normalise(np.asarray(soft_iron), h, y), h
-
-
-def _magcal_ellipsoid(y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    from magcal.core import MagnetometerCalibrator
-
-    params = MagnetometerCalibrator.ellipsoid_fit(None, y)
-    h = np.asarray(params["center"]).ravel()
-    # magcal applies m = W (y - c), so its matrix is T^-1, normalised: invert and rescale.
-    return _normalise(np.linalg.inv(params["transform_matrix"]), h, y), h
-
-
-PEERS = {  # peer -> (package, function, magbench method it is paired with)
-    "navlib.cal_mag_twostep_hsi": ("navlib", _navlib_twostep, "twostep"),
-    "navlib.cal_mag_ellipsoid_fit_fang": ("navlib", _navlib_fang, "fang"),
-    "magcal.ellipsoid_fit": ("magcal", _magcal_ellipsoid, "ellipsoid"),
-}
+#: The peers timed and compared here: peer -> (package, function, magbench method it is
+#: paired with), from :data:`magbench.studies.peers.PEER_FITS` (one adapter per peer).
+PEERS = {name: PEER_FITS[name] for name in ("navlib.cal_mag_twostep_hsi",
+                                            "navlib.cal_mag_ellipsoid_fit_fang",
+                                            "magcal.ellipsoid_fit")}
 
 
 #: magbench's side of the calibrate comparison: the candidate ``calibrate`` would keep.
