@@ -388,3 +388,17 @@ def test_a_hard_iron_that_steps_halfway_is_never_a_pass(step, status):
     else:
         assert result.fitness["status"] == status and moved
         assert result.verdict["halves_offset_change_pct"] == pytest.approx(100 * step, rel=0.3)
+
+
+def test_a_bootstrap_refit_that_ends_its_process_is_one_replicate_fewer():
+    import dataclasses
+
+    import tests.plugins.faulty  # noqa: F401  (registers faulty_exit)
+    from magbench.studies.calibration import bootstrap_check
+    from magbench.studies.choice import Choice
+
+    result = calibrate_recording(synthetic(400), ["sphere"], bootstrap=0)
+    chosen = {**result.chosen, "algorithm": "faulty_exit"}
+    result = dataclasses.replace(result, choice=Choice(result.ranked, chosen, result.how))
+    out = bootstrap_check(result, 40, seed=3)       # about half of the refits end their child
+    assert out is not None and 20 <= out["replicates"] < 40

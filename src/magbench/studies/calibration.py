@@ -38,6 +38,7 @@ writes). :func:`calibrate_recording` runs these steps, each a small function:
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
@@ -67,6 +68,9 @@ from magbench.core.verdict import (
     noise_p95_pct,
     with_reason,
 )
+from magbench.engine.isolation import map_supervised
+from magbench.engine.plugins import plugin_modules
+from magbench.engine.trial import run_method
 from magbench.methods.registry import get_method
 from magbench.sources.recordings import Recording
 from magbench.studies.choice import (
@@ -485,12 +489,17 @@ def calibrate_recording(rec: Recording, candidates: Sequence[str], *,
     return result
 
 
-def _refit_gauge(rec: Recording, method: str, preprocess: str, options: dict
-                 ) -> tuple[np.ndarray, np.ndarray] | None:
+def _refit_gauge(rows: np.ndarray, rec: Recording, method: str, preprocess: str,
+                 options: dict) -> tuple[np.ndarray, np.ndarray] | None:
+    """``b`` and ``A`` of ``method`` refitted on ``rec``'s ``rows``; None when the refit
+    fails (one replicate fewer, not a failed command), whatever the way it fails."""
+    out = run_method(method, lambda o: fit_recording(rec.rows(rows), method, preprocess, o),
+                     options=options)
+    if out.T is None or out.error:
+        return None
     try:
-        cal = fit_recording(rec, method, preprocess, options)
-        gauge = safe_gauge(cal.T, cal.h)
-    except Exception:   # a failed refit is one replicate fewer, not a failed command
+        gauge = safe_gauge(out.T, out.h)
+    except ValueError:
         return None
     return gauge.b, gauge.A
 
@@ -522,8 +531,12 @@ def bootstrap_check(result: CalibrationResult, B: int, *, preprocess: str = "cen
     residual = np.linalg.norm(np.linalg.solve(T, (work.y - h).T), axis=0) - 1.0
     block = block_length(residual)
     gen = rng(seed, "calibrate", "bootstrap", name)
-    fits = [_refit_gauge(work.rows(np.sort(block_resample(work.K, block, gen))), name,
-                         preprocess, opts) for _ in range(B)]
+    resamples = [np.sort(block_resample(work.K, block, gen)) for _ in range(B)]
+    # Supervised as the candidates' fits are: a refit that ends its process is one replicate
+    # fewer, not the end of calibrate.
+    fits = map_supervised(functools.partial(_refit_gauge, rec=work, method=name,
+                                            preprocess=preprocess, options=opts), resamples,
+                          name=f"bootstrap refits of {name}", plugins=plugin_modules([name]))
     fits = [f for f in fits if f is not None]
     if len(fits) < max(10, B // 2):
         return None
