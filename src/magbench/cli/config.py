@@ -16,6 +16,7 @@ import math
 import os
 import re
 import tempfile
+import threading
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -90,11 +91,17 @@ def did_you_mean(word: str, choices: Sequence[str] | dict) -> str | None:
     return close[0] if close else None
 
 
+#: One YAML load at a time: capture calibrates from a second thread, and a load that another
+#: thread's interleaves with must not hand back a partial configuration.
+_YAML_LOCK = threading.Lock()
+
+
 def _load_yaml(text: str) -> dict:
     """A configuration file's text as plain data (LibYAML's loader where PyYAML has it)."""
     import yaml
 
-    return yaml.load(text, Loader=getattr(yaml, "CSafeLoader", yaml.SafeLoader)) or {}
+    with _YAML_LOCK:
+        return yaml.load(text, Loader=getattr(yaml, "CSafeLoader", yaml.SafeLoader)) or {}
 
 
 def base_config() -> dict:
