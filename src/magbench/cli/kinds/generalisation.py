@@ -15,28 +15,14 @@ from magbench.cli.config import (
     plain,
 )
 from magbench.cli.kinds import Kind, register_kind
+from magbench.cli.kinds.real import recordings
 from magbench.core.files import write_text_atomic
 from magbench.studies.generalisation import PROTOCOLS, GeneralisationStudy, fixed_methods
 
 
 def build(cfg: DictConfig, common: dict, values: dict) -> GeneralisationStudy:
     """The study over the recordings in ``data_dir``, every protocol, every fixed method."""
-    from magbench.sources.recordings import data_dir, list_recordings
-
-    if cfg.get("trials") is not None:
-        raise UsageError("trials does not apply to sweep=generalisation (each recording is "
-                         "split once per protocol, deterministically); drop trials=")
-    try:
-        root = data_dir(cfg.get("data_dir"))
-    except ValueError as exc:
-        raise UsageError(str(exc)) from None
-    known = list_recordings(root)
-    chosen = values["datasets"]
-    chosen = known if chosen == "all" else [chosen] if isinstance(chosen, str) else list(chosen)
-    unknown = [d for d in chosen if d not in known]
-    if unknown or not chosen:
-        raise UsageError(f"unknown recording(s) {', '.join(map(str, unknown)) or '(none)'} in "
-                         f"{root}; expected 'all' or a list from: {', '.join(known)}")
+    root, chosen = recordings(cfg, values["datasets"], "generalisation")
     every = fixed_methods()
     wanted = plain(cfg.algorithms)
     algorithms = every if wanted == "all" else [a for a in every if a in list(wanted)]
@@ -45,7 +31,7 @@ def build(cfg: DictConfig, common: dict, values: dict) -> GeneralisationStudy:
         raise UsageError(f"algorithms {', '.join(map(str, bad))} cannot be fixed entrants of "
                          f"sweep=generalisation; expected 'all' or a list from: "
                          f"{', '.join(every)}")
-    return GeneralisationStudy(str(root), chosen, tuple(values["protocols"]), tuple(algorithms),
+    return GeneralisationStudy(root, chosen, tuple(values["protocols"]), tuple(algorithms),
                                bool(values["peers"]), values["bootstrap"],
                                check_options(cfg, every), common["seed"],
                                common["call_timeout_s"], common["plugins"],

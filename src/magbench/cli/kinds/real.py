@@ -22,26 +22,33 @@ from magbench.core.files import write_text_atomic
 from magbench.studies.real import PREPROCESSING, RealStudy
 
 
-def build(cfg: DictConfig, common: dict, values: dict) -> RealStudy:
-    """The real-data sweep over the recordings in ``data_dir`` (one fit per recording)."""
+def recordings(cfg: DictConfig, datasets: object, sweep: str) -> tuple[str, list[str]]:
+    """``data_dir`` and the recordings of ``sweep.datasets`` ('all' or names) in it, for a
+    kind that reads every recording once (``trials`` refused); exit 2 on a bad value."""
     from magbench.sources.recordings import data_dir, list_recordings
 
     if cfg.get("trials") is not None:
-        raise UsageError("trials does not apply to sweep=real (every recording is fitted once, "
-                         "deterministically); drop trials=")
+        raise UsageError(f"trials does not apply to sweep={sweep} (every recording is used "
+                         "once, deterministically); drop trials=")
     try:
         root = data_dir(cfg.get("data_dir"))
     except ValueError as exc:
         raise UsageError(str(exc)) from None
     known = list_recordings(root)
-    chosen = values["datasets"]
-    chosen = known if chosen == "all" else [chosen] if isinstance(chosen, str) else list(chosen)
+    chosen = known if datasets == "all" else [datasets] if isinstance(datasets, str) \
+        else list(datasets)
     unknown = [d for d in chosen if d not in known]
     if unknown or not chosen:
         raise UsageError(f"unknown recording(s) {', '.join(map(str, unknown)) or '(none)'} in "
                          f"{root}; expected 'all' or a list from: {', '.join(known)}")
+    return str(root), chosen
+
+
+def build(cfg: DictConfig, common: dict, values: dict) -> RealStudy:
+    """The real-data sweep over the recordings in ``data_dir`` (one fit per recording)."""
+    root, chosen = recordings(cfg, values["datasets"], "real")
     algorithms = selected_algorithms(cfg, include_gyro=True)
-    return RealStudy(str(root), chosen, algorithms, tuple(values["preprocess"]),
+    return RealStudy(root, chosen, algorithms, tuple(values["preprocess"]),
                      values["max_samples"], check_options(cfg, algorithms), common["seed"],
                      common["call_timeout_s"], values["coverage_ratio"],
                      values["sphere_factor"], common["plugins"], str(cfg.sweep.name))
