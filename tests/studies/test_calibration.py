@@ -390,10 +390,24 @@ def test_a_hard_iron_that_steps_halfway_is_never_a_pass(step, status):
         assert result.verdict["halves_offset_change_pct"] == pytest.approx(100 * step, rel=0.3)
 
 
-def test_a_bootstrap_refit_that_ends_its_process_is_one_replicate_fewer():
+@pytest.fixture
+def faulty():
+    """The fault-injecting methods for one test only: registered for the whole session they
+    would join every later ``candidates=all`` (and ``faulty_hangs`` would hang it)."""
+    import sys
+
+    import tests.plugins.faulty  # noqa: F401
+    from magbench.methods.registry import _REGISTRY, unregister
+
+    yield
+    for name in [n for n in _REGISTRY if n.startswith("faulty_")]:
+        unregister(name)
+    sys.modules.pop("tests.plugins.faulty", None)
+
+
+def test_a_bootstrap_refit_that_ends_its_process_is_one_replicate_fewer(faulty):
     import dataclasses
 
-    import tests.plugins.faulty  # noqa: F401  (registers faulty_exit)
     from magbench.studies.calibration import bootstrap_check
     from magbench.studies.choice import Choice
 

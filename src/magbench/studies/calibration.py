@@ -272,10 +272,10 @@ def judge(result: CalibrationResult, gate: Gate,
           heading_deg: float | None = None) -> None:
     """Verdict, model-based intervals and fitness of the choice (module notes, step 5);
     ``heading_deg``: the choice's held-out heading RMS against a reference attitude, when
-    measured (recorded in the verdict and judged by the gate). The correction must narrow
-    the field magnitude's spread over the samples left by thinning, outliers included (a
-    still stretch, one direction, would otherwise weigh as much as the turns:
-    :func:`magbench.core.verdict.fitness`)."""
+    measured (recorded in the verdict and judged by the gate). Where the offset is smaller
+    than the field, the correction must narrow the field magnitude's spread over the samples
+    left by thinning, outliers included (a still stretch, one direction, would otherwise
+    weigh as much as the turns: :func:`magbench.core.verdict.fitness`)."""
     chosen = result.chosen
     work = result.work
     name = str(chosen["algorithm"])
@@ -289,10 +289,14 @@ def judge(result: CalibrationResult, gate: Gate,
     result.verdict["heading_measured_deg"] = heading_deg
     model = get_method(name).model
     result.intervals = fisher_intervals(work.y, T, h, model)
-    spreads = _spreads(result.rec.y[result.screen.kept], T, h)
+    # Raw data whose offset exceeds the field point wherever the offset does: their spread
+    # relative to the mean norm is small whatever the disturbances, and says nothing of a
+    # compass. The guard compares with raw only where raw is one.
+    offset = float(np.linalg.norm(np.linalg.solve(T, h)))
+    spreads = _spreads(result.rec.y[result.screen.kept], T, h) if offset < 1.0 else None
     noise = noise_p95_pct(result.rec.y, result.screen.radius)
-    result.verdict["spread_pct"] = {"corrected": spreads[0], "uncorrected": spreads[1],
-                                    "kept": CENTRAL_SHARE}
+    result.verdict["spread_pct"] = None if spreads is None else {
+        "corrected": spreads[0], "uncorrected": spreads[1], "kept": CENTRAL_SHARE}
     result.verdict["noise_p95_pct"] = noise
     result.fitness = fitness(
         gate, p95_pct=result.verdict["field_error_pct"]["p95"],
