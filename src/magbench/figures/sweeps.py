@@ -46,7 +46,7 @@ __all__ = ["FIGURES", "REFERENCE_STYLE", "FigureSpec", "coverage_group", "figure
 
 
 #: Accuracy and efficiency points averaged over fewer meaningful runs than this are not
-#: drawn as part of a line: a line through one or two runs reads as a result (issue 41).
+#: drawn as part of a line: a line through one or two runs reads as a result.
 MIN_MEANINGFUL = 10
 
 #: The columns of a sweep figure's CSV: what is drawn, and the n behind every point.

@@ -107,18 +107,19 @@ def eligibility(table: Sequence[Mapping], gap_deg: float, scores: Sequence[str] 
         has = all(math.isfinite(float(r[s])) for s in scores)
         note = ""
         field = float(r.get("field_pct", np.nan))
+        off_scale = bool(r["meaningful"]) and has and field > max_field_pct
         if not r["meaningful"]:
             note = _why_not(r)
         elif not has:
             note = "no out-of-sample score (a fold's fit failed or was degenerate)"
-        elif field > max_field_pct:
+        elif off_scale:
             note = (f"not chosen: fitted field {field:.0f} % from the data's radius (the gate "
                     f"fails above {max_field_pct:g} %)")
         elif not allowed(r["algorithm"], gap_deg):
             note = (f"not chosen: a {r['model']} model is not trusted with a {gap_deg:.0f} deg "
                     "gap in coverage")
         out.append({**r, "scored": has and bool(r["meaningful"]), "eligible": not note,
-                    "note": note, "off_scale": note.startswith("not chosen: fitted field")})
+                    "note": note, "off_scale": off_scale})
     return out
 
 

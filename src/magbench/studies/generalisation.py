@@ -415,7 +415,7 @@ class GeneralisationStudy(Study):
                              na_values=[""])
         cases = case_table(trials)
         write_csv_atomic(cases, out_dir / "generalisation_cases.csv")
-        write_csv_atomic(protocol_table(cases, trials), out_dir / "generalisation_summary.csv")
+        write_csv_atomic(protocol_table(cases), out_dir / "generalisation_summary.csv")
 
 
 # --- summaries -----------------------------------------------------------------------------
@@ -462,8 +462,6 @@ def case_table(trials: pd.DataFrame) -> pd.DataFrame:
                "raw_direction_deg": float(auto["raw_direction_deg"])}
         for _, r in g[g["kind"] != "auto"].iterrows():
             row[f"pct:{r['algorithm']}"] = _user_score(r) if r["status"] == "ok" else raw
-            row[f"deg:{r['algorithm']}"] = float(r["direction_deg"]) if r["status"] == "ok" \
-                and not bool(r["degenerate"]) else np.nan
         out.append(row)
     return pd.DataFrame(out)
 
@@ -479,7 +477,7 @@ def _wtl(auto: np.ndarray, other: np.ndarray) -> tuple[int, int, int]:
                 int(np.sum((auto > other + tol) & ~tie)))
 
 
-def protocol_table(cases: pd.DataFrame, trials: pd.DataFrame | None = None) -> pd.DataFrame:
+def protocol_table(cases: pd.DataFrame) -> pd.DataFrame:
     """Per protocol (and ``all``): cases, median and worst regret, losses, harmful writes,
     needless FAILs, FAILs, and wins/ties/losses against each fixed method and peer
     (``wtl:<entrant>`` as ``W/T/L``)."""
