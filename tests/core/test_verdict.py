@@ -138,7 +138,55 @@ def test_a_correction_that_hardly_narrows_the_spread_fails():
     assert out["status"] == "FAIL"
     assert out["reasons"][0].startswith(
         "the correction narrows the field magnitude's spread over the recording by less than "
-        "20% (4.5 % against 5.0 % uncorrected)")
+        "20% (4.5 % against 5.0 % of the field uncorrected)")
+
+
+def test_a_shortfall_of_quality_warns_when_the_correction_beats_no_correction():
+    # field error past the FAIL line, no other data: FAIL
+    assert _fit(p95_pct=20.0)["status"] == "FAIL"
+    # the same correction narrows the raw spread from 60 % to 8 % of the field: written, WARN
+    out = _fit(p95_pct=20.0, spread_pct=(8.0, 60.0))
+    assert out["status"] == "WARN" and out["better_than_raw"]
+    assert out["reasons"][0] == "field error 20.0 % (p95, held out) > 12 %"
+    assert out["reasons"][-1].startswith("written nonetheless: it is clearly better than no "
+                                         "correction (field magnitude spread 8.0 % against "
+                                         "60.0 % of the field uncorrected)")
+    # no better than raw: the guard and the shortfall both FAIL, the guard first
+    out = _fit(p95_pct=20.0, spread_pct=(8.0, 9.0))
+    assert out["status"] == "FAIL" and not out["better_than_raw"]
+    assert out["reasons"][0].startswith("the correction narrows")
+    assert out["reasons"][1].startswith("field error 20.0 %")
+    # a fit the data do not determine, an unsafe one or a wrong heading is never demoted
+    out = _fit(field=2.0, radius=1.0, spread_pct=(1.0, 60.0))
+    assert out["status"] == "FAIL" and out["reasons"][0].startswith("fitted field 2 is 100 %")
+    for kw, start in ((dict(gap_deg=150.0), "no direction within 150"),
+                      (dict(directions=5), "5 distinct directions"),
+                      (dict(heading_deg=40.0), "heading error 40.0 deg")):
+        out = _fit(p95_pct=20.0, spread_pct=(8.0, 60.0), **kw)
+        assert out["status"] == "FAIL" and out["reasons"][0].startswith(start)
+        assert out["reasons"][1].startswith("field error 20.0 %")
+
+
+def test_with_reason_demotes_a_quality_failure_only_when_better_than_raw():
+    from magbench.core.verdict import with_reason
+
+    better = _fit(spread_pct=(1.0, 60.0))
+    assert with_reason(better, "moved", fail=True, quality=True)["status"] == "WARN"
+    assert with_reason(better, "moved", fail=True)["status"] == "FAIL"
+    assert with_reason(_fit(), "moved", fail=True, quality=True)["status"] == "FAIL"
+
+
+def test_central_spread_as_a_share_of_a_given_scale():
+    from magbench.core.geometry import fibonacci_sphere
+    from magbench.core.verdict import central_spread_pct
+
+    u = fibonacci_sphere(2000)
+    y = u * 40.0 + np.array([400.0, 0.0, 0.0])          # an offset ten times the field
+    spread = 100 * np.std(np.linalg.norm(y, axis=1))
+    own = central_spread_pct(y, share=1.0)
+    assert own == pytest.approx(spread / np.mean(np.linalg.norm(y, axis=1)))
+    assert central_spread_pct(y, share=1.0, scale=40.0) == pytest.approx(spread / 40.0)
+    assert central_spread_pct(y, share=1.0, scale=40.0) > 9 * own
 
 
 def test_an_error_that_is_the_sensors_noise_warns_instead_of_failing():

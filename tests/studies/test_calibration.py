@@ -371,7 +371,7 @@ def test_when_the_chosen_fit_fails_the_gate_the_next_that_passes_is_written(monk
     assert named.chosen["algorithm"] == "ellipsoid" and named.fitness["status"] == "FAIL"
 
 
-@pytest.mark.parametrize(("step", "status"), [(0.0, "PASS"), (0.08, "WARN"), (0.25, "FAIL")])
+@pytest.mark.parametrize(("step", "status"), [(0.0, "PASS"), (0.08, "WARN"), (0.25, "WARN")])
 def test_a_hard_iron_that_steps_halfway_is_never_a_pass(step, status):
     K = 1200
     gen = np.random.default_rng(4)
@@ -388,6 +388,10 @@ def test_a_hard_iron_that_steps_halfway_is_never_a_pass(step, status):
     else:
         assert result.fitness["status"] == status and moved
         assert result.verdict["halves_offset_change_pct"] == pytest.approx(100 * step, rel=0.3)
+        # past the FAIL line, written only because the raw data (an offset twice the field)
+        # are far worse, and it says so
+        written = [r for r in result.fitness["reasons"] if r.startswith("written nonetheless")]
+        assert bool(written) == (step > 0.12)
 
 
 @pytest.fixture

@@ -20,6 +20,7 @@ from magbench.studies.generalisation import (
     scores,
     split,
     tolerance,
+    tolerance_deg,
 )
 
 T_TRUE = np.array([[52.0, 2.0, -0.8], [0.0, 47.0, 1.5], [0.0, 0.0, 61.0]])
@@ -93,6 +94,9 @@ def test_scores_know_the_answer():
     assert spread == pytest.approx(0.0, abs=1e-9) and np.isnan(direction)
     norm = np.linalg.norm(rec.y, axis=1)
     assert scores(rec)[0] == pytest.approx(100 * norm.std() / norm.mean())
+    # raw data as a share of the field (radius 2), not of their mean norm (about 5)
+    assert scores(rec, field=2.0)[0] == pytest.approx(100 * norm.std() / 2.0)
+    assert scores(rec, field=2.0)[0] > 2 * scores(rec)[0]
     # an attitude that turns each sample's field onto +x: no direction spread in the world
     q = np.array([_quat_to_x(v) for v in u])
     att = Recording("a", rec.y, n_rows=400,
@@ -112,9 +116,10 @@ def _quat_to_x(v: np.ndarray) -> np.ndarray:
     return np.concatenate([[np.cos(angle / 2)], np.sin(angle / 2) * axis / s])
 
 
-def _rows(dataset, protocol, auto, fixed, raw=10.0, peers=()):
+def _rows(dataset, protocol, auto, fixed, raw=10.0, peers=(), raw_mean=None):
     """A case's rows: ``auto`` (spread or None for nothing written), fixed name -> spread."""
     base = {"dataset": dataset, "protocol": protocol, "raw_spread_pct": raw,
+            "raw_mean_spread_pct": raw if raw_mean is None else raw_mean,
             "raw_direction_deg": np.nan, "direction_deg": np.nan, "degenerate": False,
             "method": ""}
     rows = [{**base, "algorithm": AUTO, "kind": "auto", "status": "PASS" if auto else "FAIL",
@@ -147,6 +152,31 @@ def test_case_and_protocol_tables_count_losses_harm_and_needless_fails():
     assert table.loc["blocks", "wtl:fang"] == "1/0/0"             # 10 raw vs 12: a win
 
 
+def test_harm_is_judged_against_the_raw_field_share_and_beside_by_mean_norm():
+    # a large offset: raw spreads 40 % of the field but 4 % of its mean norm
+    cases = case_table(pd.DataFrame(_rows("p", "half", 6.0, {"sphere": 6.0}, raw=40.0,
+                                          raw_mean=4.0)))
+    assert not cases.loc[0, "harmful"] and cases.loc[0, "harmful_mean_norm"]
+    # nothing written: the user keeps raw data at 40 % of the field, a needless FAIL
+    cases = case_table(pd.DataFrame(_rows("p", "half", None, {"sphere": 6.0}, raw=40.0,
+                                          raw_mean=4.0)))
+    assert cases.loc[0, "auto_pct"] == 40.0 and cases.loc[0, "needless_fail"]
+
+
+def test_direction_losses_use_their_own_tolerance():
+    def case(auto_deg, written=True):
+        rows = _rows("p", "half", 6.0 if written else None, {"sphere": 6.0, "fang": 6.0})
+        for r, d in zip(rows, (auto_deg, 10.0, 20.0), strict=True):
+            r["raw_direction_deg"], r["direction_deg"] = 60.0, d
+        return case_table(pd.DataFrame(rows)).loc[0]
+
+    assert not case(11.0)["loss_direction"]                # within 10 % of the best, 10 deg
+    assert case(11.5)["loss_direction"]
+    assert case(np.nan, written=False)["loss_direction"]    # raw 60 deg is what is left
+    table = protocol_table(pd.DataFrame([case(11.5), case(5.0)]))
+    assert table.loc[0, "losses_direction"] == 1 and table.loc[0, "direction_cases"] == 2
+
+
 def test_a_degenerate_fit_never_is_the_best_in_hindsight():
     rows = _rows("a", "half", 1.0, {"sphere": 1.0, "crassidis": 0.01})
     rows[-1]["degenerate"] = True
@@ -157,6 +187,7 @@ def test_a_degenerate_fit_never_is_the_best_in_hindsight():
 
 def test_tolerance_is_a_quarter_point_or_five_percent():
     assert tolerance(1.0) == 0.25 and tolerance(10.0) == pytest.approx(0.5)
+    assert tolerance_deg(5.0) == 1.0 and tolerance_deg(30.0) == pytest.approx(3.0)
 
 
 def test_one_unit_scores_every_entrant_under_every_protocol(tmp_path):

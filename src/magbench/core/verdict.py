@@ -25,7 +25,16 @@ uncovered cap, the number of distinct directions (occupied equal-area cells,
 :func:`magbench.core.geometry.direction_cells`), directions confined to a band about one plane
 (:func:`magbench.core.geometry.band_half_width`), the fitted field strength against the
 samples' own radius and, when known, an expected value or range, and, when the recording has a
-reference attitude, the held-out heading error measured against it. The worst status wins.
+reference attitude, the held-out heading error measured against it. The worst status wins,
+with one exception. A FAIL says "do not use this": the fit is not determined by the data (too
+few directions, too wide a gap), unsafe (a field strength off the data's radius or the
+expected one), or no better than no correction (the raw data's field-magnitude spread, as a
+share of the field, not narrowed below :data:`NARROWING` of itself). A shortfall measured on
+held-out data by magnitude (the field error, an offset that moves between the halves of the
+recording) FAILs only when the correction is not clearly better than none (the heading error
+against an attitude measures direction, which no magnitude can outweigh: it always counts); otherwise it WARNs, and says that the correction was written nonetheless: the
+user's alternative is the raw data, and a phone whose hard iron is ten times the field points
+60-90 deg astray without one.
 """
 
 from __future__ import annotations
@@ -86,14 +95,19 @@ def noise_p95_pct(y: np.ndarray, radius: float) -> float:
     return float(100 * 1.96 * np.sqrt(np.mean(sigma ** 2)) / radius)
 
 
-def central_spread_pct(vectors: np.ndarray, share: float = CENTRAL_SHARE) -> float:
+def central_spread_pct(vectors: np.ndarray, share: float = CENTRAL_SHARE,
+                       scale: float | None = None) -> float:
     """``100 std|v| / mean|v|`` over the ``share`` of the samples whose norm lies closest to
     the median norm: the spread of the field magnitude with the few largest deviations
-    (spikes, on either side) left out."""
+    (spikes, on either side) left out. With ``scale`` (the field's strength in the units of
+    ``v``, e.g. the samples' own radius) the spread is a share of it instead of the mean
+    norm: raw samples whose offset exceeds the field have a mean norm of about the offset,
+    which would make any spread look small."""
     norm = np.linalg.norm(np.asarray(vectors, dtype=float), axis=1)
     deviation = np.abs(norm - np.median(norm))
     kept = norm[deviation <= np.percentile(deviation, 100 * share)]
-    return float(100 * kept.std() / kept.mean()) if kept.size and kept.mean() > 0 else np.nan
+    unit = kept.mean() if scale is None else scale
+    return float(100 * kept.std() / unit) if kept.size and unit > 0 else np.nan
 
 
 def magnitude_verdict(corrected: np.ndarray, *, held_out: bool) -> dict:
@@ -288,9 +302,11 @@ def fitness(gate: Gate, *, p95_pct: float, held_out: bool, gap_deg: float, direc
         Held-out heading RMS (deg) measured against a reference attitude; None without one.
     spread_pct : (float, float), optional
         :func:`central_spread_pct` of every sample of the recording corrected, and
-        uncorrected: a correction that does not narrow it below :data:`NARROWING` times the
-        raw one is a FAIL: it would leave the user no better off, or worse, than no
-        correction (data calibrated already, or a field that itself changes).
+        uncorrected as a share of the field (``scale``: the samples' radius): a correction
+        that does not narrow it below :data:`NARROWING` times the raw one is a FAIL: it would
+        leave the user no better off, or worse, than no correction (data calibrated already,
+        or a field that itself changes). One that does turns the held-out shortfalls of
+        magnitude into warnings (module notes).
     noise_p95_pct : float, optional
         The 95th percentile of the field error that the sensor's own noise alone gives
         (:func:`noise_p95_pct`): a field error above the FAIL threshold but within
@@ -300,15 +316,18 @@ def fitness(gate: Gate, *, p95_pct: float, held_out: bool, gap_deg: float, direc
     -------
     dict
         ``status`` (``PASS``, ``WARN`` or ``FAIL``), ``reasons`` (one short phrase each, the
-        failing ones first) and ``thresholds`` (the gate).
+        failing ones first), ``thresholds`` (the gate), ``better_than_raw`` and
+        ``spread_pct`` (as given).
     """
-    fails, warns = [], []
+    fails, warns, unsafe = [], [], []
+    better = spread_pct is not None and spread_pct[0] < NARROWING * spread_pct[1]
 
-    def judge(value: float, warn: float, fail: float, text: str, above: bool = True) -> None:
+    def judge(value: float, warn: float, fail: float, text: str, above: bool = True,
+              into: list[str] = fails) -> None:
         bad_fail = value > fail if above else value < fail
         bad_warn = value > warn if above else value < warn
         if bad_fail:
-            fails.append(text.format(v=value, t=fail))
+            into.append(text.format(v=value, t=fail))
         elif bad_warn:
             warns.append(text.format(v=value, t=warn))
 
@@ -322,10 +341,12 @@ def fitness(gate: Gate, *, p95_pct: float, held_out: bool, gap_deg: float, direc
         judge(p95_pct, gate.warn_error_pct, gate.fail_error_pct,
               "field error {v:.1f} % (p95" + (", held out" if held_out else ", in sample")
               + ") > {t:g} %")
+    # Too few directions or too wide a gap: the data do not determine the fit, so no
+    # comparison with the raw data can vouch for it.
     judge(gap_deg, gate.warn_gap_deg, gate.fail_gap_deg,
-          "no direction within {v:.0f} deg of the gap centre (> {t:g} deg)")
+          "no direction within {v:.0f} deg of the gap centre (> {t:g} deg)", into=unsafe)
     judge(directions, gate.warn_directions, gate.fail_directions,
-          "{v:.0f} distinct directions (< {t:g})", above=False)
+          "{v:.0f} distinct directions (< {t:g})", above=False, into=unsafe)
     if band_deg < gate.warn_band_deg:
         warns.append(f"directions within +-{band_deg:.0f} deg of one plane (< "
                      f"{gate.warn_band_deg:g}): the axis across it is extrapolated")
@@ -334,27 +355,52 @@ def fitness(gate: Gate, *, p95_pct: float, held_out: bool, gap_deg: float, direc
     if radius > 0:
         off = _field_distance_pct(field, radius)
         if off > gate.fail_field_pct:
-            fails.append(f"fitted field {field:.4g} is {off:.0f} % from the data's radius "
-                         f"{radius:.4g}")
+            unsafe.append(f"fitted field {field:.4g} is {off:.0f} % from the data's radius "
+                          f"{radius:.4g}")
     if expected_field is not None:
         judge(_field_distance_pct(field, expected_field), gate.warn_field_pct,
               gate.fail_field_pct, f"field strength {field:.4g} is {{v:.0f}} % from the "
-              f"expected {_expected_text(expected_field)} (> {{t:g}} %)")
-    if spread_pct is not None and not spread_pct[0] < NARROWING * spread_pct[1]:
-        fails.append(f"the correction narrows the field magnitude's spread over the recording "
-                     f"by less than {1 - NARROWING:.0%} ({spread_pct[0]:.1f} % against "
-                     f"{spread_pct[1]:.1f} % uncorrected): the data are calibrated already, or "
-                     "the field itself changes (disturbances, another state)")
+              f"expected {_expected_text(expected_field)} (> {{t:g}} %)", into=unsafe)
+    if spread_pct is not None and not better:
+        unsafe.append(f"the correction narrows the field magnitude's spread over the recording "
+                      f"by less than {1 - NARROWING:.0%} ({spread_pct[0]:.1f} % against "
+                      f"{spread_pct[1]:.1f} % of the field uncorrected): the data are "
+                      "calibrated already, or the field itself changes (disturbances, another "
+                      "state)")
     if heading_deg is not None and math.isfinite(heading_deg):
+        # Measured against the attitude: a spread that narrowed cannot outweigh it.
         judge(heading_deg, gate.warn_heading_deg, gate.fail_heading_deg,
-              "heading error {v:.1f} deg RMS (held out, against the attitude) > {t:g} deg")
+              "heading error {v:.1f} deg RMS (held out, against the attitude) > {t:g} deg",
+              into=unsafe)
+    if better and fails and not unsafe:
+        # A shortfall measured on held-out data, but the correction is the better compass.
+        warns = [*fails, *warns, _better_text(spread_pct)]
+        fails = []
+    fails = unsafe + fails
     status = "FAIL" if fails else "WARN" if warns else "PASS"
-    return {"status": status, "reasons": fails + warns, "thresholds": dict(gate.__dict__)}
+    return {"status": status, "reasons": fails + warns, "thresholds": dict(gate.__dict__),
+            "better_than_raw": better, "spread_pct": spread_pct}
 
 
-def with_reason(fit: dict, reason: str, *, fail: bool = False) -> dict:
+_BETTER = "written nonetheless"
+
+
+def _better_text(spread_pct: tuple[float, float]) -> str:
+    return (f"{_BETTER}: it is clearly better than no correction (field magnitude "
+            f"spread {spread_pct[0]:.1f} % against {spread_pct[1]:.1f} % of the field "
+            "uncorrected); record again for a better one")
+
+
+def with_reason(fit: dict, reason: str, *, fail: bool = False, quality: bool = False
+                ) -> dict:
     """:func:`fitness`'s result with one more reason: a failing one goes first and makes it
-    FAIL; a warning goes last and makes a PASS a WARN."""
+    FAIL; a warning goes last and makes a PASS a WARN. A ``quality`` failure (not a safety
+    one) only warns when the correction is clearly better than none (``better_than_raw``)."""
+    if fail and quality and fit.get("better_than_raw"):
+        note = [] if any(r.startswith(_BETTER) for r in fit["reasons"]) else \
+            [_better_text(fit["spread_pct"])]
+        status = "WARN" if fit["status"] == "PASS" else fit["status"]
+        return {**fit, "status": status, "reasons": [*fit["reasons"], reason, *note]}
     if fail:
         return {**fit, "status": "FAIL", "reasons": [reason, *fit["reasons"]]}
     status = "WARN" if fit["status"] == "PASS" else fit["status"]

@@ -272,10 +272,10 @@ def judge(result: CalibrationResult, gate: Gate,
           heading_deg: float | None = None) -> None:
     """Verdict, model-based intervals and fitness of the choice (module notes, step 5);
     ``heading_deg``: the choice's held-out heading RMS against a reference attitude, when
-    measured (recorded in the verdict and judged by the gate). Where the offset is smaller
-    than the field, the correction must narrow the field magnitude's spread over the samples
-    left by thinning, outliers included (a still stretch, one direction, would otherwise
-    weigh as much as the turns: :func:`magbench.core.verdict.fitness`)."""
+    measured (recorded in the verdict and judged by the gate). The correction must narrow
+    the field magnitude's spread over the samples left by thinning, outliers included (a
+    still stretch, one direction, would otherwise weigh as much as the turns), below that of
+    the raw samples as a share of their radius (:func:`magbench.core.verdict.fitness`)."""
     chosen = result.chosen
     work = result.work
     name = str(chosen["algorithm"])
@@ -289,11 +289,7 @@ def judge(result: CalibrationResult, gate: Gate,
     result.verdict["heading_measured_deg"] = heading_deg
     model = get_method(name).model
     result.intervals = fisher_intervals(work.y, T, h, model)
-    # Raw data whose offset exceeds the field point wherever the offset does: their spread
-    # relative to the mean norm is small whatever the disturbances, and says nothing of a
-    # compass. The guard compares with raw only where raw is one.
-    offset = float(np.linalg.norm(np.linalg.solve(T, h)))
-    spreads = _spreads(result.rec.y[result.screen.kept], T, h) if offset < 1.0 else None
+    spreads = _spreads(result.rec.y[result.screen.kept], T, h, result.screen.radius)
     noise = noise_p95_pct(result.rec.y, result.screen.radius)
     result.verdict["spread_pct"] = None if spreads is None else {
         "corrected": spreads[0], "uncorrected": spreads[1], "kept": CENTRAL_SHARE}
@@ -350,12 +346,15 @@ def _halves_reason(result: CalibrationResult, gate: Gate) -> None:
               f"the second half of the recording{when}: the hard iron changed, and the "
               "correction is a compromise of both states; record again in one state")
     result.fitness = with_reason(result.fitness, reason,
-                                 fail=100 * change > gate.fail_error_pct)
+                                 fail=100 * change > gate.fail_error_pct, quality=True)
 
 
-def _spreads(y: np.ndarray, T: np.ndarray, h: np.ndarray) -> tuple[float, float]:
-    """:func:`~magbench.core.verdict.central_spread_pct` of ``y`` corrected and uncorrected."""
-    return central_spread_pct(np.linalg.solve(T, (y - h).T).T), central_spread_pct(y)
+def _spreads(y: np.ndarray, T: np.ndarray, h: np.ndarray, radius: float
+             ) -> tuple[float, float]:
+    """:func:`~magbench.core.verdict.central_spread_pct` of ``y`` corrected, and uncorrected
+    as a share of the samples' radius (the field's strength in their units)."""
+    return (central_spread_pct(np.linalg.solve(T, (y - h).T).T),
+            central_spread_pct(y, scale=radius))
 
 
 def _next_that_passes(result: CalibrationResult, gate: Gate,

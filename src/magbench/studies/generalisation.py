@@ -23,10 +23,16 @@ Scores on the held-out part (:func:`scores`): the field-magnitude spread
 ``100 std|m| / mean|m|`` (%) of the corrected samples, and, where the recording carries a
 reference attitude, the world-frame direction spread (RMS angle, deg, of the corrected field
 turned to world axes, about its mean direction). The raw data's scores are the "no correction"
-line. :func:`case_table` and :func:`protocol_table` turn the rows into what the report says:
-regret of the automatic choice against the best fixed method in hindsight, wins, ties and
-losses against every fixed method and peer, corrections written worse than raw, and FAILs
-where a fixed method would have helped.
+line; their magnitude spread is a share of the *field*, ``100 std|y| / r`` with ``r`` the
+robust radius of the whole recording (:func:`magbench.core.robust.screen`), not of their mean
+norm: raw samples whose offset exceeds the field have a mean norm of about the offset, so any
+spread looks small beside it (a phone with a 409 uT hard iron in a 41 uT field: 5 % "raw" while
+the raw field points 60-96 deg astray). ``raw_mean_spread_pct`` keeps the mean-norm figure.
+:func:`case_table` and :func:`protocol_table` turn the rows into what the report says: regret of the automatic choice against the best fixed method in hindsight, wins, ties and
+losses against every fixed method and peer, corrections written worse than raw (and, beside,
+worse than raw by its mean-norm spread), FAILs where a fixed method would have helped, and,
+with an attitude, losses by direction against the best fixed method (by more than
+max(1 deg, 10 %): :func:`tolerance_deg`).
 """
 
 from __future__ import annotations
@@ -44,6 +50,7 @@ from magbench.core.direction import direction_spread, world_field
 from magbench.core.files import write_csv_atomic
 from magbench.core.geometry import coverage, sphere_fit, unit_rows
 from magbench.core.model import Calibration
+from magbench.core.robust import screen
 from magbench.core.seeding import rng
 from magbench.engine.sweep import Study
 from magbench.engine.trial import run_method
@@ -60,7 +67,7 @@ if TYPE_CHECKING:
 
 __all__ = ["AUTO", "INTERVAL_COLUMNS", "MIN_PART", "PROTOCOLS", "ROW_COLUMNS",
            "GeneralisationStudy", "case_table", "fixed_methods", "interval_rows",
-           "protocol_table", "scores", "split", "tolerance"]
+           "protocol_table", "scores", "split", "tolerance", "tolerance_deg"]
 
 #: Every protocol, in report order (module notes).
 PROTOCOLS = ("blocks", "band_x", "band_y", "band_z", "half", "first15", "spikes",
@@ -78,7 +85,7 @@ INTERVAL_MIN_S = 120.0
 
 ROW_COLUMNS = ["dataset", "protocol", "algorithm", "kind", "K_fit", "K_test", "status", "ok",
                "written", "degenerate", "method", "spread_pct", "raw_spread_pct",
-               "direction_deg", "raw_direction_deg", "field_ratio", "error"]
+               "raw_mean_spread_pct", "direction_deg", "raw_direction_deg", "field_ratio", "error"]
 INTERVAL_COLUMNS = ["dataset", "axis", "method_first", "method_second", "b_first", "b_second",
                     "half_width_first", "half_width_second", "source_first",
                     "source_second", "agree"]
@@ -87,6 +94,11 @@ INTERVAL_COLUMNS = ["dataset", "axis", "method_first", "method_second", "b_first
 def tolerance(best: float) -> float:
     """How much worse than ``best`` still ties: max(0.25 points, 5 %)."""
     return max(0.25, 0.05 * best)
+
+
+def tolerance_deg(best: float) -> float:
+    """How much worse than ``best`` (deg) a direction spread still ties: max(1 deg, 10 %)."""
+    return max(1.0, 0.1 * best)
 
 
 def fixed_methods() -> list[str]:
@@ -172,14 +184,15 @@ def _attitude(rec: Recording) -> np.ndarray | None:
     return np.column_stack([rec.extra[n] for n in names])
 
 
-def scores(test: Recording, A: np.ndarray | None = None, b: np.ndarray | None = None
-           ) -> tuple[float, float]:
+def scores(test: Recording, A: np.ndarray | None = None, b: np.ndarray | None = None,
+           field: float | None = None) -> tuple[float, float]:
     """Held-out field-magnitude spread (%) and world-frame direction spread (deg RMS over the
     rows with an attitude; NaN without one, or when fewer than half the rows have it) of
-    ``test`` corrected by ``m = A (y - b)`` (raw without ``A``)."""
+    ``test`` corrected by ``m = A (y - b)`` (raw without ``A``). The spread is a share of the
+    mean norm, or of ``field`` when given (raw data: the field's strength in their units)."""
     m = test.y if A is None else (test.y - b) @ np.asarray(A).T
     norm = np.linalg.norm(m, axis=1)
-    spread = float(100 * norm.std() / norm.mean())
+    spread = float(100 * norm.std() / (norm.mean() if field is None else field))
     q = _attitude(test)
     known = np.zeros(test.K, dtype=bool) if q is None else np.isfinite(q).all(axis=1)
     if known.sum() < max(MIN_PART, 0.5 * test.K):
@@ -211,7 +224,7 @@ def _row(rec: Recording, protocol: str, entrant: str, kind: str, fit: Recording,
             "K_fit": fit.K, "K_test": test.K, "status": status,
             "ok": status not in ("failed", "ERROR"), "written": bool(written),
             "degenerate": degenerate, "method": method, "spread_pct": spread,
-            "raw_spread_pct": raw[0],
+            "raw_spread_pct": raw[0], "raw_mean_spread_pct": raw[2],
             "direction_deg": direction, "raw_direction_deg": raw[1], "field_ratio": ratio,
             "error": error}
 
@@ -300,12 +313,13 @@ def evaluate_protocol(rec: Recording, protocol: str, *, fixed: Sequence[str],
     parts = split(rec, protocol, seed)
     if isinstance(parts, str):
         empty = replace(rec, y=np.zeros((0, 3)), t=None, gyro=None, extra=None)
-        row = _row(rec, protocol, AUTO, "auto", empty, empty, (np.nan, np.nan),
+        row = _row(rec, protocol, AUTO, "auto", empty, empty, (np.nan,) * 3,
                    status="SKIPPED", error=parts)
         return [row], [{"dataset": rec.name, "protocol": protocol, "algorithm": AUTO,
                         "time_s": 0.0}]
     fit, test = parts
-    raw = scores(test)
+    mean_spread, direction = scores(test)
+    raw = (scores(test, field=screen(rec.y).radius)[0], direction, mean_spread)
     centre, radius = sphere_fit(fit.y)
     rows, times = [], []
     row, t = _auto_row(rec, protocol, fit, test, raw, options, seed, call_timeout_s, radius,
@@ -420,12 +434,23 @@ class GeneralisationStudy(Study):
 
 # --- summaries -----------------------------------------------------------------------------
 
-def _user_score(row: Mapping) -> float:
+def _user_score(row: Mapping, raw: str = "raw_spread_pct") -> float:
     """What the user is left with: the correction if written (NaN if it is the degenerate
-    answer, whose small spread means nothing), else the raw data."""
+    answer, whose small spread means nothing), else the raw data (column ``raw``)."""
     if not bool(row["written"]):
-        return float(row["raw_spread_pct"])
+        return float(row[raw])
     return np.nan if bool(row["degenerate"]) else float(row["spread_pct"])
+
+
+def _direction_loss(auto: Mapping, fixed: pd.DataFrame) -> bool:
+    """Whether the user's world-frame direction spread is worse than the best fixed fit's by
+    more than :func:`tolerance_deg` (False without an attitude)."""
+    best = fixed["direction_deg"].to_numpy(float)
+    best = best[np.isfinite(best)]
+    if not best.size or not np.isfinite(float(auto["raw_direction_deg"])):
+        return False
+    user = float(auto["direction_deg"] if bool(auto["written"]) else auto["raw_direction_deg"])
+    return bool(not user <= best.min() + tolerance_deg(best.min()))
 
 
 def case_table(trials: pd.DataFrame) -> pd.DataFrame:
@@ -433,7 +458,9 @@ def case_table(trials: pd.DataFrame) -> pd.DataFrame:
     nothing was written), the best fixed method in hindsight, the regret, and whether it is a
     loss (worse than the best by more than :func:`tolerance`), a harmful write (written and
     worse than raw) or a needless FAIL (nothing written where the best fixed fit beats raw by
-    more than the tolerance)."""
+    more than the tolerance). ``harmful_mean_norm`` judges the raw data by their mean-norm
+    spread instead (the issue's first definition, which a large offset deflates);
+    ``loss_direction`` compares world-frame direction spreads where an attitude exists."""
     import pandas as pd
 
     out = []
@@ -455,6 +482,9 @@ def case_table(trials: pd.DataFrame) -> pd.DataFrame:
                "best_fixed_pct": best_score, "regret": score - best_score,
                "loss": bool(not score <= best_score + tol) if best is not None else False,
                "harmful": bool(written and not score <= raw),
+               "harmful_mean_norm": bool(written and not score <= float(
+                   auto["raw_mean_spread_pct"])),
+               "loss_direction": _direction_loss(auto, fixed),
                "needless_fail": bool(not written and best is not None
                                      and raw > best_score + tol),
                "auto_direction_deg": float(auto["direction_deg"]) if written else
@@ -491,7 +521,11 @@ def protocol_table(cases: pd.DataFrame) -> pd.DataFrame:
                "regret_median": float(g["regret"].median()),
                "regret_max": float(g["regret"].max()), "losses": int(g["loss"].sum()),
                "loss_pct": 100.0 * float(g["loss"].mean()) if len(g) else np.nan,
-               "harmful": int(g["harmful"].sum()), "needless_fail": int(g["needless_fail"].sum()),
+               "harmful": int(g["harmful"].sum()),
+               "harmful_mean_norm": int(g["harmful_mean_norm"].sum()),
+               "needless_fail": int(g["needless_fail"].sum()),
+               "direction_cases": int(np.isfinite(g["raw_direction_deg"].to_numpy(float)).sum()),
+               "losses_direction": int(g["loss_direction"].sum()),
                "not_written": int((~g["written"].astype(bool)).sum())}
         for e in entrants:
             w, t, l_ = _wtl(g["auto_pct"].to_numpy(float), g[f"pct:{e}"].to_numpy(float))
