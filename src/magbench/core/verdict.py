@@ -25,16 +25,16 @@ uncovered cap, the number of distinct directions (occupied equal-area cells,
 :func:`magbench.core.geometry.direction_cells`), directions confined to a band about one plane
 (:func:`magbench.core.geometry.band_half_width`), the fitted field strength against the
 samples' own radius and, when known, an expected value or range, and, when the recording has a
-reference attitude, the held-out heading error measured against it. The worst status wins,
-with one exception. A FAIL says "do not use this": the fit is not determined by the data (too
-few directions, too wide a gap), unsafe (a field strength off the data's radius or the
-expected one), or no better than no correction (the raw data's field-magnitude spread, as a
-share of the field, not narrowed below :data:`NARROWING` of itself). A shortfall measured on
-held-out data by magnitude (the field error, an offset that moves between the halves of the
-recording) FAILs only when the correction is not clearly better than none (the heading error
-against an attitude measures direction, which no magnitude can outweigh: it always counts); otherwise it WARNs, and says that the correction was written nonetheless: the
-user's alternative is the raw data, and a phone whose hard iron is ten times the field points
-60-90 deg astray without one.
+reference attitude, the held-out heading error measured against it. The worst status wins, with
+one exception. A FAIL says "do not use this": the fit is not determined by the data (too few
+directions, too wide a gap), unsafe (a field strength off the data's radius or the expected
+one), or no better than no correction (the raw data's field-magnitude spread, as a share of the
+field, not narrowed below :data:`NARROWING` of itself). A shortfall measured on held-out data
+by magnitude (the field error, an offset that moves between the halves of the recording) FAILs
+only when the correction is not clearly better than none (the heading error against an attitude
+measures direction, which no magnitude can outweigh: it always counts); otherwise it WARNs, and
+says that the correction was written nonetheless: the user's alternative is the raw data, and a
+phone whose hard iron is ten times the field points 60-90 deg astray without one.
 """
 
 from __future__ import annotations

@@ -19,20 +19,20 @@ Protocols (:func:`split`):
 * ``still_first``: as ``blocks``, the fitted part preceded by as many still samples (the first
   sample held, with the recording's own sample-to-sample noise): a first half at rest.
 
-Scores on the held-out part (:func:`scores`): the field-magnitude spread
-``100 std|m| / mean|m|`` (%) of the corrected samples, and, where the recording carries a
-reference attitude, the world-frame direction spread (RMS angle, deg, of the corrected field
-turned to world axes, about its mean direction). The raw data's scores are the "no correction"
-line; their magnitude spread is a share of the *field*, ``100 std|y| / r`` with ``r`` the
-robust radius of the whole recording (:func:`magbench.core.robust.screen`), not of their mean
-norm: raw samples whose offset exceeds the field have a mean norm of about the offset, so any
-spread looks small beside it (a phone with a 409 uT hard iron in a 41 uT field: 5 % "raw" while
-the raw field points 60-96 deg astray). ``raw_mean_spread_pct`` keeps the mean-norm figure.
-:func:`case_table` and :func:`protocol_table` turn the rows into what the report says: regret of the automatic choice against the best fixed method in hindsight, wins, ties and
-losses against every fixed method and peer, corrections written worse than raw (and, beside,
-worse than raw by its mean-norm spread), FAILs where a fixed method would have helped, and,
-with an attitude, losses by direction against the best fixed method (by more than
-max(1 deg, 10 %): :func:`tolerance_deg`).
+Scores on the held-out part (:func:`scores`): the field-magnitude spread ``100 std|m| /
+mean|m|`` (%) of the corrected samples, and, where the recording carries a reference attitude,
+the world-frame direction spread (RMS angle, deg, of the corrected field turned to world axes,
+about its mean direction). The raw data's scores are the "no correction" line; their magnitude
+spread is a share of the *field*, ``100 std|y| / r`` with ``r`` the robust radius of the whole
+recording (:func:`magbench.core.robust.screen`), not of their mean norm: raw samples whose
+offset exceeds the field have a mean norm of about the offset, so any spread looks small beside
+it (a phone with a 409 uT hard iron in a 41 uT field: 5 % "raw" while the raw field points
+60-96 deg astray). ``raw_mean_spread_pct`` keeps the mean-norm figure. :func:`case_table` and
+:func:`protocol_table` turn the rows into what the report says: regret of the automatic choice
+against the best fixed method in hindsight, wins, ties and losses against every fixed method
+and peer, corrections written worse than raw (and, beside, worse than raw by its mean-norm
+spread), FAILs where a fixed method would have helped, and, with an attitude, losses by
+direction against the best fixed method (by more than max(1 deg, 10 %): :func:`tolerance_deg`).
 """
 
 from __future__ import annotations
