@@ -57,3 +57,17 @@ def test_a_peak_at_the_edge_of_the_search_is_no_answer():
     tr = manoeuvre(0.2)
     found, _ = magnetometer_lag(tr.t, tr.y, tr.angular_rate, max_lag_s=0.08)
     assert np.isnan(found)
+
+
+def test_streams_that_never_overlap_have_no_correlation_and_no_warning():
+    import warnings
+
+    from magbench.core.lag import _correlation
+
+    a = np.full((10, 3), np.nan)
+    a[:5] = 1.0
+    b = np.full((10, 3), np.nan)
+    b[5:] = 2.0
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")                  # "Mean of empty slice" would raise
+        assert np.isnan(_correlation(a, b))

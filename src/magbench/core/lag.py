@@ -57,6 +57,8 @@ def _correlation(a: np.ndarray, b: np.ndarray) -> float:
     """Normalised correlation of two ``(K, d)`` streams over the rows where both are finite
     (means removed; vectors by their dot product)."""
     ok = np.isfinite(a).all(axis=1) & np.isfinite(b).all(axis=1)
+    if ok.sum() < 2:
+        return np.nan                   # no overlap at this lag (a reference with gaps)
     a, b = a[ok] - a[ok].mean(axis=0), b[ok] - b[ok].mean(axis=0)
     denom = np.sqrt(np.sum(a * a) * np.sum(b * b))
     return float(np.sum(a * b) / denom) if denom > 0 else np.nan
