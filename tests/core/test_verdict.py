@@ -71,7 +71,7 @@ GOOD = dict(p95_pct=1.0, held_out=True, gap_deg=20.0, directions=200, band_deg=7
     ({"directions": 8}, "FAIL", "8 distinct directions (< 10)"),
     ({"band_deg": 15.0}, "WARN", "within +-15 deg of one plane"),
     ({"held_out": False}, "WARN", "no held-out score"),
-    ({"field": 0.02}, "FAIL", "from the data's radius"),
+    ({"field": 0.02}, "FAIL", "from the data's field"),
     ({"expected_field": 1.15}, "WARN", "13 % from the expected 1.15"),
     ({"expected_field": 2.0}, "FAIL", "50 % from the expected 2"),
     ({"expected_field": (0.9, 1.1)}, "PASS", ""),

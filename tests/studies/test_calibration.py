@@ -257,17 +257,16 @@ def test_retrim_sets_aside_what_the_chosen_fit_cannot_explain():
 
 
 def test_judge_fails_a_fit_that_lost_the_data_scale():
-    import dataclasses
 
     from magbench.core.verdict import Gate
     from magbench.studies.calibration import judge
 
     result = calibrate_recording(synthetic(600), ["ellipsoid"], bootstrap=0)
     assert result.fitness["status"] == "PASS"
-    result.screen = dataclasses.replace(result.screen, radius=10 * result.screen.radius)
+    result.field_strength *= 10
     judge(result, Gate())
     assert result.fitness["status"] == "FAIL"
-    assert "from the data's radius" in result.fitness["reasons"][0]
+    assert "from the data's field" in result.fitness["reasons"][0]
 
 
 def test_an_extra_score_can_decide_the_choice():
@@ -338,7 +337,7 @@ def test_a_fit_whose_field_is_off_the_data_scale_is_not_ranked_the_next_is_chose
     choice = choose(rows, {"ali": None, "fang": None}, gap_deg=0.0, max_field_pct=25.0)
     assert choice.chosen["algorithm"] == "fang"
     ali = next(r for r in choice.ranked if r["algorithm"] == "ali")
-    assert not ali["eligible"] and "fitted field 80 % from the data's radius" in ali["note"]
+    assert not ali["eligible"] and "fitted field 80 % from the data's field" in ali["note"]
     # without the check, the fit with the better score would have been chosen
     assert choose(rows, {"ali": None, "fang": None}, gap_deg=0.0).chosen["algorithm"] == "ali"
 
@@ -420,3 +419,32 @@ def test_a_bootstrap_refit_that_ends_its_process_is_one_replicate_fewer(faulty):
     result = dataclasses.replace(result, choice=Choice(result.ranked, chosen, result.how))
     out = bootstrap_check(result, 40, seed=3)       # about half of the refits end their child
     assert out is not None and 20 <= out["replicates"] < 40
+
+
+def test_the_data_field_is_what_the_fits_agree_on():
+    from magbench.studies.calibration import AGREEING_FITS, agreed_field
+
+    def row(scale, out=0.01):
+        T = scale * np.eye(3)
+        return {"J_r_out": out, "h_0": 0.0, "h_1": 0.0, "h_2": 0.0,
+                **{f"T_{i}{j}": T[i, j] for i in range(3) for j in range(3)}}
+
+    # three fits near 40 and one that lost the scale: the median, not the sphere radius
+    rows = [row(39.0), row(40.0), row(41.0), row(400.0)]
+    assert agreed_field(rows, 27.0) == pytest.approx(40.5)
+    # a fit without an out-of-sample score does not vote; too few voters: the sphere radius
+    assert agreed_field([row(39.0), row(40.0), row(41.0, np.nan)], 27.0) == 27.0
+    assert AGREEING_FITS == 3
+
+
+def test_a_cap_whose_sphere_radius_is_biased_is_judged_on_the_agreed_field():
+    """A 60-degree cap: the sphere fit's radius is off the true field, the full models agree
+    on it; none of them is refused for its scale."""
+    gen = np.random.default_rng(2)
+    m = fibonacci_sphere(500, z_range=(0.5, 1.0))
+    y = m @ T_TRUE.T + H_TRUE + 1.0 * gen.standard_normal((500, 3))
+    rec = Recording("cap", y, t=np.arange(500) * 0.05, n_rows=500)
+    result = calibrate_recording(rec, ["ellipsoid", "fang", "magical", "sphere"], bootstrap=0)
+    truth = np.cbrt(np.linalg.det(T_TRUE))
+    assert result.field_strength == pytest.approx(truth, rel=0.05)
+    assert not any("from the data's field" in r for r in result.fitness["reasons"])

@@ -27,7 +27,7 @@ uncovered cap, the number of distinct directions (occupied equal-area cells,
 samples' own radius and, when known, an expected value or range, and, when the recording has a
 reference attitude, the held-out heading error measured against it. The worst status wins, with
 one exception. A FAIL says "do not use this": the fit is not determined by the data (too few
-directions, too wide a gap), unsafe (a field strength off the data's radius or the expected
+directions, too wide a gap), unsafe (a field strength off the data's or the expected
 one), or no better than no correction (the raw data's field-magnitude spread, as a share of the
 field, not narrowed below :data:`NARROWING` of itself). A shortfall measured on held-out data
 by magnitude (the field error, an offset that moves between the halves of the recording) FAILs
@@ -295,7 +295,8 @@ def fitness(gate: Gate, *, p95_pct: float, held_out: bool, gap_deg: float, direc
     gap_deg, directions, band_deg : float, int, float
         Largest uncovered cap, distinct directions, band half-width about a plane.
     field, radius : float
-        The fit's field strength ``|det T|^(1/3)`` and the samples' sphere-fit radius.
+        The fit's field strength ``|det T|^(1/3)`` and the data's: the field strength the
+        candidate fits agree on, or the samples' sphere-fit radius.
     expected_field : float or (low, high), optional
         The field strength expected in the recording's units.
     heading_deg : float, optional
@@ -355,7 +356,7 @@ def fitness(gate: Gate, *, p95_pct: float, held_out: bool, gap_deg: float, direc
     if radius > 0:
         off = _field_distance_pct(field, radius)
         if off > gate.fail_field_pct:
-            unsafe.append(f"fitted field {field:.4g} is {off:.0f} % from the data's radius "
+            unsafe.append(f"fitted field {field:.4g} is {off:.0f} % from the data's field "
                           f"{radius:.4g}")
     if expected_field is not None:
         judge(_field_distance_pct(field, expected_field), gate.warn_field_pct,

@@ -90,9 +90,10 @@ from magbench.studies.holdout import (
 )
 from magbench.studies.real import fit_recording
 
-__all__ = ["FIRST_ROUND", "ROBUST_ON_CAPS", "THIN_GAP_DEG", "CalibrationResult", "allowed",
-           "bootstrap_check", "calibrate_recording", "estimate", "fit_round", "judge",
-           "prepare", "retrim", "second_round_reason"]
+__all__ = ["AGREEING_FITS", "FIRST_ROUND", "ROBUST_ON_CAPS", "THIN_GAP_DEG",
+           "CalibrationResult", "agreed_field", "allowed", "bootstrap_check",
+           "calibrate_recording", "estimate", "fit_round", "judge", "prepare", "retrim",
+           "second_round_reason"]
 
 #: The first round of ``calibrate``'s default candidates (module notes, step 2): the closed
 #: forms of every model and the minimiser of J_r (81), Wu-Shi NM.
@@ -131,6 +132,8 @@ class CalibrationResult:
     second_round: str = ""
     #: Samples set aside by the first screen and, in addition, around the chosen fit.
     screened: int = 0
+    #: The field strength the candidates agree on (:func:`agreed_field`), NaN before a choice.
+    field_strength: float = math.nan
 
     @property
     def inliers(self) -> np.ndarray:
@@ -198,7 +201,9 @@ def second_round_reason(tie: Sequence[str], chosen: Mapping | None, gap_deg: flo
 def _rank_trials(trials: list[dict], work: Recording, gap_deg: float, centre: np.ndarray,
                  extra: ExtraScore | None = None, radius: float = 0.0,
                  max_field_pct: float = math.inf) -> Choice:
-    summary = [{**r, **sphere_scores(trials, r, radius)} for r in fold_summary(trials)]
+    summary = fold_summary(trials)
+    agreed = agreed_field(summary, radius)
+    summary = [{**r, **sphere_scores(trials, r, agreed)} for r in summary]
     scores = SCORES
     if extra is not None:
         column, values = extra(summary, trials, work)
@@ -210,13 +215,32 @@ def _rank_trials(trials: list[dict], work: Recording, gap_deg: float, centre: np
                   refuse=lambda row: refusal_reason(*estimate(row), work.y, centre))
 
 
+#: Fewest candidates with an out-of-sample score whose median field strength is trusted
+#: over the samples' sphere radius (:func:`agreed_field`).
+AGREEING_FITS = 3
+
+
+def agreed_field(summary: Sequence[Mapping], radius: float) -> float:
+    """The field strength (samples' units) that the candidates agree on: the median of
+    ``|det T|^(1/3)`` over the meaningful fits with an out-of-sample score (``J_r_out``),
+    when there are at least :data:`AGREEING_FITS`; else the samples' sphere radius
+    ``radius``. On partial coverage a sphere fit's radius is biased (a phone in a pocket:
+    27 uT where the models that also fit a shape say 37-43), and one fit that lost the scale
+    (a collapsed fit, a wrong unit) is outvoted by the others."""
+    fields = [float(np.cbrt(abs(np.linalg.det(estimate(r)[0])))) for r in summary
+              if r.get("meaningful", True) and np.isfinite(float(r["J_r_out"]))
+              and np.isfinite(float(r["T_00"]))]
+    fields = [f for f in fields if np.isfinite(f) and f > 0]
+    return float(np.median(fields)) if len(fields) >= AGREEING_FITS else float(radius)
+
+
 def sphere_scores(trials: Sequence[Mapping], row: Mapping, radius: float) -> dict:
     """``sphere_out``, the predicted RMS error (share of the field) of ``row``'s correction
     over the whole sphere: the held-out error on the recorded directions (``J_r_out / 4``,
     as J_r (81) is about four times the mean squared magnitude error) plus the fold fits'
     disagreement on every direction (:func:`magbench.studies.holdout.sphere_spread`); and
-    ``field_pct``, how far (%) the fitted field strength ``|det T|^(1/3)`` lies from the
-    samples' radius ``radius`` (NaN without one)."""
+    ``field_pct``, how far (%) the fitted field strength ``|det T|^(1/3)`` lies from
+    ``radius``, the field the fits agree on (:func:`agreed_field`; NaN without one)."""
     name = str(row["algorithm"])
     spread = sphere_spread(trials, name)
     out = float(np.sqrt(row["J_r_out"] / 4 + spread)) if np.isfinite(row["J_r_out"]) \
@@ -298,7 +322,9 @@ def judge(result: CalibrationResult, gate: Gate,
         gate, p95_pct=result.verdict["field_error_pct"]["p95"],
         held_out=result.verdict["held_out"], gap_deg=result.coverage["largest_gap_deg"],
         directions=result.directions, band_deg=result.band_deg,
-        field=float(np.cbrt(abs(np.linalg.det(T)))), radius=result.screen.radius,
+        field=float(np.cbrt(abs(np.linalg.det(T)))),
+        radius=result.field_strength if math.isfinite(result.field_strength)
+        else result.screen.radius,
         expected_field=expected_field, heading_deg=heading_deg,
         spread_pct=spreads, noise_p95_pct=noise)
 
@@ -471,7 +497,8 @@ def calibrate_recording(rec: Recording, candidates: Sequence[str], *,
         rec, current, stride, work, cover, trials, choice,
         directions=int(np.unique(direction_cells(work.y - current.centre)).size),
         band_deg=band_half_width(work.y - current.centre), not_fitted=later + skipped,
-        second_round=escalated, screened=screened)
+        second_round=escalated, screened=screened,
+        field_strength=agreed_field(choice.ranked, current.radius))
     if not current.applied:
         result.warnings.append("the outlier screen would have removed most directions: "
                                "not applied")

@@ -100,7 +100,8 @@ def eligibility(table: Sequence[Mapping], gap_deg: float, scores: Sequence[str] 
                 max_field_pct: float = math.inf) -> list[Row]:
     """``table`` with ``scored``, ``eligible`` and ``note`` (why not); ``scored``: every score
     finite and the fit meaningful. A fit whose field strength (``field_pct``, when the table
-    has it) lies more than ``max_field_pct`` % from the samples' radius is not eligible: J_r
+    has it) lies more than ``max_field_pct`` % from the data's field (the field strength the
+    fits agree on) is not eligible: J_r
     (81) is blind to scale, and the gate would refuse it (a collapsed fit or a wrong unit)."""
     out = []
     for r in table:
@@ -113,7 +114,7 @@ def eligibility(table: Sequence[Mapping], gap_deg: float, scores: Sequence[str] 
         elif not has:
             note = "no out-of-sample score (a fold's fit failed or was degenerate)"
         elif off_scale:
-            note = (f"not chosen: fitted field {field:.0f} % from the data's radius (the gate "
+            note = (f"not chosen: fitted field {field:.0f} % from the data's field (the gate "
                     f"fails above {max_field_pct:g} %)")
         elif not allowed(r["algorithm"], gap_deg):
             note = (f"not chosen: a {r['model']} model is not trusted with a {gap_deg:.0f} deg "
