@@ -39,7 +39,7 @@ def test_magyc_pairs_recover_the_truth_on_noise_free_data():
     h = np.array([0.1, -0.2, 0.05])
     sample = _noise_free(T, h)
     for peer in ("navlib.cal_mag_magyc_ls", "navlib.cal_mag_magyc_nls"):
-        T_p, h_p = fit_peer(peer, sample.y_fit, **sample.inputs)
+        _, h_p = fit_peer(peer, sample.y_fit, **sample.inputs)
         ours = calibrate(sample.y_fit, PEER_FITS[peer][2], raw=True, **sample.inputs)
         assert np.abs(ours.h - h).max() < 1e-4          # midpoint derivative
         assert np.abs(h_p - h).max() < 1e-2             # navlib's one-sided derivative
