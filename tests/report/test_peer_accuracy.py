@@ -48,3 +48,25 @@ def test_explanation_says_above_the_floor_and_is_empty_without_the_peer():
     no_peer = {k: v for k, v in CASE.items() if k[1] != "magcal.ellipsoid_fit"}
     assert lattice_explanation(summary(no_peer)) == ""
     assert not any("sample mean" in ln for ln in peer_accuracy_lines(summary(no_peer)))
+
+
+def test_peer_agreement_lines_give_one_verdict_per_pair():
+    import numpy as np
+
+    from magbench.report.peer_accuracy import REASONS, peer_agreement_lines
+
+    nums = {"field_rel_median": 1e-16, "field_rel_max": 2e-16, "h_rel_median": 0.0,
+            "h_rel_max": 0.0, "T_rel_median": 0.0, "T_rel_max": 0.0,
+            "Jr_peer_median": 1e-4, "Jr_magbench_median": 1e-4}
+    summary = pd.DataFrame([
+        {"peer": "navlib.cal_mag_ellipsoid_fit_fang", "magbench": "fang", "data": "synthetic",
+         "n": 3, "n_ok": 3, "status": "ok", **nums},
+        {"peer": "navlib.cal_mag_sar_ls", "magbench": "sar_ls", "data": "real", "n": 2,
+         "n_ok": 2, "status": "ok", **{**nums, "field_rel_max": 0.5}},
+        {"peer": "navlib.cal_mag_magyc_bfg", "magbench": "magyc_bfg", "data": "-", "n": 1,
+         "n_ok": 0, "status": "not installed: gtsam", **dict.fromkeys(nums, np.nan)}])
+    rows = [line for line in peer_agreement_lines(summary) if line.startswith("| navlib")]
+    assert len(rows) == 3
+    assert rows[0].endswith("agree within 2e-16 |")
+    assert REASONS["navlib.cal_mag_sar_ls"] in rows[1]
+    assert rows[2].endswith("not installed: gtsam |")

@@ -76,3 +76,26 @@ def test_summary_figure_and_section(finished):
 def test_current_profile_stays_in_range_and_varies():
     u = current_profile(np.random.default_rng(0), np.linspace(0, 20, 400))
     assert u.min() >= 0 and u.max() <= 1 and u.std() > 0.1
+
+
+def test_estimates_stored_and_the_section_recomputed_from_them(finished):
+    """estimates.csv holds every correction; the field errors recomputed from it alone are
+    the trials' own, and the section shows their medians."""
+    from magbench.report.compensation import compensation_numbers
+    from magbench.studies.compensation import ESTIMATE_COLUMNS, estimate_field_error
+
+    _, out = finished
+    est = pd.read_csv(out / "estimates.csv")
+    trials = pd.read_csv(out / "trials.csv")
+    assert list(est.columns) == ESTIMATE_COLUMNS and len(est) == len(trials)
+    recomputed = np.array([estimate_field_error(r) for _, r in est.iterrows()])
+    np.testing.assert_allclose(recomputed, trials["field_err_pct"], rtol=1e-12)
+    numbers = compensation_numbers(out).set_index(["strength", "algorithm", "variant"])
+    summary = pd.read_csv(out / "summary.csv").set_index(["strength", "algorithm", "variant"])
+    np.testing.assert_allclose(numbers["median_field_err_pct"],
+                               summary.loc[numbers.index, "median_field_err_pct"], rtol=1e-12)
+    np.testing.assert_allclose(numbers["kept_pct"], summary.loc[numbers.index, "kept_pct"])
+    text = compensation_report_section(out.parent)
+    for (strength, _, variant), row in numbers.iterrows():
+        if strength == 0.1 and variant == "static":
+            assert f"| 0.1 | Fang | {row['median_field_err_pct']:.3g} |" in text

@@ -10,7 +10,7 @@ import pandas as pd
 
 from magbench.methods.registry import method_label
 from magbench.report.format import format_number, render
-from magbench.report.peer_accuracy import peer_accuracy_lines
+from magbench.report.peer_accuracy import peer_accuracy_lines, peer_agreement_lines
 from magbench.report.scale import scale_lines
 
 __all__ = ["bench_report_section"]
@@ -31,6 +31,8 @@ def bench_report_section(results_dir: Path | str) -> str:
         lines += _peer_lines(pd.read_csv(folder / "peers.csv"))
     if (folder / "peer_accuracy_summary.csv").exists():
         lines += peer_accuracy_lines(pd.read_csv(folder / "peer_accuracy_summary.csv"))
+    if (folder / "peer_agreement_summary.csv").exists():
+        lines += peer_agreement_lines(pd.read_csv(folder / "peer_agreement_summary.csv"))
     if (folder / "calibrate.csv").exists():
         lines += calibrate_lines(pd.read_csv(folder / "calibrate.csv"))
     if (folder / "parallel.csv").exists():

@@ -16,6 +16,10 @@ three ways on the same samples:
 Scores: J (eq. 74) of ``T = A^-1`` and ``h = b`` against the truth, and the field magnitude
 error on fresh samples (directions uniform on the sphere, currents uniform in [0, 1],
 noise-free) corrected by each result, RMS of ``|m| - 1`` in %.
+
+Every result is also stored (``estimates.csv``: ``A``, ``b`` and ``C`` of ``m = A (y - b -
+C u)`` per strength, trial, method and variant, with the truth and the seed), so the report
+section recomputes its field errors from the files (:func:`estimate_field_error`).
 """
 
 from __future__ import annotations
@@ -41,14 +45,21 @@ from magbench.methods.regressors import HeldOutChoice, TimeVarying, held_out_cho
 from magbench.sources.trajectory import Trajectory, simulate
 from magbench.studies.review import TRUTH_COLUMNS, truth_columns
 
-__all__ = ["COMPENSATION_COLUMNS", "VARIANTS", "CompensationStudy", "compensation_rows",
-           "current_profile", "summarize_compensation"]
+__all__ = ["COMPENSATION_COLUMNS", "ESTIMATE_COLUMNS", "VARIANTS", "CompensationStudy",
+           "compensation_rows", "compensation_tables", "current_profile",
+           "estimate_field_error", "summarize_compensation"]
 
 VARIANTS = ("static", "compensated", "selected")
 COMPENSATION_COLUMNS = (["strength", "K", "sigma", "trial", "seed", "algorithm", "variant",
                          "ok", "error", "kept", "J", "J_h", "J_T", "J0", "meaningful",
                          "field_err_pct", "C_err"] + TRUTH_COLUMNS
                         + [f"C_true_{i}" for i in range(3)] + [f"C_{i}" for i in range(3)])
+
+#: One fitted correction per strength, trial, method and variant (NaN where none was fitted).
+ESTIMATE_COLUMNS = (["strength", "trial", "seed", "algorithm", "variant", "kept"]
+                    + [f"A_{i}{j}" for i in range(3) for j in range(3)]
+                    + [f"b_{i}" for i in range(3)] + [f"C_{i}" for i in range(3)]
+                    + TRUTH_COLUMNS + [f"C_true_{i}" for i in range(3)])
 
 #: Fresh directions on which every result is scored.
 TEST_SAMPLES = 500
@@ -95,7 +106,8 @@ class CompensationStudy(Study):
     plugins: Sequence[str] = ()
     name: str = "compensation"
 
-    tables: ClassVar[dict] = {"trials": ("trials.csv", COMPENSATION_COLUMNS)}
+    tables: ClassVar[dict] = {"trials": ("trials.csv", COMPENSATION_COLUMNS),
+                              "estimates": ("estimates.csv", ESTIMATE_COLUMNS)}
 
     def units(self) -> list[tuple[int, int]]:
         return [(i, t) for i in range(len(self.strengths)) for t in range(self.trials)]
@@ -105,7 +117,7 @@ class CompensationStudy(Study):
 
     def run_unit(self, unit: tuple[int, int]) -> dict[str, list[dict]]:
         index, trial = unit
-        return {"trials": compensation_rows(self, float(self.strengths[index]), trial)}
+        return compensation_tables(self, float(self.strengths[index]), trial)
 
     def summarize(self, out_dir: Path | str) -> pd.DataFrame:
         """Write and return ``summary.csv`` from ``trials.csv``."""
@@ -141,12 +153,36 @@ def _draw(spec: CompensationStudy, strength: float, trial: int
     return traj, u, C, traj.y + u[:, None] * C
 
 
-def _field_error(result: TimeVarying, traj: Trajectory, C: np.ndarray,
+def _test_set(seed: int, strength: float, trial: int) -> tuple[np.ndarray, np.ndarray]:
+    """The fresh currents and directions a trial's results are scored on (from its seed)."""
+    test = rng(seed, zlib.crc32(f"compensation-test;{strength!r}".encode()), trial)
+    return test.uniform(0.0, 1.0, TEST_SAMPLES), fibonacci_sphere(TEST_SAMPLES)
+
+
+def _field_error(result: TimeVarying, T: np.ndarray, h: np.ndarray, C: np.ndarray,
                  test_u: np.ndarray, directions: np.ndarray) -> float:
     """RMS of ``|m| - 1`` in %, on fresh noise-free samples corrected by ``result``."""
-    y = directions @ traj.T.T + traj.h + test_u[:, None] * C
+    y = directions @ T.T + h + test_u[:, None] * C
     m = result.apply(y, test_u[:, None])
     return float(100 * np.sqrt(np.mean((np.linalg.norm(m, axis=1) - 1) ** 2)))
+
+
+def estimate_field_error(row: pd.Series | dict) -> float:
+    """The field error (%) of one row of ``estimates.csv``, from that row alone: its
+    correction on the trial's fresh samples (rebuilt from ``seed``, ``strength`` and
+    ``trial``) of its true distortion; NaN where no correction was fitted."""
+    def get(prefix: str, shape: tuple[int, ...]) -> np.ndarray:
+        keys = ([f"{prefix}{i}{j}" for i in range(3) for j in range(3)] if len(shape) == 2
+                else [f"{prefix}{i}" for i in range(3)])
+        return np.array([row[k] for k in keys], dtype=float).reshape(shape)
+
+    A = get("A_", (3, 3))
+    if not np.all(np.isfinite(A)):
+        return float("nan")
+    test_u, directions = _test_set(int(row["seed"]), float(row["strength"]), int(row["trial"]))
+    result = TimeVarying(A, get("b_", (3,)), get("C_", (3,))[:, None])
+    return _field_error(result, get("T_true_", (3, 3)), get("h_true_", (3,)),
+                        get("C_true_", (3,)), test_u, directions)
 
 
 def _compensate(spec: CompensationStudy, name: str, y: np.ndarray, u: np.ndarray,
@@ -171,16 +207,36 @@ def _compensate(spec: CompensationStudy, name: str, y: np.ndarray, u: np.ndarray
 
 def compensation_rows(spec: CompensationStudy, strength: float, trial: int) -> list[dict]:
     """Every selected method, static, compensated and selected, on one disturbed manoeuvre."""
+    return compensation_tables(spec, strength, trial)["trials"]
+
+
+def _estimate_row(base: dict, name: str, variant: str, result: TimeVarying | None,
+                  kept: bool) -> dict:
+    """A row of ``estimates.csv``: the correction ``result`` (NaN when there is none)."""
+    nan = np.full(3, np.nan)
+    A, b, C = ((result.A, result.b, result.C[:, 0]) if result is not None
+               else (np.full((3, 3), np.nan), nan, nan))
+    return {**{k: base[k] for k in ("strength", "trial", "seed")}, "algorithm": name,
+            "variant": variant, "kept": kept,
+            **{f"A_{i}{j}": float(A[i, j]) for i in range(3) for j in range(3)},
+            **{f"b_{i}": float(v) for i, v in enumerate(b)},
+            **{f"C_{i}": float(v) for i, v in enumerate(C)},
+            **{k: base[k] for k in TRUTH_COLUMNS},
+            **{f"C_true_{i}": base[f"C_true_{i}"] for i in range(3)}}
+
+
+def compensation_tables(spec: CompensationStudy, strength: float, trial: int
+                        ) -> dict[str, list[dict]]:
+    """The ``trials`` and ``estimates`` rows of one disturbed manoeuvre: every selected
+    method, static, compensated and selected."""
     traj, u, C, y = _draw(spec, strength, trial)
     key = zlib.crc32(f"compensation;{strength!r}".encode())
-    test = rng(spec.seed, zlib.crc32(f"compensation-test;{strength!r}".encode()), trial)
-    test_u = test.uniform(0.0, 1.0, TEST_SAMPLES)
-    directions = fibonacci_sphere(TEST_SAMPLES)
+    test_u, directions = _test_set(spec.seed, strength, trial)
     J0 = trivial_cost(traj.T, traj.h)
     base = {"strength": strength, "K": len(y), "sigma": spec.sigma, "trial": int(trial),
             "seed": int(spec.seed), "J0": J0, **truth_columns(traj.T, traj.h),
             **{f"C_true_{i}": float(c) for i, c in enumerate(C)}}
-    rows = []
+    rows, estimates = [], []
     for name in spec.algorithms:
         out = run_method(name, lambda o, name=name: calibrate(y, name, **o),
                          options=spec.options.get(name) or {}, seed=spec.seed,
@@ -202,7 +258,8 @@ def compensation_rows(spec: CompensationStudy, strength: float, trial: int) -> l
             rows.append({**base, "algorithm": name, "variant": variant,
                          **_scores(result, why, kept_here, traj, C, test_u, directions,
                                    spec.delta * J0)})
-    return rows
+            estimates.append(_estimate_row(base, name, variant, result, kept_here))
+    return {"trials": rows, "estimates": estimates}
 
 
 def _scores(result: TimeVarying | None, error: str, kept: bool, traj: Trajectory,
@@ -217,7 +274,7 @@ def _scores(result: TimeVarying | None, error: str, kept: bool, traj: Trajectory
     C_hat = result.C[:, 0]
     return {"ok": not error, "error": error, "kept": kept, "J": J, "J_h": J_h, "J_T": J_T,
             "meaningful": bool(np.isfinite(J) and J < threshold),
-            "field_err_pct": _field_error(result, traj, C, test_u, directions),
+            "field_err_pct": _field_error(result, traj.T, traj.h, C, test_u, directions),
             "C_err": float(np.linalg.norm(C_hat - C)),
             **{f"C_{i}": float(c) for i, c in enumerate(C_hat)}}
 

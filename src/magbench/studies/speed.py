@@ -31,8 +31,10 @@ from magbench.engine.sweep import run_study
 from magbench.engine.trial import run_method
 from magbench.methods.api import calibrate
 from magbench.methods.registry import get_method, methods
+from magbench.sources.recordings import data_dir
 from magbench.sources.synthetic import Point, make_dataset
 from magbench.studies.peer_accuracy import peer_accuracy, summarize_peer_accuracy
+from magbench.studies.peer_agreement import peer_agreement, summarize_peer_agreement
 from magbench.studies.peers import PEER_FITS
 from magbench.studies.real import DEFAULT_MAX_SAMPLES
 from magbench.studies.review import ReviewStudy
@@ -540,6 +542,15 @@ def malloc_thresholds() -> str:
     return f"mmap {mmap or 'default'}, trim {trim or 'default'}" if mmap or trim else "default"
 
 
+def _data_root() -> Path | None:
+    """The real recordings' folder, None when it is not configured or absent."""
+    try:
+        root = data_dir()
+    except (ValueError, OSError):
+        return None
+    return root if root.is_dir() else None
+
+
 def run_bench(results_dir: Path | str, names: Sequence[str] | None = None,
               sizes: Sequence[int] = SIZES, parallel_trials: int = 250,
               progress: Callable[[str], None] | None = print,
@@ -547,7 +558,9 @@ def run_bench(results_dir: Path | str, names: Sequence[str] | None = None,
               call_timeout_s: float | None = None) -> Path:
     """Run every benchmark and write ``calls.csv``, ``first_calls.csv``, ``peers.csv``,
     ``peer_accuracy.csv`` and ``peer_accuracy_summary.csv`` (``peer_datasets`` datasets per
-    geometry, 0 = none; :mod:`magbench.studies.peer_accuracy`), ``peer_install.csv``,
+    geometry, 0 = none; :mod:`magbench.studies.peer_accuracy`), ``peer_agreement.csv`` and
+    ``peer_agreement_summary.csv`` (with the peer accuracy;
+    :mod:`magbench.studies.peer_agreement`), ``peer_install.csv``,
     ``calibrate.csv``, ``parallel.csv`` and, with ``reproduce``, ``reproduce_cases.csv``
     (:func:`bench_reproduce`) under ``<results_dir>/bench``."""
     folder = Path(results_dir) / "bench"
@@ -576,6 +589,11 @@ def run_bench(results_dir: Path | str, names: Sequence[str] | None = None,
         accuracy = peer_accuracy(PEERS, datasets=peer_datasets)
         write_csv_atomic(accuracy, folder / "peer_accuracy.csv")
         write_csv_atomic(summarize_peer_accuracy(accuracy), folder / "peer_accuracy_summary.csv")
+        # every reimplemented peer function beside magbench's (one row per missing peer)
+        agreement = peer_agreement(data_root=_data_root())
+        write_csv_atomic(agreement, folder / "peer_agreement.csv")
+        write_csv_atomic(summarize_peer_agreement(agreement),
+                         folder / "peer_agreement_summary.csv")
     write_csv_atomic(peer_install_size(), folder / "peer_install.csv")
     write_csv_atomic(cal := bench_calibrate_files(), folder / "calibrate.csv")
     if progress:
