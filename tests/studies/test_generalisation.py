@@ -215,3 +215,11 @@ def test_one_unit_scores_every_entrant_under_every_protocol(tmp_path):
 def test_protocols_are_the_issues():
     assert set(PROTOCOLS) >= {"blocks", "band_x", "band_y", "band_z", "half", "first15",
                               "spikes", "still_first"}
+
+
+def test_peers_that_need_the_field_given_are_not_entrants():
+    from magbench.studies.generalisation import _peers
+    from magbench.studies.peers import PEER_NEEDS_FIELD, available_peers
+
+    assert set(_peers()) == set(available_peers()) - set(PEER_NEEDS_FIELD)
+    assert "navlib.cal_mag_twostep_hi" in PEER_NEEDS_FIELD

@@ -59,7 +59,7 @@ from magbench.studies.auto import candidate_rounds
 from magbench.studies.calibration import bootstrap_check
 from magbench.studies.decision import decide, written_correction
 from magbench.studies.holdout import estimate
-from magbench.studies.peers import available_peers, fit_peer
+from magbench.studies.peers import PEER_NEEDS_FIELD, available_peers, fit_peer
 from magbench.studies.real import DEFAULT_MAX_SAMPLES, applicability, fit_recording, is_usable
 
 if TYPE_CHECKING:
@@ -257,10 +257,16 @@ def _fixed_rows(rec, protocol, fit, test, raw, names, options, seed, timeout, ra
     return rows, times
 
 
+def _peers() -> list[str]:
+    """The installed magnetometer-only peers a user runs on a recording as it is (not those
+    that need the field's strength given, :data:`~magbench.studies.peers.PEER_NEEDS_FIELD`)."""
+    return [n for n in available_peers() if n not in PEER_NEEDS_FIELD]
+
+
 def _peer_rows(rec, protocol, fit, test, raw, radius, centre):
     thin = fit.thinned(DEFAULT_MAX_SAMPLES)
     rows, times = [], []
-    for name in available_peers():
+    for name in _peers():
         start = time.perf_counter()
         try:
             with warnings.catch_warnings():     # a peer's own warnings are not the user's
@@ -402,7 +408,7 @@ class GeneralisationStudy(Study):
 
     def describe(self) -> dict:
         out = super().describe()
-        out["peers_installed"] = available_peers() if self.peers else []
+        out["peers_installed"] = _peers() if self.peers else []
         return out
 
     def run_unit(self, name: str) -> dict[str, list[dict]]:

@@ -18,8 +18,8 @@ import numpy as np
 
 from magbench.methods.registry import get_method
 
-__all__ = ["PEER_FITS", "PEER_REQUIRES", "available_peers", "fit_peer", "missing_module",
-           "needs_gyro"]
+__all__ = ["PEER_FITS", "PEER_NEEDS_FIELD", "PEER_REQUIRES", "available_peers", "fit_peer",
+           "missing_module", "needs_gyro"]
 
 
 def _normalise(T: np.ndarray, h: np.ndarray, y: np.ndarray) -> np.ndarray:
@@ -192,6 +192,10 @@ PEER_REQUIRES: dict[str, tuple[str, ...]] = {
     "navlib.cal_mag_magyc_ifg": ("gtsam",),
     "navlib.cal_mag_magfactor3": ("gtsam",),
 }
+
+#: Peers that need the field's strength given (navlib's TWOSTEP-HI takes a reference field):
+#: run with a unit field they suit data in field units only, not a recording in counts.
+PEER_NEEDS_FIELD = ("navlib.cal_mag_twostep_hi",)
 
 
 def missing_module(name: str) -> str | None:
