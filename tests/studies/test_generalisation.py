@@ -175,6 +175,11 @@ def test_direction_losses_use_their_own_tolerance():
     assert case(np.nan, written=False)["loss_direction"]    # raw 60 deg is what is left
     table = protocol_table(pd.DataFrame([case(11.5), case(5.0)]))
     assert table.loc[0, "losses_direction"] == 1 and table.loc[0, "direction_cases"] == 2
+    # with an attitude the compass score is the direction's, without one the magnitude's
+    assert case(11.5)["loss_compass"] and not case(11.0)["loss_compass"]
+    assert table.loc[0, "losses_compass"] == 1
+    plain = case_table(pd.DataFrame(_rows("q", "half", 2.0, {"sphere": 1.0}))).loc[0]
+    assert not plain["has_attitude"] and plain["loss"] and plain["loss_compass"]
 
 
 def test_a_degenerate_fit_never_is_the_best_in_hindsight():

@@ -25,6 +25,7 @@ def headline(cases: pd.DataFrame) -> dict:
             "harmful_mean_norm": int(cases["harmful_mean_norm"].sum()),
             "direction_cases": int(np.isfinite(cases["raw_direction_deg"].to_numpy(float)).sum()),
             "losses_direction": int(cases["loss_direction"].sum()),
+            "losses_compass": int(cases["loss_compass"].sum()),
             "needless_fail": int(cases["needless_fail"].sum()),
             "not_written": int((~cases["written"].astype(bool)).sum()),
             "recordings": int(cases["dataset"].nunique())}
@@ -32,14 +33,14 @@ def headline(cases: pd.DataFrame) -> dict:
 
 def _protocol_lines(summary: pd.DataFrame) -> list[str]:
     lines = ["| protocol | cases | losses | written worse than raw (by mean norm) | "
-             "needless FAIL | not written | losses by direction | median regret | "
-             "worst regret |",
-             "|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
+             "needless FAIL | not written | losses by direction | losses, compass score | "
+             "median regret | worst regret |",
+             "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
     for r in summary.itertuples():
         lines.append(f"| {r.protocol} | {r.cases} | {r.losses} | {r.harmful} "
                      f"({r.harmful_mean_norm}) | {r.needless_fail} | {r.not_written} | "
-                     f"{r.losses_direction} of {r.direction_cases} | {r.regret_median:+.2f} | "
-                     f"{r.regret_max:+.2f} |")
+                     f"{r.losses_direction} of {r.direction_cases} | {r.losses_compass} | "
+                     f"{r.regret_median:+.2f} | {r.regret_max:+.2f} |")
     return lines
 
 
@@ -137,7 +138,10 @@ def generalisation_section(results_dir: Path | str, folder: str = FOLDER) -> str
         f"writes a correction worse than the raw data in {h['harmful']} (by the raw data's "
         f"mean-norm spread: {h['harmful_mean_norm']}) and FAILs where a fixed fit would have "
         f"helped in {h['needless_fail']}. By direction, where an attitude exists, it loses in "
-        f"{_pct(h['losses_direction'], h['direction_cases'])}.", "",
+        f"{_pct(h['losses_direction'], h['direction_cases'])}; by the score its choice serves "
+        "(direction where the recording has an attitude, whose held-out heading vetoes a fit "
+        f"more than 1 deg worse than the best, magnitude elsewhere) in "
+        f"{_pct(h['losses_compass'], h['cases'])}.", "",
         f"![calibrate against fixed fits]({folder}/generalisation.png)", "",
         run_note(where, "recordings"), "",
         *_protocol_lines(summary), "",

@@ -466,7 +466,9 @@ def case_table(trials: pd.DataFrame) -> pd.DataFrame:
     worse than raw) or a needless FAIL (nothing written where the best fixed fit beats raw by
     more than the tolerance). ``harmful_mean_norm`` judges the raw data by their mean-norm
     spread instead (the issue's first definition, which a large offset deflates);
-    ``loss_direction`` compares world-frame direction spreads where an attitude exists."""
+    ``loss_direction`` compares world-frame direction spreads where an attitude exists;
+    ``loss_compass`` is the score the choice serves: by direction where the recording has
+    an attitude (its direction veto decides there), by magnitude elsewhere."""
     import pandas as pd
 
     out = []
@@ -491,11 +493,13 @@ def case_table(trials: pd.DataFrame) -> pd.DataFrame:
                "harmful_mean_norm": bool(written and not score <= float(
                    auto["raw_mean_spread_pct"])),
                "loss_direction": _direction_loss(auto, fixed),
+               "has_attitude": bool(np.isfinite(float(auto["raw_direction_deg"]))),
                "needless_fail": bool(not written and best is not None
                                      and raw > best_score + tol),
                "auto_direction_deg": float(auto["direction_deg"]) if written else
                float(auto["raw_direction_deg"]),
                "raw_direction_deg": float(auto["raw_direction_deg"])}
+        row["loss_compass"] = row["loss_direction"] if row["has_attitude"] else row["loss"]
         for _, r in g[g["kind"] != "auto"].iterrows():
             row[f"pct:{r['algorithm']}"] = _user_score(r) if r["status"] == "ok" else raw
         out.append(row)
@@ -532,6 +536,7 @@ def protocol_table(cases: pd.DataFrame) -> pd.DataFrame:
                "needless_fail": int(g["needless_fail"].sum()),
                "direction_cases": int(np.isfinite(g["raw_direction_deg"].to_numpy(float)).sum()),
                "losses_direction": int(g["loss_direction"].sum()),
+               "losses_compass": int(g["loss_compass"].sum()),
                "not_written": int((~g["written"].astype(bool)).sum())}
         for e in entrants:
             w, t, l_ = _wtl(g["auto_pct"].to_numpy(float), g[f"pct:{e}"].to_numpy(float))
