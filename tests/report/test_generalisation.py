@@ -19,8 +19,8 @@ def write(folder, cases):
                    "regret_max": 2.0, "losses": int(cases["loss"].sum()), "loss_pct": 50.0,
                    "harmful": 1, "harmful_mean_norm": 2, "needless_fail": 0,
                    "not_written": 1, "direction_cases": 0, "losses_direction": 0,
-                   "losses_compass": 1, "wtl:sphere": "1/0/1"}]).to_csv(folder / "generalisation_summary.csv",
-                                                    index=False)
+                   "losses_compass": 1, "wtl:sphere": "1/0/1"}]).to_csv(
+        folder / "generalisation_summary.csv", index=False)
     pd.DataFrame({"kind": ["auto"], "algorithm": ["calibrate"], "protocol": ["half"],
                   "direction_deg": [float("nan")]}).to_csv(
         folder / "generalisation_trials.csv", index=False)
