@@ -18,9 +18,9 @@ from magbench.core.geometry import fibonacci_sphere
 from magbench.core.model import CalibrationFailed
 from magbench.core.robust import refusal_reason
 from magbench.methods.registry import get_method, methods
+from magbench.pipeline.fitting import fit_recording
 from magbench.sources.recordings import DATA_ENV, Recording, list_recordings, load_recording
 from magbench.studies.calibration import ROBUST_ON_CAPS, THIN_GAP_DEG, allowed, calibrate_recording
-from magbench.studies.real import fit_recording
 
 SHARED = Path(os.environ.get(DATA_ENV) or Path(__file__).resolve().parents[3] / "shared" /
               "data" / "real")

@@ -18,6 +18,7 @@ from magbench.core.geometry import check_geometry, coverage, fibonacci_sphere, s
 from magbench.core.metrics import real_cost
 from magbench.core.model import Calibration
 from magbench.engine.sweep import run_study
+from magbench.pipeline.fitting import applicability, fit_recording, is_meaningful
 from magbench.report.real import real_report_section
 from magbench.sources.recordings import (
     DATA_ENV,
@@ -27,7 +28,7 @@ from magbench.sources.recordings import (
     load_recording,
     read_samples,
 )
-from magbench.studies.real import RealStudy, applicability, fit_recording, is_meaningful
+from magbench.studies.real import RealStudy
 
 T_TRUE = np.array([[1.1, 0.05, -0.02], [0.0, 0.9, 0.04], [0.0, 0.0, 1.2]])
 H_TRUE = np.array([0.3, -0.2, 0.1])

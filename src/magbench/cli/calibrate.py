@@ -83,6 +83,7 @@ from magbench.core.units import UNKNOWN, Units, parse_units
 from magbench.core.verdict import Gate
 from magbench.methods.api import calibrate as magbench_calibrate
 from magbench.methods.registry import get_method, methods
+from magbench.pipeline.fitting import DEFAULT_MAX_SAMPLES, PREPROCESSING, applicability
 from magbench.sources.logs import is_log, log_units
 from magbench.sources.recordings import Recording, read_samples
 from magbench.studies.auto import candidate_rounds
@@ -99,7 +100,6 @@ from magbench.studies.flight import (
     unused_regressors,
     usable_regressors,
 )
-from magbench.studies.real import DEFAULT_MAX_SAMPLES, PREPROCESSING, applicability
 
 __all__ = ["MIN_COVERAGE", "answer_line", "calibration_json", "check_gate", "default_out",
            "detail_lines", "run_calibrate"]

@@ -20,7 +20,7 @@ chosen method's own residuals are trimmed afterwards (:mod:`magbench.studies.cal
 
 *Collapsed fits* (:func:`refusal_reason`). J_r has a degenerate minimiser: with ``h`` far
 away and a large ``T``, every corrected sample lands near one point of the unit sphere and
-J_r tends to 0 (see :mod:`magbench.studies.real`). Such a fit, a near-singular ``A`` or a
+J_r tends to 0 (see :mod:`magbench.pipeline.fitting`). Such a fit, a near-singular ``A`` or a
 non-finite answer is refused, never written.
 
 *Still stretches* (:func:`screen`). A recording that lies still for half its length puts half

@@ -72,6 +72,7 @@ from magbench.engine.isolation import map_supervised
 from magbench.engine.plugins import plugin_modules
 from magbench.engine.trial import run_method
 from magbench.methods.registry import get_method
+from magbench.pipeline.fitting import fit_recording
 from magbench.sources.recordings import Recording
 from magbench.studies.choice import (
     ROBUST_ON_CAPS,
@@ -88,7 +89,6 @@ from magbench.studies.holdout import (
     held_out_corrected,
     sphere_spread,
 )
-from magbench.studies.real import fit_recording
 
 __all__ = ["FIRST_ROUND", "ROBUST_ON_CAPS", "THIN_GAP_DEG", "CalibrationResult", "allowed",
            "bootstrap_check", "calibrate_recording", "estimate", "fit_round", "judge",
@@ -419,7 +419,7 @@ def calibrate_recording(rec: Recording, candidates: Sequence[str], *,
     candidates : sequence of str
         Methods to fit; with one, it is the choice unless it is refused or not meaningful.
     preprocess, options, seed, call_timeout_s
-        As in :func:`magbench.studies.real.evaluate_recording`.
+        As in :func:`magbench.pipeline.fitting.evaluate_recording`.
     bootstrap : int
         Block-bootstrap refits of the chosen method (0: none; :func:`bootstrap_check`).
     rounds : int

@@ -16,7 +16,7 @@ unknowns and an ordinary least-squares problem. Then ``h_i = -d_i / (2 a_i)``,
 
 *No refinement.* Levenberg-Marquardt on the norm residuals ``||D^-1 (y_k - h)|| - 1`` was
 tried and dropped: on partial coverage it walks into J_r's degenerate minimiser (``h`` far
-away, ``D`` large; :mod:`magbench.studies.real`), J 1e5 on 60 and 45 degree caps, while on
+away, ``D`` large; :mod:`magbench.pipeline.fitting`), J 1e5 on 60 and 45 degree caps, while on
 full spheres it gained nothing over the closed form (median J 0.046 both, 40 datasets at the
 review's nominal point).
 """
