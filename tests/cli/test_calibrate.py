@@ -617,7 +617,7 @@ def test_bad_gate_keys_exit_2_in_one_line(arg, message, tmp_path, capsys):
 
 
 def test_a_confident_mounting_rotation_is_written_to_both_autopilots(tmp_path, capsys):
-    from tests.studies.test_flight import simulated_ulog
+    from tests.pipeline.test_flight import simulated_ulog
 
     log = simulated_ulog(tmp_path / "flight.ulg", 6, seed=4, seconds=30.0)
     out = tmp_path / "cal"
@@ -662,7 +662,7 @@ def test_an_offset_that_follows_the_current_is_fitted_not_cut(tmp_path, capsys):
     """A flight log whose offset moves with the battery current (4 mGauss/A): the
     time-varying terms model it, so the offset check does not cut the recording, and the
     status carries no 'offset changed' warning."""
-    from tests.studies.test_flight import simulated_ulog
+    from tests.pipeline.test_flight import simulated_ulog
 
     log = simulated_ulog(tmp_path / "flight.ulg", 0, seed=3, seconds=60.0,
                          motor=np.array([0.004, -0.002, 0.003]))

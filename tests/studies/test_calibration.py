@@ -327,7 +327,7 @@ def test_on_a_band_the_sphere_fit_generalises_and_the_full_model_is_not_chosen()
 
 
 def test_a_fit_whose_field_is_off_the_data_scale_is_not_ranked_the_next_is_chosen():
-    from magbench.studies.choice import choose
+    from magbench.pipeline.choice import choose
 
     base = {"meaningful": True, "error": "", "ok": True, "n_iter": 10, "coverage": 0.9,
             "coverage_sphere": 0.9, "J_r_sphere_in": 1.0}
@@ -412,8 +412,8 @@ def faulty():
 def test_a_bootstrap_refit_that_ends_its_process_is_one_replicate_fewer(faulty):
     import dataclasses
 
+    from magbench.pipeline.choice import Choice
     from magbench.studies.calibration import bootstrap_check
-    from magbench.studies.choice import Choice
 
     result = calibrate_recording(synthetic(400), ["sphere"], bootstrap=0)
     chosen = {**result.chosen, "algorithm": "faulty_exit"}

@@ -84,6 +84,13 @@ from magbench.core.verdict import Gate
 from magbench.methods.api import calibrate as magbench_calibrate
 from magbench.methods.registry import get_method, methods
 from magbench.pipeline.fitting import DEFAULT_MAX_SAMPLES, PREPROCESSING, applicability
+from magbench.pipeline.flight import (
+    check_regressors,
+    mounting_rotation,
+    time_varying_terms,
+    unused_regressors,
+    usable_regressors,
+)
 from magbench.sources.logs import is_log, log_units
 from magbench.sources.recordings import Recording, read_samples
 from magbench.studies.auto import candidate_rounds
@@ -93,13 +100,6 @@ from magbench.studies.calibration import (
     estimate,
 )
 from magbench.studies.decision import decide
-from magbench.studies.flight import (
-    check_regressors,
-    mounting_rotation,
-    time_varying_terms,
-    unused_regressors,
-    usable_regressors,
-)
 
 __all__ = ["MIN_COVERAGE", "answer_line", "calibration_json", "check_gate", "default_out",
            "detail_lines", "run_calibrate"]
@@ -592,7 +592,7 @@ def _add_mounting(result: CalibrationResult, payload: dict,
                   corrected: np.ndarray | None = None) -> str:
     """Adds the detected mounting rotation to ``payload`` (``mounting_rotation``: the id of
     the autopilots' rotation enum, or None with the reason) when the recording has an
-    attitude or an accelerometer (:mod:`magbench.studies.flight`); its line, or "".
+    attitude or an accelerometer (:mod:`magbench.pipeline.flight`); its line, or "".
     ``corrected``: the samples corrected with kept time-varying terms, used instead of
     ``A (y - b)``."""
     found = mounting_rotation(result.rec, np.array(payload["A"]), np.array(payload["b"]),

@@ -20,6 +20,7 @@ from magbench.core.model import Calibration, as_samples
 from magbench.core.uncertainty import Intervals
 from magbench.core.verdict import Gate
 from magbench.methods.registry import get_method, methods
+from magbench.pipeline.choice import ranking_frame
 from magbench.pipeline.fitting import DEFAULT_MAX_SAMPLES
 from magbench.sources.recordings import Recording
 from magbench.studies.calibration import (
@@ -29,7 +30,6 @@ from magbench.studies.calibration import (
     calibrate_recording,
     estimate,
 )
-from magbench.studies.choice import ranking_frame
 
 if TYPE_CHECKING:     # the ranking table only: calibrate imports this module, not pandas
     import pandas as pd

@@ -11,17 +11,17 @@ writes). :func:`calibrate_recording` runs these steps, each a small function:
    depend on any candidate's fit (:func:`magbench.core.verdict.coverage_report`).
 2. :func:`fit_round` - *candidates held out*: every candidate fitted on all the kept samples
    and on each fold of interleaved time blocks, scored on the held-out blocks
-   (:mod:`magbench.studies.holdout`). With a ``second_round`` (``calibrate``'s default), the
+   (:mod:`magbench.pipeline.holdout`). With a ``second_round`` (``calibrate``'s default), the
    closed forms and Wu-Shi NM (:data:`FIRST_ROUND`) are fitted first and the others only when
    :func:`second_round_reason` finds that they could change the choice: Wu-Shi NM minimises
    the NM objective (11), ``K`` times J_r (81), so no method fits the data better, and another
    can only do better out of sample (a short recording), or be needed on a cap.
    Gyro-aided candidates need an unbroken time base: they are left out when thinning removed
    samples.
-3. *The choice* (:func:`magbench.studies.choice.choose`): ranked by the mean held-out J_r over
+3. *The choice* (:func:`magbench.pipeline.choice.choose`): ranked by the mean held-out J_r over
    the folds; a simpler model wins only when it ties the best on the mean and on the worst
    fold; a gyro-aided method only when it beats the best magnetometer-only one out of sample;
-   the coverage limits which models may be chosen (:func:`magbench.studies.choice.allowed`,
+   the coverage limits which models may be chosen (:func:`magbench.pipeline.choice.allowed`,
    from the coverage sweep's findings).
 4. :func:`retrim` - *trimming around the chosen fit*: the chosen method's own norm residuals on
    every sample are screened like the sphere fit's; if that changes the inliers, steps 2-4 run
@@ -72,9 +72,7 @@ from magbench.engine.isolation import map_supervised
 from magbench.engine.plugins import plugin_modules
 from magbench.engine.trial import run_method
 from magbench.methods.registry import get_method
-from magbench.pipeline.fitting import fit_recording
-from magbench.sources.recordings import Recording
-from magbench.studies.choice import (
+from magbench.pipeline.choice import (
     ROBUST_ON_CAPS,
     SCORES,
     THIN_GAP_DEG,
@@ -82,13 +80,15 @@ from magbench.studies.choice import (
     allowed,
     choose,
 )
-from magbench.studies.holdout import (
+from magbench.pipeline.fitting import fit_recording
+from magbench.pipeline.holdout import (
     estimate,
     evaluate_folds,
     fold_summary,
     held_out_corrected,
     sphere_spread,
 )
+from magbench.sources.recordings import Recording
 
 __all__ = ["FIRST_ROUND", "ROBUST_ON_CAPS", "THIN_GAP_DEG", "CalibrationResult", "allowed",
            "bootstrap_check", "calibrate_recording", "estimate", "fit_round", "judge",
@@ -100,7 +100,7 @@ FIRST_ROUND = ("sphere", "twostep_hi", "diagonal", "ellipsoid", "fang", "twostep
 #: The method whose objective (Wu and Shi's (11)) is K times J_r (81).
 J_R_MINIMISER = "wu_shi_nm"
 #: ``extra(summary, trials, work) -> (column, values)``: a further score for the choice
-#: (``summary`` and ``trials`` are lists of records, :mod:`magbench.studies.holdout`).
+#: (``summary`` and ``trials`` are lists of records, :mod:`magbench.pipeline.holdout`).
 ExtraScore = Callable[[list[dict], list[dict], Recording], tuple[str, Sequence[float]]]
 
 
@@ -214,7 +214,7 @@ def sphere_scores(trials: Sequence[Mapping], row: Mapping, radius: float) -> dic
     """``sphere_out``, the predicted RMS error (share of the field) of ``row``'s correction
     over the whole sphere: the held-out error on the recorded directions (``J_r_out / 4``,
     as J_r (81) is about four times the mean squared magnitude error) plus the fold fits'
-    disagreement on every direction (:func:`magbench.studies.holdout.sphere_spread`); and
+    disagreement on every direction (:func:`magbench.pipeline.holdout.sphere_spread`); and
     ``field_pct``, how far (%) the fitted field strength ``|det T|^(1/3)`` lies from the
     samples' radius ``radius`` (NaN without one)."""
     name = str(row["algorithm"])
@@ -436,9 +436,9 @@ def calibrate_recording(rec: Recording, candidates: Sequence[str], *,
     extra : callable, optional
         Another score for the choice: ``extra(summary, trials, work) -> (column, values)``,
         one value per row of ``summary`` (lower is better); a simpler model must tie on it too
-        (:func:`magbench.studies.choice.choose`'s ``scores``). When it has a ``scores``
+        (:func:`magbench.pipeline.choice.choose`'s ``scores``). When it has a ``scores``
         mapping (method -> held-out heading RMS, deg, as
-        :class:`magbench.studies.alignment.DirectionVeto`), the choice's entry goes to the
+        :class:`magbench.pipeline.alignment.DirectionVeto`), the choice's entry goes to the
         gate.
     """
     options = options or {}

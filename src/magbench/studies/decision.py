@@ -2,7 +2,7 @@
 
 :func:`decide` is the part of ``python -m magbench calibrate`` between reading the file and
 writing the answer: the magnetometer lag removed against the inertial streams, a hard-iron
-offset that changes within the recording cut (:func:`magbench.studies.alignment.offset_check`),
+offset that changes within the recording cut (:func:`magbench.pipeline.alignment.offset_check`),
 the candidates fitted, held out and chosen
 (:func:`magbench.studies.calibration.calibrate_recording`, with the direction veto when there
 is a reference attitude), and the verdict, with the field strength checked against the
@@ -22,8 +22,7 @@ from magbench.core.exports import field_strength
 from magbench.core.model import Calibration, CalibrationFailed
 from magbench.core.units import UNKNOWN, UnitCheck, Units, unit_check
 from magbench.core.verdict import Gate, with_reason
-from magbench.sources.recordings import Recording
-from magbench.studies.alignment import (
+from magbench.pipeline.alignment import (
     DirectionVeto,
     OffsetCheck,
     align_chosen,
@@ -31,8 +30,9 @@ from magbench.studies.alignment import (
     lag_corrected,
     offset_check,
 )
+from magbench.pipeline.flight import usable_regressors
+from magbench.sources.recordings import Recording
 from magbench.studies.calibration import CalibrationResult, calibrate_recording, estimate
-from magbench.studies.flight import usable_regressors
 
 __all__ = ["EXIT_FAIL", "EXIT_NONE", "Decision", "decide", "written_correction"]
 

@@ -55,11 +55,11 @@ from magbench.core.seeding import rng
 from magbench.engine.sweep import Study
 from magbench.engine.trial import run_method
 from magbench.pipeline.fitting import DEFAULT_MAX_SAMPLES, applicability, fit_recording, is_usable
+from magbench.pipeline.holdout import estimate
 from magbench.sources.recordings import Recording, load_recording
 from magbench.studies.auto import candidate_rounds
 from magbench.studies.calibration import bootstrap_check
 from magbench.studies.decision import decide, written_correction
-from magbench.studies.holdout import estimate
 from magbench.studies.peers import available_peers, fit_peer
 
 if TYPE_CHECKING:

@@ -55,8 +55,8 @@ from magbench.methods.algorithms._alignment_common import (
     unit_rows,
 )
 from magbench.methods.api import calibrate
+from magbench.pipeline.holdout import estimate, fold_indices
 from magbench.sources.recordings import Recording
-from magbench.studies.holdout import estimate, fold_indices
 
 __all__ = [
     "PRIMARY",
