@@ -1,6 +1,6 @@
 """``python -m magbench calibrate file=PATH [method=NAME] [columns=[mx,my,mz]] [out=DIR]``.
 
-Calibrates a user's own recording. The work is :func:`magbench.studies.calibration.\
+Calibrates a user's own recording. The work is :func:`magbench.pipeline.calibration.\
 calibrate_recording` (thinning by direction and the outlier screen, coverage and the models it
 allows, every candidate fitted on all samples and on interleaved time-block folds, the choice
 that holds out of sample, trimming around the chosen fit, refusal of collapsed fits, verdict,
@@ -15,7 +15,7 @@ The candidates are the registered methods except the review's printed variants (
 ``variant``: benchmark-only, wrong as printed) and, without gyro data, the gyro-aided ones.
 By default (``candidates=auto``) they are fitted in two rounds: the closed forms and Wu-Shi NM
 first, the iterative rest only when they could change the choice (the rule is in
-:mod:`magbench.studies.calibration`, step 2); ``candidates=all`` fits every one in one round,
+:mod:`magbench.pipeline.calibration`, step 2); ``candidates=all`` fits every one in one round,
 ``candidates=[a,b]`` only those, and ``method=NAME`` runs any one.
 
 The chosen (or the named) calibration is written in the safe gauge of
@@ -83,6 +83,13 @@ from magbench.core.units import UNKNOWN, Units, parse_units
 from magbench.core.verdict import Gate
 from magbench.methods.api import calibrate as magbench_calibrate
 from magbench.methods.registry import get_method, methods
+from magbench.pipeline.auto import candidate_rounds
+from magbench.pipeline.calibration import (
+    CalibrationResult,
+    bootstrap_check,
+    estimate,
+)
+from magbench.pipeline.decision import decide
 from magbench.pipeline.fitting import DEFAULT_MAX_SAMPLES, PREPROCESSING, applicability
 from magbench.pipeline.flight import (
     check_regressors,
@@ -93,13 +100,6 @@ from magbench.pipeline.flight import (
 )
 from magbench.sources.logs import is_log, log_units
 from magbench.sources.recordings import Recording, read_samples
-from magbench.studies.auto import candidate_rounds
-from magbench.studies.calibration import (
-    CalibrationResult,
-    bootstrap_check,
-    estimate,
-)
-from magbench.studies.decision import decide
 
 __all__ = ["MIN_COVERAGE", "answer_line", "calibration_json", "check_gate", "default_out",
            "detail_lines", "run_calibrate"]
@@ -112,8 +112,8 @@ MIN_COVERAGE = 0.2
 
 def _candidates(cfg: DictConfig, rec_has_gyro: bool) -> tuple[list[str], list[str]]:
     """The first and second round of candidates (``second_round`` of
-    :func:`~magbench.studies.calibration.calibrate_recording`) from ``method`` and
-    ``candidates`` (:func:`magbench.studies.auto.candidate_rounds`, as the Python API)."""
+    :func:`~magbench.pipeline.calibration.calibrate_recording`) from ``method`` and
+    ``candidates`` (:func:`magbench.pipeline.auto.candidate_rounds`, as the Python API)."""
     name = cfg.get("method")
     if name is not None:
         return [str(name)], []
