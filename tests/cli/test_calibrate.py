@@ -644,20 +644,6 @@ def test_a_confident_mounting_rotation_is_written_to_both_autopilots(tmp_path, c
     assert "_ROT" not in (out / "px4.params").read_text()
 
 
-def test_an_ardupilot_logs_rotation_is_relative_so_it_is_not_written():
-    from magbench.cli.calibrate import _export_rotation
-
-    found = {"id": 6, "name": "ROTATION_YAW_270"}
-    assert _export_rotation({"file": "a.ulg", "mounting_rotation": found}) == (6, "")
-    assert _export_rotation({"file": "a.csv", "mounting_rotation": found}) == (6, "")
-    rotation, line = _export_rotation({"file": "a.BIN", "mounting_rotation": found})
-    assert rotation is None and line.startswith("mounting: set COMPASS_ORIENT = 6 "
-                                                 "(ROTATION_YAW_270) if it is 0")
-    assert "comes on top of its current value" in line
-    assert _export_rotation({"file": "a.csv", "mounting_rotation": {"id": None}}) == (None, "")
-    assert _export_rotation({"file": "a.csv"}) == (None, "")
-
-
 def test_an_offset_that_follows_the_current_is_fitted_not_cut(tmp_path, capsys):
     """A flight log whose offset moves with the battery current (4 mGauss/A): the
     time-varying terms model it, so the offset check does not cut the recording, and the

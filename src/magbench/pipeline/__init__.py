@@ -16,11 +16,10 @@ The steps, in order, and where each is:
 5. *gate*: :func:`magbench.pipeline.calibration.judge` (verdict, intervals, PASS / WARN /
    FAIL by :mod:`magbench.core.verdict`) and the field strength against the Earth's in
    :func:`magbench.pipeline.decision.decide`, which runs steps 1-5 on one recording.
-6. *export*: the mounting rotation and the time-varying terms of
-   :mod:`magbench.pipeline.flight`; the payload and the firmware files are still built in
-   :mod:`magbench.cli.calibrate`.
-7. *picture*: the job that ``calibration.png`` is drawn from, still in
-   :mod:`magbench.cli.calibrate`.
+6. *export*: :mod:`magbench.pipeline.export` (``calibration.json``, ``calibration.h``, the
+   firmware files), with the mounting rotation and the time-varying terms of
+   :mod:`magbench.pipeline.flight`.
+7. *picture*: :mod:`magbench.pipeline.picture` (the job that ``calibration.png`` is drawn from).
 
 :func:`magbench.pipeline.auto.calibrate_auto` is the same decision for a program (arrays in,
 no file). The benchmark studies (:mod:`magbench.studies`) import this package to measure it;

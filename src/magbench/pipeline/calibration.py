@@ -1,7 +1,8 @@
 """Calibrating one recording for a user: thinned, screened, an out-of-sample choice, a gate.
 
-This is the study behind ``python -m magbench calibrate`` (the command only reads, prints and
-writes). :func:`calibrate_recording` runs these steps, each a small function:
+This is the screen, fit, choose and gate of ``python -m magbench calibrate`` (the package notes,
+:mod:`magbench.pipeline`, list every step; the command reads, prints and writes).
+:func:`calibrate_recording` runs these steps, each a small function:
 
 1. :func:`prepare` - *thinning and the outlier screen* (:func:`magbench.core.robust.screen`):
    a centre that a still stretch cannot pull, samples thinned by direction (a still or slow
