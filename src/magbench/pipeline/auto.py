@@ -1,6 +1,6 @@
 """The automatic choice of ``python -m magbench calibrate``, for a program: :func:`calibrate_auto`.
 
-The command and this function run the same study, :func:`magbench.pipeline.calibration.\
+The command and this function run the same pipeline, :func:`magbench.pipeline.calibration.\
 calibrate_recording` (outlier screen, coverage, every candidate fitted and held out, the choice,
 the verdict and the intervals), on the same candidates (:func:`candidate_rounds`) and the same
 thinning; this function takes arrays instead of a file and returns instead of writing. What it
@@ -90,7 +90,7 @@ class AutoCalibration:
         The ranked candidates (the table ``calibrate`` prints; ``result.ranked`` holds the
         same rows as records).
     result : CalibrationResult
-        Everything the study found.
+        Everything the pipeline found.
     """
 
     calibration: Calibration | None
@@ -107,7 +107,7 @@ class AutoCalibration:
 
 
 def _status(result: CalibrationResult) -> tuple[str, str]:
-    """The study's fitness (PASS, WARN or FAIL and its first reason); FAIL without a choice."""
+    """The pipeline's fitness (PASS, WARN or FAIL and its first reason); FAIL without a choice."""
     if result.chosen is None or result.fitness is None:
         return "FAIL", "no method produced a calibration that can be written"
     reasons = result.fitness["reasons"]

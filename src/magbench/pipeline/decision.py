@@ -51,7 +51,7 @@ class Decision:
     rec : Recording
         The recording as fitted (lag removed, the rows of one offset kept).
     result : CalibrationResult
-        The study's answer (``result.chosen`` None when nothing could be chosen).
+        The pipeline's answer (``result.chosen`` None when nothing could be chosen).
     lag_s : float
         The magnetometer lag removed, s.
     offsets : OffsetCheck or None
