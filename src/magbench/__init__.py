@@ -21,7 +21,7 @@ __version__ = "0.1.0"
 #: magbench`` starts calibrate's picture process before NumPy, let alone pandas, loads.
 #: ``methods`` is the subpackage, which is callable: ``magbench.methods()`` lists the names.
 _PUBLIC = {"Calibration": "magbench.core.model", "CalibrationFailed": "magbench.core.model",
-           "calibrate_auto": "magbench.studies.auto",
+           "calibrate_auto": "magbench.pipeline.auto",
            "MagCalibrator": "magbench.methods.estimator",
            "get_method": "magbench.methods.registry", "register": "magbench.methods.registry",
            "methods": None}
@@ -33,7 +33,7 @@ def calibrate(samples: object, method: str | None = None, **kwargs: object) -> o
 
     With ``method``: :func:`magbench.methods.api.calibrate` (keyword options of the method,
     ``angular_rate``/``time`` for the gyro-aided ones, ``raw=True`` for the method's own ``T``
-    instead of the safe gauge). Without: :func:`magbench.studies.auto.calibrate_auto` (keywords
+    instead of the safe gauge). Without: :func:`magbench.pipeline.auto.calibrate_auto` (keywords
     ``time``, ``angular_rate``, ``candidates``, ``options``, ``seed``, ...), returning its chosen
     :class:`Calibration`; call ``calibrate_auto`` itself for the status, verdict, intervals and
     choice.
@@ -56,7 +56,7 @@ def calibrate(samples: object, method: str | None = None, **kwargs: object) -> o
 
         return fit(samples, method, **kwargs)
     from magbench.core.model import CalibrationFailed
-    from magbench.studies.auto import calibrate_auto
+    from magbench.pipeline.auto import calibrate_auto
 
     auto = calibrate_auto(samples, **kwargs)
     if auto.status == "FAIL" or auto.calibration is None:

@@ -19,8 +19,8 @@ from magbench.core.exports import GAUGE
 from magbench.core.geometry import fibonacci_sphere
 from magbench.core.model import Calibration
 from magbench.methods.registry import get_method
+from magbench.pipeline.calibration import FIRST_ROUND
 from magbench.sources.recordings import DATA_ENV
-from magbench.studies.calibration import FIRST_ROUND
 
 T_TRUE = np.array([[520.0, 20.0, -8.0], [0.0, 470.0, 15.0], [0.0, 0.0, 610.0]])
 H_TRUE = np.array([900.0, -350.0, 120.0])          # counts; offset larger than the radius
@@ -617,7 +617,7 @@ def test_bad_gate_keys_exit_2_in_one_line(arg, message, tmp_path, capsys):
 
 
 def test_a_confident_mounting_rotation_is_written_to_both_autopilots(tmp_path, capsys):
-    from tests.studies.test_flight import simulated_ulog
+    from tests.pipeline.test_flight import simulated_ulog
 
     log = simulated_ulog(tmp_path / "flight.ulg", 6, seed=4, seconds=30.0)
     out = tmp_path / "cal"
@@ -644,25 +644,11 @@ def test_a_confident_mounting_rotation_is_written_to_both_autopilots(tmp_path, c
     assert "_ROT" not in (out / "px4.params").read_text()
 
 
-def test_an_ardupilot_logs_rotation_is_relative_so_it_is_not_written():
-    from magbench.cli.calibrate import _export_rotation
-
-    found = {"id": 6, "name": "ROTATION_YAW_270"}
-    assert _export_rotation({"file": "a.ulg", "mounting_rotation": found}) == (6, "")
-    assert _export_rotation({"file": "a.csv", "mounting_rotation": found}) == (6, "")
-    rotation, line = _export_rotation({"file": "a.BIN", "mounting_rotation": found})
-    assert rotation is None and line.startswith("mounting: set COMPASS_ORIENT = 6 "
-                                                 "(ROTATION_YAW_270) if it is 0")
-    assert "comes on top of its current value" in line
-    assert _export_rotation({"file": "a.csv", "mounting_rotation": {"id": None}}) == (None, "")
-    assert _export_rotation({"file": "a.csv"}) == (None, "")
-
-
 def test_an_offset_that_follows_the_current_is_fitted_not_cut(tmp_path, capsys):
     """A flight log whose offset moves with the battery current (4 mGauss/A): the
     time-varying terms model it, so the offset check does not cut the recording, and the
     status carries no 'offset changed' warning."""
-    from tests.studies.test_flight import simulated_ulog
+    from tests.pipeline.test_flight import simulated_ulog
 
     log = simulated_ulog(tmp_path / "flight.ulg", 0, seed=3, seconds=60.0,
                          motor=np.array([0.004, -0.002, 0.003]))

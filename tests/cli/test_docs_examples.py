@@ -39,7 +39,7 @@ UPDATE = os.environ.get("MAGBENCH_UPDATE_DOCS") == "1"
 MARK = re.compile(r"<!-- output of: (.*?) -->\n+```[a-z]*\n(.*?)```", re.S)
 FENCE = re.compile(r"```[a-z]*\n(.*?)```", re.S)
 #: The simulated log of docs/flight_logs.md, as its ``python -c`` line makes it.
-FLIGHT = ("from pathlib import Path; import numpy as np; from tests.studies.test_flight import "
+FLIGHT = ("from pathlib import Path; import numpy as np; from tests.pipeline.test_flight import "
           "simulated_ulog; simulated_ulog(Path('flight.ulg'), 6, seed=4, seconds=60, "
           "motor=np.array([0.004, -0.002, 0.003]))")
 

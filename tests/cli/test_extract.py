@@ -74,7 +74,7 @@ def test_calibrate_on_the_shared_logs_says_the_stream_is_too_short(path, tmp_pat
 def test_calibrate_from_a_log_reports_the_mounting_rotation(tmp_path, capsys):
     import json
 
-    from tests.studies.test_flight import simulated_ulog
+    from tests.pipeline.test_flight import simulated_ulog
 
     log = simulated_ulog(tmp_path / "flight.ulg", 6, seed=4, seconds=30.0)
     out = tmp_path / "cal"
@@ -90,7 +90,7 @@ def test_calibrate_from_a_log_reports_the_mounting_rotation(tmp_path, capsys):
 def test_calibrate_from_a_log_fits_the_current_term_and_keeps_it(tmp_path, capsys):
     import json
 
-    from tests.studies.test_flight import simulated_ulog
+    from tests.pipeline.test_flight import simulated_ulog
 
     motor = np.array([0.004, -0.002, 0.003])               # gauss per A
     log = simulated_ulog(tmp_path / "flight.ulg", 0, seed=5, seconds=30.0, motor=motor)

@@ -302,7 +302,7 @@ def test_an_accelerometer_method_says_calibrate_does_not_pass_it():
     from types import SimpleNamespace
 
     from magbench.methods.registry import get_method, methods
-    from magbench.studies.real import applicability
+    from magbench.pipeline.fitting import applicability
 
     name = next(m for m in methods() if get_method(m).needs_accel)
     rec = SimpleNamespace(K=10_000, has_gyro=True, acceleration=np.zeros((3, 3)))

@@ -1,4 +1,5 @@
-"""Real-recording loader, geometry checks, preprocessing and the real-data sweep.
+"""Real-recording loader, geometry checks, thinning and the real-data sweep (the fits of one
+recording: tests/pipeline/test_fitting.py).
 
 Unit tests write their own small CSV files (synthetic data); only the last test reads the shared
 recordings, and it skips when the data directory is absent.
@@ -15,8 +16,6 @@ import pytest
 
 from magbench.cli import main
 from magbench.core.geometry import check_geometry, coverage, fibonacci_sphere, sphere_fit, thickness
-from magbench.core.metrics import real_cost
-from magbench.core.model import Calibration
 from magbench.engine.sweep import run_study
 from magbench.report.real import real_report_section
 from magbench.sources.recordings import (
@@ -27,7 +26,7 @@ from magbench.sources.recordings import (
     load_recording,
     read_samples,
 )
-from magbench.studies.real import RealStudy, applicability, fit_recording, is_meaningful
+from magbench.studies.real import RealStudy
 
 T_TRUE = np.array([[1.1, 0.05, -0.02], [0.0, 0.9, 0.04], [0.0, 0.0, 1.2]])
 H_TRUE = np.array([0.3, -0.2, 0.1])
@@ -189,44 +188,7 @@ def test_small_cap_is_rejected_with_the_coverage_figure(tmp_path):
     check_geometry(ellipsoid())                          # a full ellipsoid passes
 
 
-# --------------------------------------------------------------------------- fitting
-
-
-OFFSET = np.array([3.0, -2.0, 1.5])                 # hard iron ~3 times the field radius
-
-
-@pytest.mark.parametrize("how", ["none", "scale", "centre"])
-def test_preprocessing_is_undone_in_the_estimate(how):
-    y = ellipsoid(300, scale=700.0, offset=OFFSET)
-    cal = fit_recording(Recording("x", y), "ellipsoid", how)
-    assert real_cost(y, cal.T, cal.h) < 1e-10
-    np.testing.assert_allclose(cal.h, 700.0 * OFFSET, rtol=1e-6)
-
-
-def test_magical_needs_centring_when_the_offset_exceeds_the_radius():
-    # The finding behind preprocessing 'centre': from y/||y|| MAG.I.C.AL runs to its cap.
-    y = ellipsoid(300, scale=700.0, offset=OFFSET)
-    scaled = fit_recording(Recording("x", y), "magical", "scale")
-    assert not scaled.converged and real_cost(y, scaled.T, scaled.h) > 1e-3
-    centred = fit_recording(Recording("x", y), "magical", "centre")
-    assert centred.converged and real_cost(y, centred.T, centred.h) < 1e-10
-    np.testing.assert_allclose(centred.h, 700.0 * OFFSET, rtol=1e-6)
-
-
-def test_degenerate_answer_has_tiny_J_r_but_is_not_meaningful():
-    y = ellipsoid(300, sigma=0.01)
-    D = 1e4
-    far = Calibration(D * np.eye(3), np.array([-D, 0.0, 0.0]))
-    J_far = real_cost(y, far.T, far.h)
-    c, r = sphere_fit(y)
-    J_sphere = real_cost(y, r * np.eye(3), c)
-    assert J_far < 1e-3 * J_sphere                 # eq. (81) alone would prefer it
-    cov = coverage(far.apply(y))
-    assert cov < 0.1
-    assert not is_meaningful(True, J_far, J_sphere, cov, coverage(y - c))
-    good = fit_recording(Recording("x", y), "magical")
-    J_good = real_cost(y, good.T, good.h)
-    assert is_meaningful(True, J_good, J_sphere, coverage(good.apply(y)), coverage(y - c))
+# --------------------------------------------------------------------------- thinning
 
 
 def test_thinning_and_halves_are_deterministic():
@@ -236,13 +198,6 @@ def test_thinning_and_halves_are_deterministic():
     first, second = rec.halves()
     assert first.t.tolist() == [0, 1, 2, 3, 4] and second.t.tolist() == [5, 6, 7, 8, 9]
     assert rec.thinned(None) is rec and rec.thinned(10) is rec
-
-
-def test_applicability_reasons():
-    small = Recording("x", ellipsoid(6))
-    assert "needs at least 10 samples, this fit has 6" in applicability("twostep", small)
-    assert "needs gyroscope data" in applicability("sar_ls", Recording("x", ellipsoid(50)))
-    assert applicability("sphere", small) == ""
 
 
 # --------------------------------------------------------------------------- the sweep

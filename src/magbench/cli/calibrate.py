@@ -1,21 +1,23 @@
 """``python -m magbench calibrate file=PATH [method=NAME] [columns=[mx,my,mz]] [out=DIR]``.
 
-Calibrates a user's own recording. The work is :func:`magbench.studies.calibration.\
-calibrate_recording` (thinning by direction and the outlier screen, coverage and the models it
-allows, every candidate fitted on all samples and on interleaved time-block folds, the choice
-that holds out of sample, trimming around the chosen fit, refusal of collapsed fits, verdict,
-intervals and the PASS / WARN / FAIL gate; its module notes say how each is decided); this
-command reads the file, prints the answer first (status, held-out error, method, folder), then
-the reasons and the details, and writes. FAIL exits 3 and writes ``calibration.json`` with
-the reasons, the ranking and the picture, no correction (thresholds: the ``gate.*`` keys,
-:func:`check_gate`; a field strength the Earth does not give in the declared unit,
-:func:`magbench.core.units.unit_check`). Every file goes to a staging folder put in place as
-``out`` in one step, under a lock (:mod:`magbench.cli.outfolder`).
+Calibrates a user's own recording: the adapter between the command line and the pipeline of
+:mod:`magbench.pipeline` (read -> screen -> fit -> choose -> gate -> export -> picture; its
+notes name the module of each step). This module checks the keys, reads the file, runs
+:func:`magbench.pipeline.decision.decide` (thinning by direction and the outlier screen,
+coverage and the models it allows, every candidate fitted on all samples and on interleaved
+time-block folds, the choice that holds out of sample, trimming around the chosen fit, refusal
+of collapsed fits, verdict, intervals and the PASS / WARN / FAIL gate), has the export and
+picture steps write, prints the answer first (status, held-out error, method, folder), then
+the reasons and the details, and sets the exit status. FAIL exits 3 and writes
+``calibration.json`` with the reasons, the ranking and the picture, no correction
+(thresholds: the ``gate.*`` keys, :func:`check_gate`; a field strength the Earth does not give
+in the declared unit, :func:`magbench.core.units.unit_check`). Every file goes to a staging
+folder put in place as ``out`` in one step, under a lock (:mod:`magbench.cli.outfolder`).
 The candidates are the registered methods except the review's printed variants (family
 ``variant``: benchmark-only, wrong as printed) and, without gyro data, the gyro-aided ones.
 By default (``candidates=auto``) they are fitted in two rounds: the closed forms and Wu-Shi NM
 first, the iterative rest only when they could change the choice (the rule is in
-:mod:`magbench.studies.calibration`, step 2); ``candidates=all`` fits every one in one round,
+:mod:`magbench.pipeline.calibration`, step 2); ``candidates=all`` fits every one in one round,
 ``candidates=[a,b]`` only those, and ``method=NAME`` runs any one.
 
 The chosen (or the named) calibration is written in the safe gauge of
@@ -24,12 +26,11 @@ The chosen (or the named) calibration is written in the safe gauge of
 (never a mirror image; the rotation removed from the method's own ``T^-1`` is reported), or,
 when the inertial columns fix the rotation, heading-true ``A = R S``
 (:mod:`magbench.cli.direction`; the firmware files then say what part of R they leave out).
-Beside ``calibration.json`` (:func:`magbench.core.exports.to_json_dict`) go ``calibration.h``,
+Beside ``calibration.json`` (:mod:`magbench.pipeline.export`) go ``calibration.h``,
 the firmware files that accept the values (:mod:`magbench.core.exports`), ``ranking.csv``,
-``manifest.json`` and ``calibration.png`` (the data before and after, kept, thinned and
-outlying samples apart, and the field directions covered). The default folder is
-``<name>-calibration`` with ``name`` the file's stem,
-or its folder's name for a file called ``data.csv``.
+``manifest.json`` and ``calibration.png`` (:mod:`magbench.pipeline.picture`). The default
+folder is ``<name>-calibration`` with ``name`` the file's stem, or its folder's name for a
+file called ``data.csv``.
 The preprocessing is ``centre`` (remove the sphere-fit centre and radius first), which the
 real-data sweep found necessary for MAG.I.C.AL and Dorveaux when the offset exceeds the field
 radius; ``preprocess=scale`` selects the review's.
@@ -68,41 +69,30 @@ from magbench.cli.config import (
 from magbench.cli.direction import direction_lines, mark_vetoes
 from magbench.cli.outfolder import Staging, hold
 from magbench.cli.picture import PictureWorker, draw_picture
-from magbench.core.exports import (
-    MOTOR_REGRESSORS,
-    MotorCompensation,
-    c_header,
-    field_strength,
-    firmware_files,
-    to_json_dict,
-)
 from magbench.core.files import write_records_csv, write_text_atomic
-from magbench.core.gauge import safe_gauge
 from magbench.core.model import Calibration
-from magbench.core.units import UNKNOWN, Units, parse_units
+from magbench.core.units import Units, parse_units
 from magbench.core.verdict import Gate
-from magbench.methods.api import calibrate as magbench_calibrate
 from magbench.methods.registry import get_method, methods
+from magbench.pipeline.auto import candidate_rounds
+from magbench.pipeline.calibration import CalibrationResult, bootstrap_check, estimate
+from magbench.pipeline.decision import decide
+from magbench.pipeline.export import (
+    add_mounting,
+    add_time_varying,
+    calibration_json,
+    held_out_rms_pct,
+    instance_keys,
+    write_exports,
+)
+from magbench.pipeline.fitting import DEFAULT_MAX_SAMPLES, PREPROCESSING, applicability
+from magbench.pipeline.flight import check_regressors
+from magbench.pipeline.picture import picture_job
 from magbench.sources.logs import is_log, log_units
 from magbench.sources.recordings import Recording, read_samples
-from magbench.studies.auto import candidate_rounds
-from magbench.studies.calibration import (
-    CalibrationResult,
-    bootstrap_check,
-    estimate,
-)
-from magbench.studies.decision import decide
-from magbench.studies.flight import (
-    check_regressors,
-    mounting_rotation,
-    time_varying_terms,
-    unused_regressors,
-    usable_regressors,
-)
-from magbench.studies.real import DEFAULT_MAX_SAMPLES, PREPROCESSING, applicability
 
-__all__ = ["MIN_COVERAGE", "answer_line", "calibration_json", "check_gate", "default_out",
-           "detail_lines", "run_calibrate"]
+__all__ = ["MIN_COVERAGE", "answer_line", "check_gate", "default_out", "detail_lines",
+           "run_calibrate"]
 
 #: Coverage below which a recording is refused: lower than the sweeps' 0.3, because thin
 #: coverage now falls back to the sphere model instead of a full fit (a hemisphere of real
@@ -112,8 +102,8 @@ MIN_COVERAGE = 0.2
 
 def _candidates(cfg: DictConfig, rec_has_gyro: bool) -> tuple[list[str], list[str]]:
     """The first and second round of candidates (``second_round`` of
-    :func:`~magbench.studies.calibration.calibrate_recording`) from ``method`` and
-    ``candidates`` (:func:`magbench.studies.auto.candidate_rounds`, as the Python API)."""
+    :func:`~magbench.pipeline.calibration.calibrate_recording`) from ``method`` and
+    ``candidates`` (:func:`magbench.pipeline.auto.candidate_rounds`, as the Python API)."""
     name = cfg.get("method")
     if name is not None:
         return [str(name)], []
@@ -144,65 +134,6 @@ def default_out(path: Path) -> Path:
     (every recording of the real-data layout has that name)."""
     stem = path.resolve().parent.name if path.name.lower() == "data.csv" else path.stem
     return Path(f"{stem or 'recording'}-calibration")
-
-
-def calibration_json(result: CalibrationResult, *, file: str, columns: list, n_file: int,
-                     preprocess: str, units: Units = UNKNOWN,
-                     expected_field: float | None = None) -> dict:
-    """The chosen calibration as a JSON-ready dict: the correction in the safe gauge.
-
-    The schema of :func:`magbench.core.exports.to_json_dict` (``A``, ``b`` of ``m = A (y - b)``,
-    ``T = A^-1``, ``h = b``), plus ``status`` and ``fitness`` (PASS, WARN or FAIL and why), the
-    method, the choice, verdict, intervals, thinning, outliers and coverage; ``removed`` records
-    the rotation angle taken out of the method's own ``T^-1``, whether it was a mirror image, and
-    the method's ``T`` itself; ``unit`` the recording's unit and ``field_strength_expected`` the
-    ``field_strength`` key in file units (None if unset). A FAIL holds no correction at the top
-    level (``apply`` refuses it): the rejected ``A``, ``b``, ``T``, ``h`` are under ``rejected``.
-
-    Raises
-    ------
-    ValueError
-        If the chosen ``T`` is singular or not finite (such a fit is never written).
-    """
-    row = result.chosen
-    T, h = estimate(row)
-    gauge = safe_gauge(T, h)
-    correction = to_json_dict(Calibration(T, h), units=units, columns=columns)
-    status = result.fitness["status"]
-    if status == "FAIL":
-        rejected = {k: correction.pop(k) for k in ("A", "b", "T", "h")}
-        correction["rejected"] = rejected
-    return {
-        "status": status, "fitness": result.fitness, **correction,
-        "file": file, "method": row["algorithm"], "label": get_method(row["algorithm"]).label,
-        "model": get_method(row["algorithm"]).model, "choice": result.how, "tie": result.tie,
-        "candidates": {"fitted": sorted({r["algorithm"] for r in result.trials}),
-                       "not_fitted": result.not_fitted,
-                       "second_round": result.second_round or None},
-        "removed": {"rotation_deg": gauge.rotation_deg, "mirrored": gauge.mirrored,
-                    "method_T": T.tolist()},
-        "field_strength": field_strength(Calibration(T, h)),
-        "field_strength_expected": expected_field,
-        "verdict": result.verdict,
-        "intervals": result.intervals.to_dict() if result.intervals else None,
-        "bootstrap": result.bootstrap,
-        "thinning": {"thinned": result.thinned, "distinct_directions": result.directions,
-                     "band_half_width_deg": result.band_deg,
-                     "rule": "equal-area direction cells of about 10 deg; no cell keeps more "
-                             "than 10x the median occupied cell's count"},
-        "outliers": {"set_aside": result.outliers, "by_sphere_screen": result.screened,
-                     "by_chosen_fit": result.trimmed, "applied": result.screen.applied,
-                     "rule": "norm residual more than 5 robust sigmas (1.4826 MAD) from the "
-                             "median"},
-        "coverage": result.coverage, "warnings": list(result.warnings),
-        "J_r_in": float(row["J_r_in"]), "J_r_out": _finite(row["J_r_out"]),
-        "J_r_worst_fold": _finite(row["J_r_worst"]),
-        "worst_out_pct": _finite(row["worst_out_pct"]),
-        "J_r_sphere_fit": float(row["J_r_sphere_in"]), "meaningful": bool(row["meaningful"]),
-        "converged": bool(row["ok"]), "n_iter": int(row["n_iter"]),
-        "preprocess": preprocess, "samples_used": int(row["K"]), "samples_in_file": n_file,
-        "stride": int(result.stride),
-    }
 
 
 def answer_line(payload: dict, out: Path) -> str:
@@ -278,20 +209,6 @@ def detail_lines(result: CalibrationResult, payload: dict, n_file: int) -> list[
     return lines
 
 
-def _instance_keys(rec: Recording) -> dict:
-    """``instance`` (the column and value kept) and what the firmware files take from it: an
-    ArduPilot ``I`` or ``instance`` of 0-3 numbers the parameter set, a ``device_id`` is PX4's
-    CAL_MAGn_ID."""
-    if rec.instance is None:
-        return {"instance": None}
-    column, value = rec.instance
-    number = int(float(value)) if value.lstrip("-").replace(".", "", 1).isdigit() else None
-    index = number if column != "device_id" and number is not None and 0 <= number <= 3 else 0
-    device = number if column == "device_id" else None
-    return {"instance": {"column": column, "value": value}, "instance_index": index,
-            "device_id": device}
-
-
 def _field_text(payload: dict) -> str:
     """The field strength in the recording's unit, and against the expected one if given."""
     units = Units.from_dict(payload.get("unit"))
@@ -301,10 +218,6 @@ def _field_text(payload: dict) -> str:
         change = 100 * (payload["field_strength"] / expected - 1)
         text += f" (expected {units.show(expected)}: {change:+.1f} %)"
     return text
-
-
-def _finite(x: float) -> float | None:
-    return float(x) if x is not None and np.isfinite(x) else None
 
 
 def _fmt(x: float, width: int = 11, spec: str = ".3g") -> str:
@@ -405,11 +318,11 @@ def _calibrate_into(cfg: DictConfig, run: _Run, staging: Staging,
                                expected_field=run.expected)
     if units.inferred:
         payload["unit"]["inferred"] = True
-    payload |= _instance_keys(rec)
-    varying, corrected = _add_time_varying(result, payload, run.compensate, options)
+    payload |= instance_keys(rec)
+    varying, corrected = add_time_varying(result, payload, run.compensate, options)
     first = [units.note] if units.note else []
     if payload["status"] == "FAIL":
-        job = _picture_job(result, payload, folder)
+        job = picture_job(result, payload, folder)
         write_records_csv(result.ranked, folder / "ranking.csv")
         write_text_atomic(json.dumps(payload, indent=2) + "\n", folder / "calibration.json")
         drawn = _draw(run, picture, job)
@@ -417,8 +330,8 @@ def _calibrate_into(cfg: DictConfig, run: _Run, staging: Staging,
                                                "ranking.csv", *drawn], start,
                 [line for line in (varying, _cure_line(payload)) if line], first)
         return 3
-    mounting = _add_mounting(result, payload, corrected)
-    job = _picture_job(result, payload, folder)
+    mounting = add_mounting(result, payload, corrected)
+    job = picture_job(result, payload, folder)
     sent = run.picture and picture is not None and picture.send(job)
     # After the picture is handed over, so that its drawing and the refits overlap.
     result.bootstrap = payload["bootstrap"] = bootstrap_check(
@@ -427,7 +340,7 @@ def _calibrate_into(cfg: DictConfig, run: _Run, staging: Staging,
     cal, direction = direction_lines(result, Calibration(*estimate(result.chosen)), payload,
                                      veto, run.site, lag)
     write_text_atomic(json.dumps(payload, indent=2) + "\n", folder / "calibration.json")
-    written, notes = _write_exports(cal, payload, folder, result)
+    written, notes = write_exports(cal, payload, folder, result)
     offset_line = offsets.line() if offsets is not None else ""
     notes = [line for line in (offset_line, varying, mounting, *direction) if line] + notes
     write_records_csv(result.ranked, folder / "ranking.csv")
@@ -551,19 +464,13 @@ def _read(run: _Run) -> Recording:
     return rec
 
 
-def _held_out_rms_pct(terms: dict) -> dict[str, float]:
-    """The held-out RMS field error (%) of ``time_varying``'s static and time-varying fits
-    (the dict holds their mean squared norm residuals)."""
-    return {k: 100 * float(np.sqrt(terms[f"held_out_{k}"])) for k in ("static", "time_varying")}
-
-
 def _cure_line(payload: dict) -> str:
     """On a FAIL whose time-varying terms were kept: the held-out error with them, since a
     field that moves with the current (or temperature) is what failed, not the sensor."""
     tv = payload.get("time_varying") or {}
     if not tv.get("kept"):
         return ""
-    rms = _held_out_rms_pct(tv)
+    rms = held_out_rms_pct(tv)
     return (f"the field moves with the {', '.join(tv['regressors'])}: with the terms the "
             f"held-out field magnitude error is {rms['time_varying']:.2f} % RMS against "
             f"{rms['static']:.2f} % static, but the verdict judges the static calibration; "
@@ -586,194 +493,3 @@ def _report(result: CalibrationResult, payload: dict, out: Path, n_file: int,
     print("\n".join(lines))
     for warning in payload["warnings"]:
         print(f"magbench: warning: {warning}", file=sys.stderr)
-
-
-def _add_mounting(result: CalibrationResult, payload: dict,
-                  corrected: np.ndarray | None = None) -> str:
-    """Adds the detected mounting rotation to ``payload`` (``mounting_rotation``: the id of
-    the autopilots' rotation enum, or None with the reason) when the recording has an
-    attitude or an accelerometer (:mod:`magbench.studies.flight`); its line, or "".
-    ``corrected``: the samples corrected with kept time-varying terms, used instead of
-    ``A (y - b)``."""
-    found = mounting_rotation(result.rec, np.array(payload["A"]), np.array(payload["b"]),
-                              result.inliers, corrected)
-    if found is None:
-        return ""
-    payload["mounting_rotation"] = found.to_dict()
-    return found.line()
-
-
-def _add_time_varying(result: CalibrationResult, payload: dict, wanted: list[str] | None,
-                      options: dict) -> tuple[str, np.ndarray | None]:
-    """Fits ``y = T m + h + C u`` after the chosen static fit and adds ``time_varying`` to
-    ``payload`` (regressors, held-out errors static and with the terms, kept or not, and the
-    fit's ``A``, ``b``, ``C``). The static start is the chosen method if it fits the full model
-    without a gyro, else Fang (the terms are fitted with a full ``A``). ``wanted``:
-    ``compensate`` (None: auto). Returns the line ("" when there is nothing to fit) and, when
-    the terms are kept, every sample corrected with them (NaN where ``u`` is missing)."""
-    rec: Recording = result.rec
-    names = usable_regressors(rec, wanted)
-    unused = unused_regressors(rec) if wanted is None else []
-    if not names:
-        return ("time-varying terms not fitted: " + ", ".join(unused) if unused else ""), None
-    spec = get_method(payload["method"])
-    name = payload["method"] if spec.model == "full" and spec.magnetometer_only else "fang"
-    opts = options.get(name) or {}
-
-    def static_fit(samples: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        return magbench_calibrate(samples, name, **opts).correction()
-
-    choice = time_varying_terms(rec, names, static_fit, result.inliers)
-    payload["time_varying"] = {"method": name, **choice.to_dict(names)}
-    firmware = [n for n in names if n in MOTOR_REGRESSORS][:1]
-    if choice.kept and firmware and len(names) > 1:
-        # The autopilots hold a current or throttle term only: that term alone, if it holds.
-        alone = time_varying_terms(rec, firmware, static_fit, result.inliers)
-        if alone.kept:
-            payload["time_varying"]["firmware"] = alone.to_dict(firmware)
-    left_out = f"; not fitted: {', '.join(unused)}" if unused else ""
-    head = (f"time-varying terms (y = T m + h + C u, u = {', '.join(names)}{left_out}; {name}; "
-            "held out on interleaved time blocks): ")
-    if choice.fit is None:
-        return head + f"not kept ({choice.reason})", None
-    terms = "; ".join(f"{n} ({', '.join(f'{c:.3g}' for c in choice.fit.C[:, j])})"
-                      for j, n in enumerate(names))
-    verdict = "kept" if choice.kept else f"not kept ({choice.reason})"
-    line = (head + f"held-out mean squared norm residual {choice.static_out:.3g} static, "
-            f"{choice.varying_out:.3g} with the terms: {verdict}; C per unit of u (file "
-            f"units): {terms}")
-    corrected = choice.fit.apply(rec.y, rec.stack(names)) if choice.kept \
-        else None
-    return line, corrected
-
-
-def _write_exports(cal: Calibration, payload: dict, out: Path,
-                   result: CalibrationResult) -> tuple[list[str], list[str]]:
-    """calibration.h always; each firmware file of :func:`magbench.core.exports.firmware_files`
-    (with the mounting rotation as COMPASS_ORIENT and CAL_MAGn_ROT when it was detected with
-    confidence, none when refused) that can be written (one line says why not the others, each
-    reason once; a stale one from an earlier run in ``out`` is removed). Returns the names
-    written and that line, if any."""
-    f = payload["verdict"]["field_error_pct"]
-    verdict = (f"{payload['label']}: field magnitude error {f['p95']:.2f} % (95th percentile), "
-               f"{f['max']:.2f} % (max), "
-               f"{'held out' if payload['verdict']['held_out'] else 'in sample'}; "
-               f"from {Path(payload['file']).name}")
-    units = Units.from_dict(payload.get("unit"))
-    rotation, why_not = _export_rotation(payload)
-    write_text_atomic(c_header(cal, "mag_cal", verdict=verdict, units=units),
-                      out / "calibration.h")
-    firmware_cal, motor, motor_note = _export_motor(cal, payload)
-    written, refused = firmware_files(firmware_cal, units,
-                                      instance=payload.get("instance_index") or 0,
-                                      device_id=payload.get("device_id"), rotation=rotation,
-                                      motor=motor, comment=verdict + (
-                                          f"\n{motor_note}" if motor else ""),
-                                      samples=result.rec.y[result.inliers])
-    for file, text in written.items():
-        write_text_atomic(text, out / file)
-    notes = ["not writing " + "; ".join(
-        f"{', '.join(n for n, r in refused.items() if r == reason)} ({reason})"
-        for reason in dict.fromkeys(refused.values()))] if refused else []
-    return (["calibration.h", *written],
-            notes + [line for line in (why_not, motor_note if written else "") if line])
-
-
-def _export_motor(cal: Calibration, payload: dict) -> tuple[Calibration, MotorCompensation | None,
-                                                             str]:
-    """The calibration the firmware files hold, its motor term and a line saying so: the
-    time-varying fit's ``A``, ``b`` and ``C`` when its only kept term is the current or the
-    throttle (what ArduPilot's COMPASS_MOT and PX4's CAL_MAGn_*COMP hold), else ``cal``."""
-    tv = payload.get("time_varying") or {}
-    if not tv.get("kept"):
-        return cal, None, ""
-    names = tv["regressors"]
-    terms = tv if len(names) == 1 and names[0] in MOTOR_REGRESSORS else tv.get("firmware")
-    if terms is None:
-        return cal, None, (f"firmware files hold the static calibration: the kept "
-                           f"{', '.join(names)} terms have no ArduPilot or PX4 parameter "
-                           "(they hold one current or throttle term)")
-    name = terms["regressors"][0]
-    motor = MotorCompensation(name, np.asarray(terms["C"], dtype=float)[:, 0])
-    # The alignment of the static fit goes with it, so that the files' headers say the
-    # rotation calibration.json applies and they do not.
-    kept = Calibration(np.linalg.inv(np.asarray(terms["A"], dtype=float)),
-                       np.asarray(terms["b"], dtype=float), alignment=cal.alignment)
-    rms = _held_out_rms_pct(terms)
-    others = [n for n in names if n != name]
-    alone = (f" alone, as {' and '.join(others)} {'has' if len(others) == 1 else 'have'} no "
-             "parameter" if terms is not tv else "")
-    return kept, motor, (f"firmware files hold the fit with the {name} term{alone} "
-                         f"(COMPASS_MOT*, CAL_MAGn_*COMP; held-out field magnitude error "
-                         f"{rms['time_varying']:.2f} % RMS, static {rms['static']:.2f} %); "
-                         "calibration.json and calibration.h hold the static calibration")
-
-
-#: ArduPilot logs: their ``MAG`` is after COMPASS_ORIENT (docs/flight_logs.md).
-ARDUPILOT_LOGS = (".bin", ".log")
-
-
-def _export_rotation(payload: dict) -> tuple[int | None, str]:
-    """The mounting rotation the firmware files set (COMPASS_ORIENT, CAL_MAGn_ROT): the
-    confident detection's id, else None. From an ArduPilot log the detection is relative to the
-    compass's current COMPASS_ORIENT, so nothing is set and a line says so."""
-    found = (payload.get("mounting_rotation") or {}).get("id")
-    if found is None or Path(payload["file"]).suffix.lower() not in ARDUPILOT_LOGS:
-        return found, ""
-    n = payload.get("instance_index") or 0
-    key = f"COMPASS_ORIENT{'' if n == 0 else n + 1}"
-    name = payload["mounting_rotation"]["name"]
-    payload["mounting_rotation"]["suggested"] = {"parameter": key, "on_top_of_current": True}
-    return None, (f"mounting: set {key} = {found} ({name}) if it is 0 (ROTATION_NONE) now; an "
-                  f"ArduPilot log's MAG is already turned by {key}, so {name} comes on top of "
-                  "its current value (compose the two); not written to the firmware files")
-
-
-#: Samples drawn in the picture: enough to show the shape, few enough to draw fast.
-PICTURE_SAMPLES = 1500
-#: Resolution of the picture (the sweeps' figures use 110; PNG encoding grows with its square).
-PICTURE_DPI = 90
-#: zlib level of the picture's PNG: 1 encodes in a third of the default's 55 ms, 18 % larger.
-PICTURE_COMPRESSION = 1
-
-
-def _picture_job(result: CalibrationResult, payload: dict, folder: Path) -> dict:
-    """:func:`~magbench.cli.picture.draw_picture`'s job for ``folder/calibration.png``."""
-    return {"path": folder / "calibration.png", "dpi": PICTURE_DPI,
-            "compress_level": PICTURE_COMPRESSION,
-            "kwargs": _picture_arguments(result, payload)}
-
-
-def _picture_arguments(result: CalibrationResult, payload: dict) -> dict:
-    """Keyword arguments of :func:`magbench.figures.calibration.calibration_picture`: kept,
-    thinned and outlying samples apart; on a FAIL the rejected correction and the first
-    reason in the title. When the offset is larger than the field, the "before" row is drawn
-    about the fitted centre (else the data are a small blob far from the unit circle), and its
-    title says so."""
-    fail = payload["status"] == "FAIL"
-    fit = payload["rejected"] if fail else payload
-    A = np.array(fit["A"])
-    b = np.array(fit["b"])
-    rec: Recording = result.rec
-    step = max(1, rec.K // PICTURE_SAMPLES)
-    y = rec.y[::step]
-    strength = float(payload["field_strength"])
-    offset = float(np.linalg.norm(b))
-    if offset > strength:
-        before = (y - b) / strength
-        before_title = (f"before, drawn about the fitted offset (|b| = {offset / strength:.1f} "
-                        "x the field), scaled to the field")
-    else:
-        before = y / float(np.mean(np.linalg.norm(y, axis=1)))
-        before_title = None
-    after = (y - b) @ A.T
-    where = Path(payload["file"])
-    title = f"{where.parent.name}/{where.name}: {payload['label']} ({payload['model']} model)"
-    if fail:
-        reason = payload["fitness"]["reasons"][0] if payload["fitness"]["reasons"] else ""
-        title = f"FAIL: {reason[:110]}" + ("..." if len(reason) > 110 else "") + f"\n{title}"
-    return {"before": before, "after": after, "title": title,
-            "inliers": result.screen.inliers[::step], "thinned": ~result.screen.kept[::step],
-            "before_title": before_title, "directions": (result.work.y - b) @ A.T,
-            "gap_centre": np.array(result.coverage["gap_centre"]),
-            "gap_deg": result.coverage["largest_gap_deg"]}

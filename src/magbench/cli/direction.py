@@ -1,5 +1,5 @@
 """``calibrate``'s direction part: the veto's notes in the ranking, the heading-true
-correction and the lines that say what the direction is (:mod:`magbench.studies.alignment`)."""
+correction and the lines that say what the direction is (:mod:`magbench.pipeline.alignment`)."""
 
 from __future__ import annotations
 
@@ -13,8 +13,8 @@ from magbench.core.exports import to_json_dict
 from magbench.core.geomagnetic import Site
 from magbench.core.model import Calibration, CalibrationFailed
 from magbench.core.units import Units
-from magbench.studies.alignment import DirectionVeto, align_chosen, field_check, inertial_of
-from magbench.studies.calibration import CalibrationResult
+from magbench.pipeline.alignment import DirectionVeto, align_chosen, field_check, inertial_of
+from magbench.pipeline.calibration import CalibrationResult
 
 __all__ = ["direction_lines", "mark_vetoes", "measured_inclination"]
 

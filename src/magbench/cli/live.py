@@ -10,7 +10,7 @@
   (:func:`~magbench.core.geometry.largest_gap`), the distinct directions (occupied equal-area
   cells, :func:`~magbench.core.geometry.direction_cells`) and the band about one plane.
 - *Held-out error.* A cheap fit on calibrate's own interleaved time-block folds
-  (:func:`magbench.studies.holdout.fold_indices`): the sphere fit, and the ellipsoid fit once
+  (:func:`magbench.pipeline.holdout.fold_indices`): the sphere fit, and the ellipsoid fit once
   the largest gap is within the gate (``calibrate`` allows full models only then), each fitted
   on every block but a fold's and scored on that fold; the better one's 95th percentile of
   ``100 |1 - |m||`` over every held-out sample, the figure the gate judges.
@@ -44,7 +44,7 @@ from magbench.core.model import CalibrationFailed
 from magbench.core.robust import screen
 from magbench.core.verdict import Gate, field_error_pct
 from magbench.methods.api import calibrate as fit_method
-from magbench.studies.holdout import fold_indices
+from magbench.pipeline.holdout import fold_indices
 
 __all__ = ["MAX_FIT", "MIN_SAMPLES", "LiveStatus", "live_status", "map_rows", "turn_words"]
 

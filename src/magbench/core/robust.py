@@ -16,11 +16,11 @@ sample from the coordinate-wise median of the samples against the median distanc
 rounds use the linear least-squares sphere fit of the inliers
 (:func:`magbench.core.geometry.sphere_fit`). The sphere fit cannot represent soft iron, so its
 residuals are wider than a full model's; that only makes this first screen lenient, and the
-chosen method's own residuals are trimmed afterwards (:mod:`magbench.studies.calibration`).
+chosen method's own residuals are trimmed afterwards (:mod:`magbench.pipeline.calibration`).
 
 *Collapsed fits* (:func:`refusal_reason`). J_r has a degenerate minimiser: with ``h`` far
 away and a large ``T``, every corrected sample lands near one point of the unit sphere and
-J_r tends to 0 (see :mod:`magbench.studies.real`). Such a fit, a near-singular ``A`` or a
+J_r tends to 0 (see :mod:`magbench.pipeline.fitting`). Such a fit, a near-singular ``A`` or a
 non-finite answer is refused, never written.
 
 *Still stretches* (:func:`screen`). A recording that lies still for half its length puts half

@@ -4,7 +4,7 @@ A user calibrates on what they recorded and flies on everything else: other orie
 later minutes. This study (``python -m magbench sweep=generalisation``) asks, for each recording
 of ``data_dir`` and each *protocol* (:data:`PROTOCOLS`), how a fit made on one part does on the
 other part, for every fixed method, for ``calibrate``'s automatic choice (its own decision,
-:func:`magbench.studies.decision.decide`: a FAIL or no choice leaves the user the raw data) and
+:func:`magbench.pipeline.decision.decide`: a FAIL or no choice leaves the user the raw data) and
 for the peers (navlib, magcal) when the optional ``peers`` extra is installed.
 
 Protocols (:func:`split`):
@@ -54,13 +54,13 @@ from magbench.core.robust import screen
 from magbench.core.seeding import rng
 from magbench.engine.sweep import Study
 from magbench.engine.trial import run_method
+from magbench.pipeline.auto import candidate_rounds
+from magbench.pipeline.calibration import bootstrap_check
+from magbench.pipeline.decision import decide, written_correction
+from magbench.pipeline.fitting import DEFAULT_MAX_SAMPLES, applicability, fit_recording, is_usable
+from magbench.pipeline.holdout import estimate
 from magbench.sources.recordings import Recording, load_recording
-from magbench.studies.auto import candidate_rounds
-from magbench.studies.calibration import bootstrap_check
-from magbench.studies.decision import decide, written_correction
-from magbench.studies.holdout import estimate
 from magbench.studies.peers import PEER_NEEDS_FIELD, available_peers, fit_peer
-from magbench.studies.real import DEFAULT_MAX_SAMPLES, applicability, fit_recording, is_usable
 
 if TYPE_CHECKING:
     import pandas as pd
@@ -204,7 +204,7 @@ def scores(test: Recording, A: np.ndarray | None = None, b: np.ndarray | None = 
 def _degenerate(test: Recording, A: np.ndarray, b: np.ndarray, centre: np.ndarray) -> bool:
     """The degenerate answer (``h`` far away, every corrected sample near one point, which
     makes any spread small): corrected directions cover less than half of what the sphere
-    fit's cover (:func:`magbench.studies.real.is_usable`)."""
+    fit's cover (:func:`magbench.pipeline.fitting.is_usable`)."""
     return not is_usable(coverage((test.y - b) @ np.asarray(A).T), coverage(test.y - centre))
 
 

@@ -25,7 +25,7 @@ Three parts, one row per (unit, method):
     (no calibration can undo a magnet that comes and goes: the question is whether the
     disturbed rows in the fit spoil the heading elsewhere).
 
-Every method gets the samples after the ``preprocess`` of :func:`magbench.studies.real.
+Every method gets the samples after the ``preprocess`` of :func:`magbench.pipeline.fitting.
 fit_recording` (``centre`` by default, as ``calibrate`` does: an attached magnet's offset
 exceeds the field radius) and its estimate is mapped back.
 
@@ -65,6 +65,7 @@ from magbench.engine.sweep import Study
 from magbench.engine.trial import estimate_columns, run_method
 from magbench.methods.api import calibrate
 from magbench.methods.registry import get_method
+from magbench.pipeline.fitting import fit_recording
 from magbench.sources.recordings import Recording, read_inertial
 from magbench.sources.semisynthetic import (
     DISTORTIONS,
@@ -75,7 +76,6 @@ from magbench.sources.semisynthetic import (
 )
 from magbench.sources.synthetic import Point, draw_distortion
 from magbench.sources.trajectory import simulate
-from magbench.studies.real import fit_recording
 from magbench.studies.review import TIME_COLUMNS, TRUTH_COLUMNS, read_trials, truth_columns
 from magbench.studies.times import split_times
 

@@ -31,12 +31,12 @@ from magbench.engine.sweep import run_study
 from magbench.engine.trial import run_method
 from magbench.methods.api import calibrate
 from magbench.methods.registry import get_method, methods
+from magbench.pipeline.fitting import DEFAULT_MAX_SAMPLES
 from magbench.sources.recordings import data_dir
 from magbench.sources.synthetic import Point, make_dataset
 from magbench.studies.peer_accuracy import peer_accuracy, summarize_peer_accuracy
 from magbench.studies.peer_agreement import peer_agreement, summarize_peer_agreement
 from magbench.studies.peers import PEER_FITS
-from magbench.studies.real import DEFAULT_MAX_SAMPLES
 from magbench.studies.review import ReviewStudy
 
 __all__ = ["ADDED_METHOD", "ADDED_PLUGIN", "SIZES", "added_method_seconds", "bench_calibrate",
@@ -301,7 +301,7 @@ def bench_peers(sizes: Sequence[int] = (300, 10000), datasets: int = 20, repeats
 
     Two rows per peer and K: against its counterpart (same algorithm, same samples), and
     against ``best``, what ``python -m magbench calibrate`` does with such a recording: it
-    thins it to at most :data:`~magbench.studies.real.DEFAULT_MAX_SAMPLES` samples (every
+    thins it to at most :data:`~magbench.pipeline.fitting.DEFAULT_MAX_SAMPLES` samples (every
     ``ceil(K / 2000)``-th) and keeps the method with the smallest magnitude residual among the
     non-variant, gyro-free ones (chosen here on the first dataset of each K, timed on all).
     The 10 000-sample row of ``best`` is the user-facing comparison; the peers fit

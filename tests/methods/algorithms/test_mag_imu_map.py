@@ -173,7 +173,7 @@ def test_map_on_broad_recovers_an_applied_rotation_against_the_optical_reference
     the optical attitude ``Q``, rotated by the same 3 deg. Within 1 deg: the optical frame
     itself sits ~0.4 deg from the accelerometer's (SOURCE.md: still rows' q a q* is 0.37 deg
     from +z) and the optical fit moves by up to 0.35 deg between halves of the rows. The
-    settings are calibrate's for real data (``studies.alignment.align_chosen``): hand-held
+    settings are calibrate's for real data (``pipeline.alignment.align_chosen``): hand-held
     noise levels, the accelerometer taken as calibrated."""
     from magbench.core.quaternions import quat_to_matrix
     from magbench.sources.recordings import read_inertial

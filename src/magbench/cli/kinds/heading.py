@@ -22,10 +22,10 @@ from magbench.cli.config import (
 )
 from magbench.cli.kinds import Kind, register_kind
 from magbench.core.files import write_text_atomic
+from magbench.pipeline.fitting import PREPROCESSING
 from magbench.sources.recordings import ATTITUDE_COLUMNS, GYRO_COLUMNS
 from magbench.sources.semisynthetic import DISTORTIONS
 from magbench.studies.heading import PARTS, HeadingStudy
-from magbench.studies.real import PREPROCESSING
 
 
 def _with_attitude(root: Path, names: list[str]) -> list[str]:

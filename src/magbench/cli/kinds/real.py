@@ -19,7 +19,8 @@ from magbench.cli.config import (
 )
 from magbench.cli.kinds import Kind, register_kind
 from magbench.core.files import write_text_atomic
-from magbench.studies.real import PREPROCESSING, RealStudy
+from magbench.pipeline.fitting import PREPROCESSING
+from magbench.studies.real import RealStudy
 
 
 def recordings(cfg: DictConfig, datasets: object, sweep: str) -> tuple[str, list[str]]:

@@ -4,7 +4,7 @@ The model ``y = D m + h`` with ``D = diag(s_1, s_2, s_3)``: hard iron and one sc
 axis, no cross-coupling or soft-iron rotation. It is the constrained model autopilots fall back
 to when the field directions cover too little of the sphere for the full 9-parameter ``T``
 (ArduPilot's ``COMPASS_DIA_*`` without ``COMPASS_ODI_*``); ``calibrate`` uses it that way
-(:mod:`magbench.studies.calibration`).
+(:mod:`magbench.pipeline.calibration`).
 
 *Closed form.* Noise-free samples satisfy ``sum_i (y_i - h_i)^2 / s_i^2 = 1``, i.e.
 ``sum_i a_i y_i^2 + sum_i d_i y_i + g = 0`` with ``a_i = 1 / s_i^2``, ``d_i = -2 a_i h_i`` and
@@ -16,7 +16,7 @@ unknowns and an ordinary least-squares problem. Then ``h_i = -d_i / (2 a_i)``,
 
 *No refinement.* Levenberg-Marquardt on the norm residuals ``||D^-1 (y_k - h)|| - 1`` was
 tried and dropped: on partial coverage it walks into J_r's degenerate minimiser (``h`` far
-away, ``D`` large; :mod:`magbench.studies.real`), J 1e5 on 60 and 45 degree caps, while on
+away, ``D`` large; :mod:`magbench.pipeline.fitting`), J 1e5 on 60 and 45 degree caps, while on
 full spheres it gained nothing over the closed form (median J 0.046 both, 40 datasets at the
 review's nominal point).
 """

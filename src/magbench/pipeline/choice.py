@@ -1,7 +1,7 @@
 """calibrate's choice among fitted candidates: eligibility, ranking, the tie, the pick.
 
 Each step is a small function of the candidates' table (one record per method, from
-:func:`magbench.studies.holdout.fold_summary`), so each can be tested and another score can
+:func:`magbench.pipeline.holdout.fold_summary`), so each can be tested and another score can
 join the choice:
 
 1. :func:`annotate` adds the model, whether the method needs the gyroscope, and the held-out
@@ -76,7 +76,7 @@ def allowed(name: str, gap_deg: float) -> bool:
 def annotate(summary: Sequence[Mapping], corrected: Mapping[str, np.ndarray | None]
              ) -> list[Row]:
     """``summary`` with ``model``, ``gyro``, ``p95_out_pct`` and ``worst_out_pct`` (held-out
-    field errors of :func:`magbench.studies.holdout.held_out_corrected`, NaN without)."""
+    field errors of :func:`magbench.pipeline.holdout.held_out_corrected`, NaN without)."""
     out = []
     for row in summary:
         name = row["algorithm"]
@@ -232,7 +232,7 @@ def choose(summary: Sequence[Mapping], corrected: Mapping[str, np.ndarray | None
     Parameters
     ----------
     summary : sequence of dict
-        :func:`magbench.studies.holdout.fold_summary` (plus any extra score columns).
+        :func:`magbench.pipeline.holdout.fold_summary` (plus any extra score columns).
     corrected : mapping
         Each method's held-out corrected samples (None without).
     gap_deg : float

@@ -10,9 +10,9 @@ import numpy as np
 import magbench
 from magbench.core.mounting import AUTO_ROTATIONS, MIN_CONFIDENCE, ROTATIONS, rotation_matrix
 from magbench.core.quaternions import matrix_to_quat
+from magbench.pipeline.flight import mounting_rotation
 from magbench.sources.recordings import read_samples
 from magbench.sources.trajectory import simulate
-from magbench.studies.flight import mounting_rotation
 from tests.sources.log_writers import write_ulog
 
 T_TRUE = 0.5 * np.array([[1.05, 0.03, -0.02], [0.03, 0.95, 0.04], [-0.02, 0.04, 1.0]])

@@ -1,7 +1,7 @@
 """Direction for ``calibrate``: the alignment of a chosen calibration to the inertial sensors,
 its held-out direction consistency, the direction veto and the geomagnetic check.
 
-A calibration chosen on field magnitude (:mod:`magbench.studies.calibration`) fixes ``T`` only up
+A calibration chosen on field magnitude (:mod:`magbench.pipeline.calibration`) fixes ``T`` only up
 to a rotation; its symmetric gauge gives field directions ``A (y - h)``. With inertial columns
 the rotation ``R`` to the IMU's axes is fitted here (:func:`fit_alignment`), from the strongest
 source the recording holds:
@@ -55,8 +55,8 @@ from magbench.methods.algorithms._alignment_common import (
     unit_rows,
 )
 from magbench.methods.api import calibrate
+from magbench.pipeline.holdout import estimate, fold_indices
 from magbench.sources.recordings import Recording
-from magbench.studies.holdout import estimate, fold_indices
 
 __all__ = [
     "PRIMARY",
@@ -418,7 +418,7 @@ def fold_direction(trials: Sequence[Mapping], work: Recording, name: str,
 
 
 class DirectionVeto:
-    """The ``extra`` score of :func:`magbench.studies.calibration.calibrate_recording`: with
+    """The ``extra`` score of :func:`magbench.pipeline.calibration.calibrate_recording`: with
     a reference attitude, every candidate's held-out heading RMS over the same folds as the
     magnitude score; a candidate more than ``tol_deg`` worse than the best is scored NaN, so it
     is not eligible (a fit that improves magnitude but worsens direction is not chosen), the

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from magbench.studies.choice import (
+from magbench.pipeline.choice import (
     TIE_RTOL,
     allowed,
     annotate,

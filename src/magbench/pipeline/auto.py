@@ -1,6 +1,6 @@
 """The automatic choice of ``python -m magbench calibrate``, for a program: :func:`calibrate_auto`.
 
-The command and this function run the same study, :func:`magbench.studies.calibration.\
+The command and this function run the same pipeline, :func:`magbench.pipeline.calibration.\
 calibrate_recording` (outlier screen, coverage, every candidate fitted and held out, the choice,
 the verdict and the intervals), on the same candidates (:func:`candidate_rounds`) and the same
 thinning; this function takes arrays instead of a file and returns instead of writing. What it
@@ -20,16 +20,16 @@ from magbench.core.model import Calibration, as_samples
 from magbench.core.uncertainty import Intervals
 from magbench.core.verdict import Gate
 from magbench.methods.registry import get_method, methods
-from magbench.sources.recordings import Recording
-from magbench.studies.calibration import (
+from magbench.pipeline.calibration import (
     FIRST_ROUND,
     CalibrationResult,
     bootstrap_check,
     calibrate_recording,
     estimate,
 )
-from magbench.studies.choice import ranking_frame
-from magbench.studies.real import DEFAULT_MAX_SAMPLES
+from magbench.pipeline.choice import ranking_frame
+from magbench.pipeline.fitting import DEFAULT_MAX_SAMPLES
+from magbench.sources.recordings import Recording
 
 if TYPE_CHECKING:     # the ranking table only: calibrate imports this module, not pandas
     import pandas as pd
@@ -43,12 +43,12 @@ MIN_COVERAGE = 0.2
 def candidate_rounds(has_gyro: bool, chosen: str | Sequence[str] = "auto"
                      ) -> tuple[list[str], list[str]]:
     """The first and second round of candidates (``second_round`` of
-    :func:`~magbench.studies.calibration.calibrate_recording`).
+    :func:`~magbench.pipeline.calibration.calibrate_recording`).
 
     ``auto``: every registered method except the review's printed variants (benchmark rows,
     never a user's fit), the alignment methods (they need an accelerometer) and, without gyro
     data, the gyro-aided ones, in two rounds
-    (:data:`~magbench.studies.calibration.FIRST_ROUND` first); ``all``: the same in one round;
+    (:data:`~magbench.pipeline.calibration.FIRST_ROUND` first); ``all``: the same in one round;
     a list: those methods, in one round.
     """
     if not isinstance(chosen, str):
@@ -90,7 +90,7 @@ class AutoCalibration:
         The ranked candidates (the table ``calibrate`` prints; ``result.ranked`` holds the
         same rows as records).
     result : CalibrationResult
-        Everything the study found.
+        Everything the pipeline found.
     """
 
     calibration: Calibration | None
@@ -107,7 +107,7 @@ class AutoCalibration:
 
 
 def _status(result: CalibrationResult) -> tuple[str, str]:
-    """The study's fitness (PASS, WARN or FAIL and its first reason); FAIL without a choice."""
+    """The pipeline's fitness (PASS, WARN or FAIL and its first reason); FAIL without a choice."""
     if result.chosen is None or result.fitness is None:
         return "FAIL", "no method produced a calibration that can be written"
     reasons = result.fitness["reasons"]

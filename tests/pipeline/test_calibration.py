@@ -18,9 +18,9 @@ from magbench.core.geometry import fibonacci_sphere
 from magbench.core.model import CalibrationFailed
 from magbench.core.robust import refusal_reason
 from magbench.methods.registry import get_method, methods
+from magbench.pipeline.calibration import ROBUST_ON_CAPS, THIN_GAP_DEG, allowed, calibrate_recording
+from magbench.pipeline.fitting import fit_recording
 from magbench.sources.recordings import DATA_ENV, Recording, list_recordings, load_recording
-from magbench.studies.calibration import ROBUST_ON_CAPS, THIN_GAP_DEG, allowed, calibrate_recording
-from magbench.studies.real import fit_recording
 
 SHARED = Path(os.environ.get(DATA_ENV) or Path(__file__).resolve().parents[3] / "shared" /
               "data" / "real")
@@ -178,7 +178,7 @@ def test_every_written_A_is_spd_on_each_real_recording():
 @pytest.mark.parametrize("case", ["chosen", "none", "gap", "minimiser_out"])
 def test_second_round_reason(case):
     from magbench.core.verdict import MAX_GAP_DEG
-    from magbench.studies.calibration import FIRST_ROUND, second_round_reason
+    from magbench.pipeline.calibration import FIRST_ROUND, second_round_reason
 
     row = {"algorithm": "ellipsoid"}
     tie, chosen, gap = ["ellipsoid", "wu_shi_nm"], row, 10.0
@@ -230,7 +230,7 @@ def test_block_bootstrap_intervals_cover_the_truth_under_correlated_noise():
 
 def test_prepare_strides_the_kept_inliers_to_max_samples():
     from magbench.core.robust import Screen
-    from magbench.studies.calibration import prepare
+    from magbench.pipeline.calibration import prepare
 
     rec = synthetic(1000)
     kept = np.arange(1000) % 4 != 0
@@ -244,7 +244,7 @@ def test_retrim_sets_aside_what_the_chosen_fit_cannot_explain():
     import pandas as pd
 
     from magbench.core.robust import screen
-    from magbench.studies.calibration import retrim
+    from magbench.pipeline.calibration import retrim
 
     rec, bad = with_spikes(synthetic(600), share=0.02)
     y = rec.y.copy()
@@ -259,7 +259,7 @@ def test_retrim_sets_aside_what_the_chosen_fit_cannot_explain():
 def test_judge_fails_a_fit_that_lost_the_data_scale():
 
     from magbench.core.verdict import Gate
-    from magbench.studies.calibration import judge
+    from magbench.pipeline.calibration import judge
 
     result = calibrate_recording(synthetic(600), ["ellipsoid"], bootstrap=0)
     assert result.fitness["status"] == "PASS"
@@ -298,7 +298,7 @@ def _spiral_track(K: int, band_deg: float = 90.0) -> np.ndarray:
 
 
 def test_on_a_band_the_sphere_fit_generalises_and_the_full_model_is_not_chosen():
-    from magbench.studies.auto import candidate_rounds
+    from magbench.pipeline.auto import candidate_rounds
 
     T = np.array([[50.5, 0.4, 0.0], [0.0, 49.6, 0.3], [0.0, 0.0, 50.2]])
     h = np.array([30.0, -12.0, 8.0])
@@ -326,7 +326,7 @@ def test_on_a_band_the_sphere_fit_generalises_and_the_full_model_is_not_chosen()
 
 
 def test_a_fit_whose_field_is_off_the_data_scale_is_not_ranked_the_next_is_chosen():
-    from magbench.studies.choice import choose
+    from magbench.pipeline.choice import choose
 
     base = {"meaningful": True, "error": "", "ok": True, "n_iter": 10, "coverage": 0.9,
             "coverage_sphere": 0.9, "J_r_sphere_in": 1.0}
@@ -343,7 +343,7 @@ def test_a_fit_whose_field_is_off_the_data_scale_is_not_ranked_the_next_is_chose
 
 
 def test_when_the_chosen_fit_fails_the_gate_the_next_that_passes_is_written(monkeypatch):
-    import magbench.studies.calibration as study
+    import magbench.pipeline.calibration as study
 
     rec = synthetic(600)
     first = calibrate_recording(rec, ["ellipsoid", "sphere"], bootstrap=0)
@@ -411,8 +411,8 @@ def faulty():
 def test_a_bootstrap_refit_that_ends_its_process_is_one_replicate_fewer(faulty):
     import dataclasses
 
-    from magbench.studies.calibration import bootstrap_check
-    from magbench.studies.choice import Choice
+    from magbench.pipeline.calibration import bootstrap_check
+    from magbench.pipeline.choice import Choice
 
     result = calibrate_recording(synthetic(400), ["sphere"], bootstrap=0)
     chosen = {**result.chosen, "algorithm": "faulty_exit"}
@@ -422,7 +422,7 @@ def test_a_bootstrap_refit_that_ends_its_process_is_one_replicate_fewer(faulty):
 
 
 def test_the_data_field_is_what_the_fits_agree_on():
-    from magbench.studies.calibration import AGREEING_FITS, agreed_field
+    from magbench.pipeline.calibration import AGREEING_FITS, agreed_field
 
     def row(scale, out=0.01):
         T = scale * np.eye(3)

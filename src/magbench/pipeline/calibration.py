@@ -1,7 +1,8 @@
 """Calibrating one recording for a user: thinned, screened, an out-of-sample choice, a gate.
 
-This is the study behind ``python -m magbench calibrate`` (the command only reads, prints and
-writes). :func:`calibrate_recording` runs these steps, each a small function:
+This is the screen, fit, choose and gate of ``python -m magbench calibrate`` (the package notes,
+:mod:`magbench.pipeline`, list every step; the command reads, prints and writes).
+:func:`calibrate_recording` runs these steps, each a small function:
 
 1. :func:`prepare` - *thinning and the outlier screen* (:func:`magbench.core.robust.screen`):
    a centre that a still stretch cannot pull, samples thinned by direction (a still or slow
@@ -11,17 +12,17 @@ writes). :func:`calibrate_recording` runs these steps, each a small function:
    depend on any candidate's fit (:func:`magbench.core.verdict.coverage_report`).
 2. :func:`fit_round` - *candidates held out*: every candidate fitted on all the kept samples
    and on each fold of interleaved time blocks, scored on the held-out blocks
-   (:mod:`magbench.studies.holdout`). With a ``second_round`` (``calibrate``'s default), the
+   (:mod:`magbench.pipeline.holdout`). With a ``second_round`` (``calibrate``'s default), the
    closed forms and Wu-Shi NM (:data:`FIRST_ROUND`) are fitted first and the others only when
    :func:`second_round_reason` finds that they could change the choice: Wu-Shi NM minimises
    the NM objective (11), ``K`` times J_r (81), so no method fits the data better, and another
    can only do better out of sample (a short recording), or be needed on a cap.
    Gyro-aided candidates need an unbroken time base: they are left out when thinning removed
    samples.
-3. *The choice* (:func:`magbench.studies.choice.choose`): ranked by the mean held-out J_r over
+3. *The choice* (:func:`magbench.pipeline.choice.choose`): ranked by the mean held-out J_r over
    the folds; a simpler model wins only when it ties the best on the mean and on the worst
    fold; a gyro-aided method only when it beats the best magnetometer-only one out of sample;
-   the coverage limits which models may be chosen (:func:`magbench.studies.choice.allowed`,
+   the coverage limits which models may be chosen (:func:`magbench.pipeline.choice.allowed`,
    from the coverage sweep's findings).
 4. :func:`retrim` - *trimming around the chosen fit*: the chosen method's own norm residuals on
    every sample are screened like the sphere fit's; if that changes the inliers, steps 2-4 run
@@ -72,8 +73,7 @@ from magbench.engine.isolation import map_supervised
 from magbench.engine.plugins import plugin_modules
 from magbench.engine.trial import run_method
 from magbench.methods.registry import get_method
-from magbench.sources.recordings import Recording
-from magbench.studies.choice import (
+from magbench.pipeline.choice import (
     ROBUST_ON_CAPS,
     SCORES,
     THIN_GAP_DEG,
@@ -81,14 +81,15 @@ from magbench.studies.choice import (
     allowed,
     choose,
 )
-from magbench.studies.holdout import (
+from magbench.pipeline.fitting import fit_recording
+from magbench.pipeline.holdout import (
     estimate,
     evaluate_folds,
     fold_summary,
     held_out_corrected,
     sphere_spread,
 )
-from magbench.studies.real import fit_recording
+from magbench.sources.recordings import Recording
 
 __all__ = ["AGREEING_FITS", "FIRST_ROUND", "ROBUST_ON_CAPS", "THIN_GAP_DEG",
            "CalibrationResult", "agreed_field", "allowed", "bootstrap_check",
@@ -101,7 +102,7 @@ FIRST_ROUND = ("sphere", "twostep_hi", "diagonal", "ellipsoid", "fang", "twostep
 #: The method whose objective (Wu and Shi's (11)) is K times J_r (81).
 J_R_MINIMISER = "wu_shi_nm"
 #: ``extra(summary, trials, work) -> (column, values)``: a further score for the choice
-#: (``summary`` and ``trials`` are lists of records, :mod:`magbench.studies.holdout`).
+#: (``summary`` and ``trials`` are lists of records, :mod:`magbench.pipeline.holdout`).
 ExtraScore = Callable[[list[dict], list[dict], Recording], tuple[str, Sequence[float]]]
 
 
@@ -238,7 +239,7 @@ def sphere_scores(trials: Sequence[Mapping], row: Mapping, radius: float) -> dic
     """``sphere_out``, the predicted RMS error (share of the field) of ``row``'s correction
     over the whole sphere: the held-out error on the recorded directions (``J_r_out / 4``,
     as J_r (81) is about four times the mean squared magnitude error) plus the fold fits'
-    disagreement on every direction (:func:`magbench.studies.holdout.sphere_spread`); and
+    disagreement on every direction (:func:`magbench.pipeline.holdout.sphere_spread`); and
     ``field_pct``, how far (%) the fitted field strength ``|det T|^(1/3)`` lies from
     ``radius``, the field the fits agree on (:func:`agreed_field`; NaN without one)."""
     name = str(row["algorithm"])
@@ -445,7 +446,7 @@ def calibrate_recording(rec: Recording, candidates: Sequence[str], *,
     candidates : sequence of str
         Methods to fit; with one, it is the choice unless it is refused or not meaningful.
     preprocess, options, seed, call_timeout_s
-        As in :func:`magbench.studies.real.evaluate_recording`.
+        As in :func:`magbench.pipeline.fitting.evaluate_recording`.
     bootstrap : int
         Block-bootstrap refits of the chosen method (0: none; :func:`bootstrap_check`).
     rounds : int
@@ -462,9 +463,9 @@ def calibrate_recording(rec: Recording, candidates: Sequence[str], *,
     extra : callable, optional
         Another score for the choice: ``extra(summary, trials, work) -> (column, values)``,
         one value per row of ``summary`` (lower is better); a simpler model must tie on it too
-        (:func:`magbench.studies.choice.choose`'s ``scores``). When it has a ``scores``
+        (:func:`magbench.pipeline.choice.choose`'s ``scores``). When it has a ``scores``
         mapping (method -> held-out heading RMS, deg, as
-        :class:`magbench.studies.alignment.DirectionVeto`), the choice's entry goes to the
+        :class:`magbench.pipeline.alignment.DirectionVeto`), the choice's entry goes to the
         gate.
     """
     options = options or {}

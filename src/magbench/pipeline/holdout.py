@@ -16,8 +16,8 @@ from collections.abc import Mapping, Sequence
 
 import numpy as np
 
+from magbench.pipeline.fitting import evaluate_recording, summary_records
 from magbench.sources.recordings import Recording
-from magbench.studies.real import evaluate_recording, summary_records
 
 __all__ = ["BLOCKS_PER_FOLD", "N_FOLDS", "SPHERE_DIRECTIONS", "estimate", "evaluate_folds",
            "fold_indices", "fold_summary", "held_out_corrected", "sphere_spread"]
@@ -55,7 +55,7 @@ def _splits(rec: Recording, tests: list[np.ndarray]) -> list[tuple]:
 def evaluate_folds(rec: Recording, algorithms: Sequence[str], preprocess: str, *,
                    options: dict | None = None, seed: int = 0,
                    call_timeout_s: float | None = None) -> list[dict]:
-    """Rows of :func:`magbench.studies.real.evaluate_recording` with the fits of
+    """Rows of :func:`magbench.pipeline.fitting.evaluate_recording` with the fits of
     :func:`fold_indices` (``fit_on`` ``all`` and ``fold0``, ``fold1``, ...)."""
     if rec.K < 2 * N_FOLDS:
         tests: list[np.ndarray] = []
@@ -76,7 +76,7 @@ def _usable(rows: Sequence[Mapping]) -> bool:
 
 
 def fold_summary(trials: Sequence[Mapping]) -> list[dict]:
-    """One record per method: :func:`~magbench.studies.real.summary_records` of the fit on
+    """One record per method: :func:`~magbench.pipeline.fitting.summary_records` of the fit on
     all samples, with ``J_r_out`` the mean over the folds of the held-out J_r and
     ``J_r_worst`` the largest (NaN folds skipped); both NaN unless every fold's fit is
     usable."""

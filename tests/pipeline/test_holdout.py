@@ -6,8 +6,7 @@ import numpy as np
 import pytest
 
 from magbench.core.geometry import fibonacci_sphere
-from magbench.sources.recordings import Recording
-from magbench.studies.holdout import (
+from magbench.pipeline.holdout import (
     BLOCKS_PER_FOLD,
     N_FOLDS,
     evaluate_folds,
@@ -15,6 +14,7 @@ from magbench.studies.holdout import (
     fold_summary,
     held_out_corrected,
 )
+from magbench.sources.recordings import Recording
 
 
 @pytest.mark.parametrize("K", [7, 100, 1001])

@@ -15,8 +15,7 @@ from magbench.core.geomagnetic import Site
 from magbench.core.model import Calibration, CalibrationFailed
 from magbench.core.quaternions import matrix_to_quat
 from magbench.core.rotations import rotation_exp
-from magbench.sources.trajectory import simulate
-from magbench.studies.alignment import (
+from magbench.pipeline.alignment import (
     Inertial,
     direction_consistency,
     direction_report,
@@ -25,6 +24,7 @@ from magbench.studies.alignment import (
     fit_alignment,
     world_reference,
 )
+from magbench.sources.trajectory import simulate
 from tests.methods.algorithms.test_dip_align import static_poses
 
 MOUNT = rotation_exp(np.radians(3.0) * np.array([0.6, -0.48, 0.64]))
@@ -180,7 +180,7 @@ def test_an_offset_that_switches_mid_way_is_found_and_the_mount_still_recovered(
     t = 36 s (broad33's magnet): the whole-recording fit is a compromise whose rotation is
     degrees off; the offset check cuts at the switch (within a window), keeps the first part,
     and the alignment fitted there is within 0.1 deg of the truth (noise: 0.005)."""
-    from magbench.studies.alignment import align_chosen, offset_check
+    from magbench.pipeline.alignment import align_chosen, offset_check
 
     traj = simulate(np.random.default_rng(8), rate_hz=50.0, duration_s=60.0, T=T,
                     h=np.array([0.03, -0.02, 0.04]), mount=MOUNT, mag_noise=0.005,
@@ -213,9 +213,9 @@ BROAD_ALIGNMENT_DEG = {"broad03_slowrot_C": 1.05, "broad21_fastcombined": 0.35,
 def _calibrate_path(name: str, y: np.ndarray, kept) -> tuple[np.ndarray, bool]:
     """The heading-true matrix ``A`` of calibrate's path on ``y`` (the recording's inertial
     streams beside it) and whether the offset check cut the recording."""
+    from magbench.pipeline.alignment import align_chosen, lag_corrected, offset_check
+    from magbench.pipeline.calibration import calibrate_recording, estimate
     from magbench.sources.recordings import Recording
-    from magbench.studies.alignment import align_chosen, lag_corrected, offset_check
-    from magbench.studies.calibration import calibrate_recording, estimate
 
     k = kept.rec
     extra = dict(zip(["ax", "ay", "az", "qw", "qx", "qy", "qz"],
@@ -277,7 +277,7 @@ def test_a_3_deg_mount_on_broad_is_recovered_by_the_calibrate_path(name):
 def test_the_joint_fit_gets_the_rows_that_turn_the_most():
     """A rest, a slow turn and a fast turn, with a gap in the kept rows: the window is the
     fast turn's, not the first rows of the longest run; with no turn at all, the first."""
-    from magbench.studies.alignment import most_turning_run
+    from magbench.pipeline.alignment import most_turning_run
 
     t = np.arange(1000) * 0.01
     gyro = np.zeros((1000, 3))
@@ -294,8 +294,8 @@ def test_a_frozen_attitude_does_not_cut_the_recording():
     """An attitude column stuck at its first value sees every window's field move: without
     the span check the offset check cut a good recording to 7 %. It falls back to the gyro,
     and without one it does not run."""
+    from magbench.pipeline.alignment import offset_check
     from magbench.sources.recordings import Recording
-    from magbench.studies.alignment import offset_check
 
     traj = simulate(np.random.default_rng(8), rate_hz=50.0, duration_s=40.0, T=T,
                     h=np.array([0.03, -0.02, 0.04]), mount=MOUNT, mag_noise=0.005,

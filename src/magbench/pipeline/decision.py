@@ -2,9 +2,9 @@
 
 :func:`decide` is the part of ``python -m magbench calibrate`` between reading the file and
 writing the answer: the magnetometer lag removed against the inertial streams, a hard-iron
-offset that changes within the recording cut (:func:`magbench.studies.alignment.offset_check`),
+offset that changes within the recording cut (:func:`magbench.pipeline.alignment.offset_check`),
 the candidates fitted, held out and chosen
-(:func:`magbench.studies.calibration.calibrate_recording`, with the direction veto when there
+(:func:`magbench.pipeline.calibration.calibrate_recording`, with the direction veto when there
 is a reference attitude), and the verdict, with the field strength checked against the
 Earth's in the declared unit. The command prints and writes what it returns; the
 generalisation study (:mod:`magbench.studies.generalisation`) scores it, so the study measures
@@ -22,8 +22,7 @@ from magbench.core.exports import field_strength
 from magbench.core.model import Calibration, CalibrationFailed
 from magbench.core.units import UNKNOWN, UnitCheck, Units, unit_check
 from magbench.core.verdict import Gate, with_reason
-from magbench.sources.recordings import Recording
-from magbench.studies.alignment import (
+from magbench.pipeline.alignment import (
     DirectionVeto,
     OffsetCheck,
     align_chosen,
@@ -31,8 +30,9 @@ from magbench.studies.alignment import (
     lag_corrected,
     offset_check,
 )
-from magbench.studies.calibration import CalibrationResult, calibrate_recording, estimate
-from magbench.studies.flight import usable_regressors
+from magbench.pipeline.calibration import CalibrationResult, calibrate_recording, estimate
+from magbench.pipeline.flight import usable_regressors
+from magbench.sources.recordings import Recording
 
 __all__ = ["EXIT_FAIL", "EXIT_NONE", "Decision", "decide", "written_correction"]
 
@@ -51,7 +51,7 @@ class Decision:
     rec : Recording
         The recording as fitted (lag removed, the rows of one offset kept).
     result : CalibrationResult
-        The study's answer (``result.chosen`` None when nothing could be chosen).
+        The pipeline's answer (``result.chosen`` None when nothing could be chosen).
     lag_s : float
         The magnetometer lag removed, s.
     offsets : OffsetCheck or None
@@ -93,7 +93,7 @@ def decide(rec: Recording, candidates: Sequence[str], *, second_round: Sequence[
            gate: Gate | None = None, expected_field: float | None = None,
            compensate: list[str] | None = None, units: Units = UNKNOWN) -> Decision:
     """``calibrate``'s decision on ``rec`` (module notes); the block bootstrap is left to the
-    caller (:func:`magbench.studies.calibration.bootstrap_check`). ``units``: the declared
+    caller (:func:`magbench.pipeline.calibration.bootstrap_check`). ``units``: the declared
     unit of the samples (a field strength the Earth cannot give in it is a FAIL)."""
     has_inertial = inertial_of(rec).source != "none"
     rec, lag = lag_corrected(rec) if has_inertial else (rec, 0.0)
