@@ -17,6 +17,13 @@ point of a Fibonacci lattice, cells about 10 deg across) and no cell keeps more 
 an evenly turned recording loses nothing (its cells hold about the median). The directions need
 a centre that a still stretch cannot pull: :func:`distinct_rows` keeps one sample per occupied
 cube of a grid over the samples' range (no centre needed), from which a sphere fit is taken.
+
+*Memory.* ``calibrate`` screens every sample of a recording (10 million rows are 240 MB of
+samples), so the helpers that see every row work a block of :data:`BLOCK_ROWS` rows at a time
+(:func:`row_norms`, :func:`direction_cells`, :func:`distinct_rows`) or fill one array in place
+(:func:`sphere_fit`), instead of building ``(K, 3)`` temporaries such as ``y - centre``. Each row
+goes through the same operations as in one whole-array expression, so the values are the same
+to the last bit.
 """
 
 from __future__ import annotations
@@ -25,10 +32,11 @@ import math
 
 import numpy as np
 
-__all__ = ["CELL_CAP_FACTOR", "CELL_CAP_MIN", "COVERAGE_ANGLE_DEG", "COVERAGE_GRID",
-           "DIRECTION_CELLS", "GOLDEN_RATIO", "MIN_COVERAGE", "MIN_THICKNESS", "band_half_width",
-           "check_geometry", "coverage", "direction_cells", "distinct_rows", "fibonacci_sphere",
-           "largest_gap", "sphere_fit", "thickness", "thin_by_direction", "unit_rows"]
+__all__ = ["BLOCK_ROWS", "CELL_CAP_FACTOR", "CELL_CAP_MIN", "COVERAGE_ANGLE_DEG",
+           "COVERAGE_GRID", "DIRECTION_CELLS", "GOLDEN_RATIO", "MIN_COVERAGE", "MIN_THICKNESS",
+           "band_half_width", "check_geometry", "column_medians", "coverage", "direction_cells",
+           "distinct_rows", "fibonacci_sphere", "largest_gap", "row_norms", "sphere_fit",
+           "thickness", "thin_by_direction", "unit_rows"]
 
 GOLDEN_RATIO = (1.0 + np.sqrt(5.0)) / 2.0
 COVERAGE_GRID = 200
@@ -43,6 +51,47 @@ CELL_CAP_FACTOR = 10.0
 CELL_CAP_MIN = 3
 #: :func:`distinct_rows`'s cube edge is this fraction of the samples' typical separation.
 DISTINCT_GRID = 20
+#: Rows per block of the helpers that see every sample (module notes, *Memory*): a block's
+#: temporaries take a few MB whatever the recording's length.
+BLOCK_ROWS = 1 << 16
+
+
+def _blocks(n: int):
+    """``slice`` objects of :data:`BLOCK_ROWS` rows covering ``range(n)``."""
+    return (slice(start, start + BLOCK_ROWS) for start in range(0, n, BLOCK_ROWS))
+
+
+def row_norms(y: np.ndarray, centre: np.ndarray | None = None) -> np.ndarray:
+    """Euclidean norm of every row of ``y - centre``, a block of rows at a time.
+
+    Parameters
+    ----------
+    y : array_like, shape (K, 3)
+        Samples.
+    centre : array_like of shape (3,) or (K, 3), optional
+        Subtracted from every row (a vector) or row by row (an array like ``y``); none by
+        default.
+
+    Returns
+    -------
+    ndarray, shape (K,)
+        Equal to the last bit to ``np.linalg.norm(y - centre, axis=1)``, without its two
+        ``(K, 3)`` temporaries (the difference and its square).
+    """
+    y = np.asarray(y, dtype=float)
+    c = None if centre is None else np.asarray(centre, dtype=float)
+    out = np.empty(y.shape[0])
+    for rows in _blocks(y.shape[0]):
+        block = y[rows] if c is None else y[rows] - (c[rows] if c.ndim == 2 else c)
+        out[rows] = np.linalg.norm(block, axis=1)
+    return out
+
+
+def column_medians(y: np.ndarray) -> np.ndarray:
+    """``np.median(y, axis=0)``, one column at a time: the same values (a median selects
+    them), with a copy of one column instead of all of them for the partition."""
+    y = np.asarray(y, dtype=float)
+    return np.array([np.median(y[:, j]) for j in range(y.shape[1])])
 
 
 def fibonacci_sphere(K: int, radius: float = 1.0,
@@ -78,19 +127,49 @@ def fibonacci_sphere(K: int, radius: float = 1.0,
                                      np.cos(phi)])
 
 
-def sphere_fit(y: np.ndarray) -> tuple[np.ndarray, float]:
+def sphere_fit(y: np.ndarray, rows: np.ndarray | None = None) -> tuple[np.ndarray, float]:
     """Centre ``c`` and radius ``r`` of the linear least-squares sphere fit.
 
     ``||y||^2 = 2 c.y + (r^2 - ||c||^2)`` is linear in ``c`` and ``d = r^2 - ||c||^2``.
     ``T = r I, h = c`` is the simplest calibration (hard iron and one scale), the real-data
     baseline of :func:`is_meaningful`. Computed here, not taken from the registry, so the
     baseline stays fixed whatever methods are registered.
+
+    Parameters
+    ----------
+    y : array_like, shape (K, 3)
+        Samples.
+    rows : ndarray of bool, shape (K,), optional
+        Fit only these rows: the same answer as ``sphere_fit(y[rows])`` without the copy of
+        the selected samples.
+
+    Returns
+    -------
+    centre : ndarray, shape (3,)
+    radius : float
     """
     y = np.asarray(y, dtype=float)
-    scale = float(np.sqrt(np.mean(np.einsum("ij,ij->i", y, y)))) or 1.0
-    z = y / scale
-    A = np.hstack([2.0 * z, np.ones((z.shape[0], 1))])
-    sol = np.linalg.lstsq(A, np.einsum("ij,ij->i", z, z), rcond=None)[0]
+    # The design matrix [2 z, 1] is filled in place, its first three columns first holding the
+    # samples and then z = y / scale: the least-squares call copies it anyway, so a separate z
+    # and the parts of np.hstack would be two more arrays of the samples' size alive with it.
+    n = y.shape[0] if rows is None else int(np.count_nonzero(rows))
+    A = np.empty((n, 4))
+    z = A[:, :3]
+    if rows is None:
+        z[...] = y
+    else:
+        filled = 0
+        for block in _blocks(y.shape[0]):
+            chosen = y[block][rows[block]]
+            z[filled:filled + chosen.shape[0]] = chosen
+            filled += chosen.shape[0]
+    squares = np.einsum("ij,ij->i", z, z)
+    scale = float(np.sqrt(np.mean(squares))) or 1.0
+    z /= scale
+    np.einsum("ij,ij->i", z, z, out=squares)
+    z *= 2.0
+    A[:, 3] = 1.0
+    sol = np.linalg.lstsq(A, squares, rcond=None)[0]
     c = sol[:3]
     r2 = float(sol[3] + c @ c)
     if not r2 > 0:
@@ -206,29 +285,36 @@ def check_geometry(y: np.ndarray, *, min_coverage: float = MIN_COVERAGE,
                          "sensor in more directions")
 
 
-def direction_cells(directions: np.ndarray, *, cells: int = DIRECTION_CELLS) -> np.ndarray:
+def direction_cells(directions: np.ndarray, *, cells: int = DIRECTION_CELLS,
+                    centre: np.ndarray | None = None) -> np.ndarray:
     """Index of the equal-area cell of each row's direction (about ``cells`` cells).
 
     The cells are a grid in ``z`` (the unit direction's third component) and longitude: the
     area element of the unit sphere is ``dz dphi``, so equal steps in both give equal areas
     (Archimedes' hat-box theorem). ``sqrt(cells / 2)`` bands of ``z`` and twice as many
     longitude steps make equatorial cells about as tall as wide. Rows need not be normalised;
-    a zero row gets the cell of +X.
+    a zero row gets the cell of +X. With ``centre`` (shape (3,)), the directions are
+    ``directions - centre``, taken a block of rows at a time (module notes, *Memory*).
     """
     d = np.asarray(directions, dtype=float)
-    n = np.sqrt(np.einsum("ij,ij->i", d, d))
-    n[n == 0] = 1.0
+    c = None if centre is None else np.asarray(centre, dtype=float)
     bands = max(1, round(math.sqrt(cells / 2.0)))
-    z = np.clip(d[:, 2] / n, -1.0, 1.0)
-    band = np.minimum(((z + 1.0) * (bands / 2.0)).astype(np.int64), bands - 1)
-    phi = np.arctan2(d[:, 1], d[:, 0]) + np.pi
-    step = np.minimum((phi * (bands / np.pi)).astype(np.int64), 2 * bands - 1)
-    return band * (2 * bands) + step
+    out = np.empty(d.shape[0], dtype=np.int64)
+    for rows in _blocks(d.shape[0]):
+        block = d[rows] if c is None else d[rows] - c
+        n = np.sqrt(np.einsum("ij,ij->i", block, block))
+        n[n == 0] = 1.0
+        z = np.clip(block[:, 2] / n, -1.0, 1.0)
+        band = np.minimum(((z + 1.0) * (bands / 2.0)).astype(np.int64), bands - 1)
+        phi = np.arctan2(block[:, 1], block[:, 0]) + np.pi
+        step = np.minimum((phi * (bands / np.pi)).astype(np.int64), 2 * bands - 1)
+        out[rows] = band * (2 * bands) + step
+    return out
 
 
 def thin_by_direction(directions: np.ndarray, *, cells: int = DIRECTION_CELLS,
-                      cap_factor: float = CELL_CAP_FACTOR, cap_min: int = CELL_CAP_MIN
-                      ) -> np.ndarray:
+                      cap_factor: float = CELL_CAP_FACTOR, cap_min: int = CELL_CAP_MIN,
+                      centre: np.ndarray | None = None) -> np.ndarray:
     """Mask of the samples kept when no direction cell holds more than its share.
 
     Parameters
@@ -240,13 +326,15 @@ def thin_by_direction(directions: np.ndarray, *, cells: int = DIRECTION_CELLS,
     cap_factor, cap_min : float, int
         A cell keeps at most ``max(cap_min, ceil(cap_factor * median))`` samples, the median
         taken over the occupied cells' counts (see the module notes).
+    centre : ndarray, shape (3,), optional
+        Subtract it from ``directions`` (samples), block by block (:func:`direction_cells`).
 
     Returns
     -------
     ndarray of bool, shape (K,)
         True for a kept sample; in a capped cell the kept ones are evenly spread in time.
     """
-    cell = direction_cells(directions, cells=cells)
+    cell = direction_cells(directions, cells=cells, centre=centre)
     counts = np.bincount(cell)
     cap = max(int(cap_min), math.ceil(cap_factor * float(np.median(counts[counts > 0]))))
     keep = np.ones(cell.size, dtype=bool)
@@ -278,12 +366,15 @@ def distinct_rows(y: np.ndarray, *, grid: int = DISTINCT_GRID) -> np.ndarray:
     half = y.shape[0] // 2
     if half == 0:
         return np.arange(y.shape[0])
-    size = float(np.percentile(np.linalg.norm(y[half:2 * half] - y[:half], axis=1), 75)) / grid
+    size = float(np.percentile(row_norms(y[half:2 * half], y[:half]), 75)) / grid
     if not size > 0:
         return np.arange(y.shape[0])
-    keys = np.floor((y - np.median(y, axis=0)) / size).astype(np.int64)
-    # one integer per cube (a rare collision far out merges two cubes, which does no harm)
-    flat = (keys[:, 0] * 2_097_143 + keys[:, 1]) * 2_097_169 + keys[:, 2]
+    median = column_medians(y)
+    flat = np.empty(y.shape[0], dtype=np.int64)
+    for rows in _blocks(y.shape[0]):
+        keys = np.floor((y[rows] - median) / size).astype(np.int64)
+        # one integer per cube (a rare collision far out merges two cubes, which does no harm)
+        flat[rows] = (keys[:, 0] * 2_097_143 + keys[:, 1]) * 2_097_169 + keys[:, 2]
     _, first = np.unique(flat, return_index=True)
     return np.sort(first)
 

@@ -30,6 +30,11 @@ aside as outliers. :func:`screen` therefore takes its centre from the distinct s
 (:func:`magbench.core.geometry.thin_by_direction`), fits the robust sphere on the thinned ones
 and applies its limit to every sample. A screen that would empty most of the occupied direction
 cells is not applied (:func:`keeps_directions`): outliers are the few, never the directions.
+
+*Memory.* :func:`screen` sees every sample of the recording, so it builds no array of the
+samples' size beyond the kept ones: norms, medians, direction cells and the sphere fit's design
+matrix are taken block by block or in place (:mod:`magbench.core.geometry`, *Memory*), with the
+same values as the whole-array expressions.
 """
 
 from __future__ import annotations
@@ -39,16 +44,19 @@ from dataclasses import dataclass
 import numpy as np
 
 from magbench.core.geometry import (
+    BLOCK_ROWS,
+    column_medians,
     direction_cells,
     distinct_rows,
+    row_norms,
     sphere_fit,
     thin_by_direction,
     unit_rows,
 )
 
 __all__ = ["COLLAPSE_RATIO", "CUTOFF", "FLOOR", "MAD_SCALE", "MAX_CONDITION", "Screen",
-           "keeps_directions", "outliers", "refusal_reason", "resultant_length",
-           "robust_sphere_fit", "screen", "trimmed"]
+           "corrected_norms", "keeps_directions", "norm_residuals", "outliers", "refusal_reason",
+           "resultant_length", "robust_sphere_fit", "screen", "trimmed"]
 
 MAD_SCALE = 1.4826
 #: Robust standard deviations from the median beyond which a norm residual is an outlier.
@@ -103,15 +111,20 @@ def robust_sphere_fit(y: np.ndarray, *, rounds: int = 5, cutoff: float = CUTOFF,
         False for the samples set aside.
     """
     y = np.asarray(y, dtype=float)
-    centre = np.median(y, axis=0)
-    d = np.linalg.norm(y - centre, axis=1)
+    centre = column_medians(y)
+    d = row_norms(y, centre)
     radius = float(np.median(d))
-    inliers = ~outliers(d / radius - 1.0, cutoff=cutoff)
+    d /= radius         # in place: the same values as d / radius - 1.0, one array fewer
+    d -= 1.0
+    inliers = ~outliers(d, cutoff=cutoff)
+    del d
     for _ in range(rounds):
         if inliers.sum() < 4:
             break
-        centre, radius = sphere_fit(y[inliers])
-        r = np.linalg.norm(y - centre, axis=1) / radius - 1.0
+        centre, radius = sphere_fit(y, None if inliers.all() else inliers)
+        r = row_norms(y, centre)
+        r /= radius
+        r -= 1.0
         new = ~outliers(r, r[inliers], cutoff=cutoff)
         if np.array_equal(new, inliers):
             break
@@ -153,10 +166,12 @@ def refusal_reason(T: np.ndarray, h: np.ndarray, y: np.ndarray, centre: np.ndarr
     return ""
 
 
-def keeps_directions(directions: np.ndarray, kept: np.ndarray, screened: np.ndarray) -> bool:
+def keeps_directions(directions: np.ndarray, kept: np.ndarray, screened: np.ndarray, *,
+                     centre: np.ndarray | None = None) -> bool:
     """Whether setting aside ``~screened`` leaves at least half of the direction cells that
-    the ``kept`` samples occupy (see :func:`screen`)."""
-    cell = direction_cells(directions)
+    the ``kept`` samples occupy (see :func:`screen`); ``directions - centre`` with a
+    ``centre``."""
+    cell = direction_cells(directions, centre=centre)
     before = np.unique(cell[kept]).size
     after = np.unique(cell[kept & screened]).size
     return after >= 0.5 * before
@@ -199,19 +214,56 @@ def screen(y: np.ndarray, *, cutoff: float = CUTOFF) -> Screen:
     y = np.asarray(y, dtype=float)
     distinct = distinct_rows(y)
     rough, _, _ = robust_sphere_fit(y[distinct], cutoff=cutoff)
-    kept = thin_by_direction(y - rough)
-    centre, radius, _ = robust_sphere_fit(y[kept], cutoff=cutoff)
-    return trimmed(Screen(centre, radius, kept, np.ones(len(y), dtype=bool)),
-                   np.linalg.norm(y - centre, axis=1) / radius - 1.0, y - centre, cutoff)
+    kept = thin_by_direction(y, centre=rough)
+    # an evenly turned recording keeps every sample: no copy of them then
+    centre, radius, _ = robust_sphere_fit(y if kept.all() else y[kept], cutoff=cutoff)
+    residuals = row_norms(y, centre)
+    residuals /= radius
+    residuals -= 1.0
+    return trimmed(Screen(centre, radius, kept, np.ones(len(y), dtype=bool)), residuals, y,
+                   cutoff, centre=centre)
+
+
+def corrected_norms(T: np.ndarray, h: np.ndarray, y: np.ndarray,
+                    rows: np.ndarray | None = None) -> np.ndarray:
+    """``||T^-1 (y_k - h)||`` for every sample (or those of the mask ``rows``), a block of
+    rows at a time.
+
+    Equal to the last bit to ``np.linalg.norm(np.linalg.solve(T, (y[rows] - h).T), axis=0)``
+    (each block is solved with the same ``T``), without its ``(K, 3)`` temporaries: the
+    selected rows, their difference, its transpose's solution and the solution's square.
+    """
+    T = np.asarray(T, dtype=float)
+    h = np.asarray(h, dtype=float)
+    y = np.asarray(y, dtype=float)
+    out = np.empty(y.shape[0] if rows is None else int(np.count_nonzero(rows)))
+    filled = 0
+    for start in range(0, y.shape[0], BLOCK_ROWS):
+        block = y[start:start + BLOCK_ROWS]
+        if rows is not None:
+            block = block[rows[start:start + BLOCK_ROWS]]
+        out[filled:filled + block.shape[0]] = np.linalg.norm(np.linalg.solve(T, (block - h).T),
+                                                             axis=0)
+        filled += block.shape[0]
+    return out
+
+
+def norm_residuals(T: np.ndarray, h: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """``||T^-1 (y_k - h)|| - 1`` for every sample (:func:`corrected_norms`): the same values
+    as ``np.linalg.norm(np.linalg.solve(T, (y - h).T), axis=0) - 1.0``."""
+    out = corrected_norms(T, h, y)
+    out -= 1.0
+    return out
 
 
 def trimmed(current: Screen, residuals: np.ndarray, directions: np.ndarray,
-            cutoff: float = CUTOFF) -> Screen:
+            cutoff: float = CUTOFF, *, centre: np.ndarray | None = None) -> Screen:
     """``current`` with its inliers recomputed from ``residuals`` (every sample), the
     statistics taken over its thinned inliers; unchanged inliers when the new ones would empty
-    most direction cells (:func:`keeps_directions`)."""
+    most direction cells (:func:`keeps_directions`). With ``centre``, ``directions`` are the
+    samples and their directions ``directions - centre``, never built whole."""
     reference = current.kept & current.inliers
     new = ~outliers(residuals, residuals[reference], cutoff=cutoff)
-    if not keeps_directions(directions, current.kept, new):
+    if not keeps_directions(directions, current.kept, new, centre=centre):
         return Screen(current.centre, current.radius, current.kept, current.inliers, False)
     return Screen(current.centre, current.radius, current.kept, new, current.applied)

@@ -44,7 +44,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from magbench.core.geometry import coverage, largest_gap
+from magbench.core.geometry import coverage, largest_gap, row_norms
 
 __all__ = [
     "MAX_GAP_DEG",
@@ -90,8 +90,17 @@ def noise_p95_pct(y: np.ndarray, radius: float) -> float:
     y = np.asarray(y, dtype=float)
     if y.shape[0] < 10 or not radius > 0:
         return np.nan
-    d2 = np.diff(y, n=2, axis=0)
-    sigma = 1.4826 * np.median(np.abs(d2 - np.median(d2, axis=0)), axis=0) / np.sqrt(6)
+    # One axis at a time, in place: the whole-array expression held four (K, 3) arrays at
+    # once (the differences, their deviations and the medians' partition copies), the
+    # largest share of ``calibrate``'s memory on a long recording (issue 40). Same values: a
+    # median selects them.
+    spreads = np.empty(y.shape[1])
+    for j in range(y.shape[1]):
+        d2 = np.diff(y[:, j], n=2)
+        d2 -= np.median(d2)
+        np.abs(d2, out=d2)
+        spreads[j] = np.median(d2)
+    sigma = 1.4826 * spreads / np.sqrt(6)
     return float(100 * 1.96 * np.sqrt(np.mean(sigma ** 2)) / radius)
 
 
@@ -103,7 +112,15 @@ def central_spread_pct(vectors: np.ndarray, share: float = CENTRAL_SHARE,
     ``v``, e.g. the samples' own radius) the spread is a share of it instead of the mean
     norm: raw samples whose offset exceeds the field have a mean norm of about the offset,
     which would make any spread look small."""
-    norm = np.linalg.norm(np.asarray(vectors, dtype=float), axis=1)
+    return central_spread_of_norms(row_norms(vectors), share, scale)
+
+
+def central_spread_of_norms(norm: np.ndarray, share: float = CENTRAL_SHARE,
+                            scale: float | None = None) -> float:
+    """:func:`central_spread_pct` from the vectors' norms (shape (K,)), for a caller that has
+    them without the vectors: :func:`magbench.core.robust.corrected_norms` gives a long
+    recording's corrected norms without building the corrected samples (issue 40)."""
+    norm = np.asarray(norm, dtype=float)
     deviation = np.abs(norm - np.median(norm))
     kept = norm[deviation <= np.percentile(deviation, 100 * share)]
     unit = kept.mean() if scale is None else scale

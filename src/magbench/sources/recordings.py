@@ -739,6 +739,11 @@ def read_samples(path: Path | str, columns: Sequence[object] | None = None, *,
     order = [sorted(wanted).index(i) for i in mag]
     # The usual three-column file is its own sample array: no copy of 10 million rows.
     y = table if order == list(range(table.shape[1])) else table[:, order]
+    if y is not table:
+        # The other columns are copied out too: a view of one (t) would keep the whole table
+        # alive next to the samples' copy for as long as the recording (issue 40).
+        values = {p: v if p in mag else v.copy() for p, v in values.items()}
+        del table
     t = None
     if t_pos is not None:
         t = values[t_pos]
