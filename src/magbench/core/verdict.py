@@ -119,7 +119,7 @@ def central_spread_of_norms(norm: np.ndarray, share: float = CENTRAL_SHARE,
                             scale: float | None = None) -> float:
     """:func:`central_spread_pct` from the vectors' norms (shape (K,)), for a caller that has
     them without the vectors: :func:`magbench.core.robust.corrected_norms` gives a long
-    recording's corrected norms without building the corrected samples (issue 40)."""
+    recording's corrected norms without building the corrected samples."""
     norm = np.asarray(norm, dtype=float)
     deviation = np.abs(norm - np.median(norm))
     kept = norm[deviation <= np.percentile(deviation, 100 * share)]

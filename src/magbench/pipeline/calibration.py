@@ -47,8 +47,15 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from magbench.core.gauge import safe_gauge
-from magbench.core.geometry import band_half_width, direction_cells
-from magbench.core.robust import Screen, refusal_reason, screen, trimmed
+from magbench.core.geometry import band_half_width, direction_cells, row_norms
+from magbench.core.robust import (
+    Screen,
+    corrected_norms,
+    norm_residuals,
+    refusal_reason,
+    screen,
+    trimmed,
+)
 from magbench.core.seeding import rng
 from magbench.core.uncertainty import (
     Intervals,
@@ -62,7 +69,7 @@ from magbench.core.verdict import (
     CENTRAL_SHARE,
     MAX_GAP_DEG,
     Gate,
-    central_spread_pct,
+    central_spread_of_norms,
     coverage_report,
     fitness,
     magnitude_verdict,
@@ -288,8 +295,7 @@ def _fit_and_choose(work: Recording, centre: np.ndarray, names: list[str], later
 def retrim(rec: Recording, current: Screen, chosen: Mapping) -> Screen:
     """The screen redone on the chosen fit's norm residuals (module notes, step 4)."""
     T, h = estimate(chosen)
-    r = np.linalg.norm(np.linalg.solve(T, (rec.y - h).T), axis=0) - 1.0
-    return trimmed(current, r, rec.y - current.centre)
+    return trimmed(current, norm_residuals(T, h, rec.y), rec.y, centre=current.centre)
 
 
 def judge(result: CalibrationResult, gate: Gate,
@@ -314,7 +320,7 @@ def judge(result: CalibrationResult, gate: Gate,
     result.verdict["heading_measured_deg"] = heading_deg
     model = get_method(name).model
     result.intervals = fisher_intervals(work.y, T, h, model)
-    spreads = _spreads(result.rec.y[result.screen.kept], T, h, result.screen.radius)
+    spreads = _spreads(result.rec.y, result.screen.kept, T, h, result.screen.radius)
     noise = noise_p95_pct(result.rec.y, result.screen.radius)
     result.verdict["spread_pct"] = None if spreads is None else {
         "corrected": spreads[0], "uncorrected": spreads[1], "kept": CENTRAL_SHARE}
@@ -376,12 +382,14 @@ def _halves_reason(result: CalibrationResult, gate: Gate) -> None:
                                  fail=100 * change > gate.fail_error_pct, quality=True)
 
 
-def _spreads(y: np.ndarray, T: np.ndarray, h: np.ndarray, radius: float
+def _spreads(y: np.ndarray, rows: np.ndarray, T: np.ndarray, h: np.ndarray, radius: float
              ) -> tuple[float, float]:
-    """:func:`~magbench.core.verdict.central_spread_pct` of ``y`` corrected, and uncorrected
-    as a share of the samples' radius (the field's strength in their units)."""
-    return (central_spread_pct(np.linalg.solve(T, (y - h).T).T),
-            central_spread_pct(y, scale=radius))
+    """:func:`~magbench.core.verdict.central_spread_pct` of the ``rows`` (a mask) of ``y``
+    corrected, and uncorrected as a share of the samples' radius (the field's strength in
+    their units); from the norms, a block of rows at a time, so a long recording is not
+    copied."""
+    return (central_spread_of_norms(corrected_norms(T, h, y, rows=rows)),
+            central_spread_of_norms(row_norms(y)[rows], scale=radius))
 
 
 def _next_that_passes(result: CalibrationResult, gate: Gate,
