@@ -41,7 +41,7 @@ def write_results(root: Path) -> Path:
 
 def test_section_tables_best_method_and_proxy_answer(tmp_path):
     text = heading_report_section(write_results(tmp_path))
-    assert "| Fang | 4.25 | 0.05 | 2/2 |" in text
+    assert "| Fang | 4.25 [4.00, 4.50] | 0.05 | 2/2 |" in text     # two units: their range
     assert "on the semi-synthetic BROAD data Fang at 4.25 deg" in text
     assert "(1.4 x the 3.00 deg floor)" in text
     # per recording the ranks agree exactly; pooled, rec_b's offset breaks a few

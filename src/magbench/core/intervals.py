@@ -8,6 +8,10 @@
   drawn from a seeded Generator (:func:`magbench.core.seeding.rng`), so the same file gives
   the same interval every time.
 
+* A median over units (the heading study's) gets the distribution-free order-statistic
+  interval (:func:`median_interval`: the ranks that the binomial distribution with p = 1/2
+  gives), which needs no resampling.
+
 Two intervals that overlap do not prove equality, and two that do not overlap are a
 conservative test of a difference (at 95 % each, the pair's level is above 95 %): the report
 calls a difference inside the intervals "not significant" and says so.
@@ -22,7 +26,8 @@ import numpy as np
 from magbench.core.seeding import rng
 
 __all__ = ["CHUNK_VALUES", "RESAMPLES", "Z95", "bootstrap_inverse_mean", "bootstrap_mean",
-           "bootstrap_paired_ratio", "intervals_overlap", "resampled_means", "wilson"]
+           "bootstrap_paired_ratio", "intervals_overlap", "median_interval", "resampled_means",
+           "wilson"]
 
 #: Standard normal quantile of a two-sided 95 % interval.
 Z95 = 1.959963984540054
@@ -67,6 +72,26 @@ def wilson(k: int | float, n: int | float, z: float = Z95) -> tuple[float, float
     # Clip rounding only; the exact interval always lies in [0, 1] and contains p.
     return (float(100.0 * max(0.0, min(p, centre - half))),
             float(100.0 * min(1.0, max(p, centre + half))))
+
+
+def median_interval(values: Sequence[float] | np.ndarray, level: float = 0.95
+                    ) -> tuple[float, float]:
+    """Distribution-free interval of the median: the order statistics ``x_(k)`` and
+    ``x_(n+1-k)`` (1-based) with ``k`` the ``(1 - level) / 2`` quantile of Binomial(n, 1/2),
+    so that each bound misses the median with probability at most ``(1 - level) / 2``
+    (n = 100 gives ranks 40 and 61). Non-finite values are dropped; with fewer than 6 values
+    the interval is the range, and covers less than ``level``; NaN without values."""
+    from scipy.stats import binom
+
+    if not 0 < level < 1:
+        raise ValueError(f"level must be in (0, 1), got {level}")
+    x = np.sort(np.asarray(values, dtype=float))
+    x = x[np.isfinite(x)]
+    n = x.size
+    if n == 0:
+        return np.nan, np.nan
+    k = max(1, int(binom.ppf((1.0 - level) / 2.0, n, 0.5)))
+    return float(x[k - 1]), float(x[n - k])
 
 
 def bootstrap_inverse_mean(values: Sequence[float] | np.ndarray, *keys: int | str,

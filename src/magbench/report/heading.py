@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from magbench.core.intervals import median_interval
 from magbench.methods.registry import get_method
 
 __all__ = ["heading_report_section", "proxy_verdict"]
@@ -37,7 +38,18 @@ def proxy_verdict(rho: float) -> str:
     return "no proxy"
 
 
-def _method_table(summary: pd.DataFrame) -> list[str]:
+def _median_cell(trials: pd.DataFrame, part: str, name: str, median: float) -> str:
+    """The median heading RMS with its 95 % interval over the units that ran
+    (:func:`~magbench.core.intervals.median_interval`)."""
+    rows = trials[(trials["part"] == part) & (trials["algorithm"] == name)
+                  & trials["ok"].astype(bool)]
+    lo, hi = median_interval(rows["heading_rms"].to_numpy(float))
+    if not np.isfinite(median) or not np.isfinite(lo):
+        return _cell(median)
+    return f"{median:.2f} [{lo:.2f}, {hi:.2f}]"
+
+
+def _method_table(summary: pd.DataFrame, trials: pd.DataFrame) -> list[str]:
     parts = [p for p in ("semi", "given", "mc") if (summary["part"] == p).any()]
     wide = {p: summary[summary["part"] == p].set_index("algorithm") for p in parts}
     order = (wide["semi"]["heading_rms"].sort_values().index.tolist() if "semi" in wide
@@ -56,7 +68,8 @@ def _method_table(summary: pd.DataFrame) -> list[str]:
                 cells += ["-", "-", "-"]
                 continue
             metric = "J_r" if p == "given" else "J"
-            cells += [_cell(r["heading_rms"]), _cell(r[metric], ".2g"),
+            cells += [_median_cell(trials, p, name, float(r["heading_rms"])),
+                      _cell(r[metric], ".2g"),
                       f"{int(r['n_ok'])}/{int(r['n'])}"]
         lines.append(f"| {_label(name)} | " + " | ".join(cells) + " |")
     floors = []
@@ -163,8 +176,10 @@ def heading_report_section(results_dir: Path | str) -> str:
              "magnetometer-only method is scored in the symmetric gauge it is written in (it "
              "cannot know the sensor's rotation); a method given inertial data (*) as "
              "returned. J is eq. (74) against the applied distortion, J_r eq. (81). 'ok' "
-             "counts units where the method ran and ended normally.", ""]
-    lines += _method_table(summary) + [""]
+             "counts units where the method ran and ended normally. Brackets: the 95 % "
+             "interval of the median over those units (order statistics; with fewer than six "
+             "units the range).", ""]
+    lines += _method_table(summary, trials) + [""]
     lines += _answer(summary, corr) + [""]
     given_attitude = sorted({_label(n) for n, inputs in zip(trials["algorithm"],
                                                             trials["inputs"].astype(str),
