@@ -19,7 +19,7 @@ from magbench.core.exports import GAUGE
 from magbench.core.geometry import fibonacci_sphere
 from magbench.core.model import Calibration
 from magbench.methods.registry import get_method
-from magbench.pipeline.calibration import FIRST_ROUND
+from magbench.pipeline.rounds import FIRST_ROUND
 from magbench.sources.recordings import DATA_ENV
 
 T_TRUE = np.array([[520.0, 20.0, -8.0], [0.0, 470.0, 15.0], [0.0, 0.0, 610.0]])

@@ -214,7 +214,8 @@ def _calibrate_path(name: str, y: np.ndarray, kept) -> tuple[np.ndarray, bool]:
     """The heading-true matrix ``A`` of calibrate's path on ``y`` (the recording's inertial
     streams beside it) and whether the offset check cut the recording."""
     from magbench.pipeline.alignment import align_chosen, lag_corrected, offset_check
-    from magbench.pipeline.calibration import calibrate_recording, estimate
+    from magbench.pipeline.calibration import calibrate_recording
+    from magbench.pipeline.holdout import estimate
     from magbench.sources.recordings import Recording
 
     k = kept.rec

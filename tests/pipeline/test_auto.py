@@ -14,7 +14,7 @@ import magbench.pipeline.auto as auto
 from magbench.cli import main
 from magbench.core.geometry import fibonacci_sphere
 from magbench.core.model import CalibrationFailed
-from magbench.pipeline.calibration import FIRST_ROUND
+from magbench.pipeline.rounds import FIRST_ROUND
 
 T_TRUE = np.array([[520.0, 20.0, -8.0], [0.0, 470.0, 15.0], [0.0, 0.0, 610.0]])
 H_TRUE = np.array([900.0, -350.0, 120.0])

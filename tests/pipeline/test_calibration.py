@@ -18,7 +18,8 @@ from magbench.core.geometry import fibonacci_sphere
 from magbench.core.model import CalibrationFailed
 from magbench.core.robust import refusal_reason
 from magbench.methods.registry import get_method, methods
-from magbench.pipeline.calibration import ROBUST_ON_CAPS, THIN_GAP_DEG, allowed, calibrate_recording
+from magbench.pipeline.calibration import calibrate_recording
+from magbench.pipeline.choice import ROBUST_ON_CAPS, THIN_GAP_DEG, allowed
 from magbench.pipeline.fitting import fit_recording
 from magbench.sources.recordings import DATA_ENV, Recording, list_recordings, load_recording
 
@@ -175,23 +176,6 @@ def test_every_written_A_is_spd_on_each_real_recording():
     assert checked > 0.7 * len(MAG_ONLY) * len(list_recordings(SHARED))
 
 
-@pytest.mark.parametrize("case", ["chosen", "none", "gap", "minimiser_out"])
-def test_second_round_reason(case):
-    from magbench.core.verdict import MAX_GAP_DEG
-    from magbench.pipeline.calibration import FIRST_ROUND, second_round_reason
-
-    row = {"algorithm": "ellipsoid"}
-    tie, chosen, gap = ["ellipsoid", "wu_shi_nm"], row, 10.0
-    if case == "none":
-        chosen = None
-    elif case == "gap":
-        gap = MAX_GAP_DEG + 1
-    elif case == "minimiser_out":
-        tie = ["ellipsoid", "fang"]
-    reason = second_round_reason(tie, chosen, gap, FIRST_ROUND)
-    assert (reason == "") == (case == "chosen")
-
-
 def spiral(seed: int, K: int = 400, phi: float = 0.7, drift: float = 1.0,
            sigma: float = 3.0) -> Recording:
     """A continuous path from +Z to -Z in ten turns, AR(1) noise of coefficient ``phi`` and a
@@ -230,7 +214,7 @@ def test_block_bootstrap_intervals_cover_the_truth_under_correlated_noise():
 
 def test_prepare_strides_the_kept_inliers_to_max_samples():
     from magbench.core.robust import Screen
-    from magbench.pipeline.calibration import prepare
+    from magbench.pipeline.screening import prepare
 
     rec = synthetic(1000)
     kept = np.arange(1000) % 4 != 0
@@ -244,7 +228,7 @@ def test_retrim_sets_aside_what_the_chosen_fit_cannot_explain():
     import pandas as pd
 
     from magbench.core.robust import screen
-    from magbench.pipeline.calibration import retrim
+    from magbench.pipeline.screening import retrim
 
     rec, bad = with_spikes(synthetic(600), share=0.02)
     y = rec.y.copy()
@@ -259,7 +243,7 @@ def test_retrim_sets_aside_what_the_chosen_fit_cannot_explain():
 def test_judge_fails_a_fit_that_lost_the_data_scale():
 
     from magbench.core.verdict import Gate
-    from magbench.pipeline.calibration import judge
+    from magbench.pipeline.gate import judge
 
     result = calibrate_recording(synthetic(600), ["ellipsoid"], bootstrap=0)
     assert result.fitness["status"] == "PASS"
@@ -343,7 +327,7 @@ def test_a_fit_whose_field_is_off_the_data_scale_is_not_ranked_the_next_is_chose
 
 
 def test_when_the_chosen_fit_fails_the_gate_the_next_that_passes_is_written(monkeypatch):
-    import magbench.pipeline.calibration as study
+    import magbench.pipeline.gate as study
 
     rec = synthetic(600)
     first = calibrate_recording(rec, ["ellipsoid", "sphere"], bootstrap=0)
@@ -411,7 +395,7 @@ def faulty():
 def test_a_bootstrap_refit_that_ends_its_process_is_one_replicate_fewer(faulty):
     import dataclasses
 
-    from magbench.pipeline.calibration import bootstrap_check
+    from magbench.pipeline.bootstrap import bootstrap_check
     from magbench.pipeline.choice import Choice
 
     result = calibrate_recording(synthetic(400), ["sphere"], bootstrap=0)
@@ -419,22 +403,6 @@ def test_a_bootstrap_refit_that_ends_its_process_is_one_replicate_fewer(faulty):
     result = dataclasses.replace(result, choice=Choice(result.ranked, chosen, result.how))
     out = bootstrap_check(result, 40, seed=3)       # about half of the refits end their child
     assert out is not None and 20 <= out["replicates"] < 40
-
-
-def test_the_data_field_is_what_the_fits_agree_on():
-    from magbench.pipeline.calibration import AGREEING_FITS, agreed_field
-
-    def row(scale, out=0.01):
-        T = scale * np.eye(3)
-        return {"J_r_out": out, "h_0": 0.0, "h_1": 0.0, "h_2": 0.0,
-                **{f"T_{i}{j}": T[i, j] for i in range(3) for j in range(3)}}
-
-    # three fits near 40 and one that lost the scale: the median, not the sphere radius
-    rows = [row(39.0), row(40.0), row(41.0), row(400.0)]
-    assert agreed_field(rows, 27.0) == pytest.approx(40.5)
-    # a fit without an out-of-sample score does not vote; too few voters: the sphere radius
-    assert agreed_field([row(39.0), row(40.0), row(41.0, np.nan)], 27.0) == 27.0
-    assert AGREEING_FITS == 3
 
 
 def test_a_cap_whose_sphere_radius_is_biased_is_judged_on_the_agreed_field():

@@ -17,7 +17,7 @@ The candidates are the registered methods except the review's printed variants (
 ``variant``: benchmark-only, wrong as printed) and, without gyro data, the gyro-aided ones.
 By default (``candidates=auto``) they are fitted in two rounds: the closed forms and Wu-Shi NM
 first, the iterative rest only when they could change the choice (the rule is in
-:mod:`magbench.pipeline.calibration`, step 2); ``candidates=all`` fits every one in one round,
+:mod:`magbench.pipeline.rounds`); ``candidates=all`` fits every one in one round,
 ``candidates=[a,b]`` only those, and ``method=NAME`` runs any one.
 
 The chosen (or the named) calibration is written in the safe gauge of
@@ -75,7 +75,7 @@ from magbench.core.units import Units, parse_units
 from magbench.core.verdict import Gate
 from magbench.methods.registry import get_method, methods
 from magbench.pipeline.auto import candidate_rounds
-from magbench.pipeline.calibration import CalibrationResult, bootstrap_check, estimate
+from magbench.pipeline.bootstrap import bootstrap_check
 from magbench.pipeline.decision import decide
 from magbench.pipeline.export import (
     add_mounting,
@@ -87,7 +87,9 @@ from magbench.pipeline.export import (
 )
 from magbench.pipeline.fitting import DEFAULT_MAX_SAMPLES, PREPROCESSING, applicability
 from magbench.pipeline.flight import check_regressors
+from magbench.pipeline.holdout import estimate
 from magbench.pipeline.picture import picture_job
+from magbench.pipeline.result import CalibrationResult
 from magbench.sources.logs import is_log, log_units
 from magbench.sources.recordings import Recording, read_samples
 

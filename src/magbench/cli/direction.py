@@ -14,7 +14,7 @@ from magbench.core.geomagnetic import Site
 from magbench.core.model import Calibration, CalibrationFailed
 from magbench.core.units import Units
 from magbench.pipeline.alignment import DirectionVeto, align_chosen, field_check, inertial_of
-from magbench.pipeline.calibration import CalibrationResult
+from magbench.pipeline.result import CalibrationResult
 
 __all__ = ["direction_lines", "mark_vetoes", "measured_inclination"]
 

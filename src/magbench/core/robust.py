@@ -16,7 +16,7 @@ sample from the coordinate-wise median of the samples against the median distanc
 rounds use the linear least-squares sphere fit of the inliers
 (:func:`magbench.core.geometry.sphere_fit`). The sphere fit cannot represent soft iron, so its
 residuals are wider than a full model's; that only makes this first screen lenient, and the
-chosen method's own residuals are trimmed afterwards (:mod:`magbench.pipeline.calibration`).
+chosen method's own residuals are trimmed afterwards (:mod:`magbench.pipeline.screening`).
 
 *Collapsed fits* (:func:`refusal_reason`). J_r has a degenerate minimiser: with ``h`` far
 away and a large ``T``, every corrected sample lands near one point of the unit sphere and

@@ -20,15 +20,13 @@ from magbench.core.model import Calibration, as_samples
 from magbench.core.uncertainty import Intervals
 from magbench.core.verdict import Gate
 from magbench.methods.registry import get_method, methods
-from magbench.pipeline.calibration import (
-    FIRST_ROUND,
-    CalibrationResult,
-    bootstrap_check,
-    calibrate_recording,
-    estimate,
-)
+from magbench.pipeline.bootstrap import bootstrap_check
+from magbench.pipeline.calibration import calibrate_recording
 from magbench.pipeline.choice import ranking_frame
 from magbench.pipeline.fitting import DEFAULT_MAX_SAMPLES
+from magbench.pipeline.holdout import estimate
+from magbench.pipeline.result import CalibrationResult
+from magbench.pipeline.rounds import FIRST_ROUND
 from magbench.sources.recordings import Recording
 
 if TYPE_CHECKING:     # the ranking table only: calibrate imports this module, not pandas
@@ -48,7 +46,7 @@ def candidate_rounds(has_gyro: bool, chosen: str | Sequence[str] = "auto"
     ``auto``: every registered method except the review's printed variants (benchmark rows,
     never a user's fit), the alignment methods (they need an accelerometer) and, without gyro
     data, the gyro-aided ones, in two rounds
-    (:data:`~magbench.pipeline.calibration.FIRST_ROUND` first); ``all``: the same in one round;
+    (:data:`~magbench.pipeline.rounds.FIRST_ROUND` first); ``all``: the same in one round;
     a list: those methods, in one round.
     """
     if not isinstance(chosen, str):

@@ -30,8 +30,10 @@ from magbench.pipeline.alignment import (
     lag_corrected,
     offset_check,
 )
-from magbench.pipeline.calibration import CalibrationResult, calibrate_recording, estimate
+from magbench.pipeline.calibration import calibrate_recording
 from magbench.pipeline.flight import usable_regressors
+from magbench.pipeline.holdout import estimate
+from magbench.pipeline.result import CalibrationResult
 from magbench.sources.recordings import Recording
 
 __all__ = ["EXIT_FAIL", "EXIT_NONE", "Decision", "decide", "written_correction"]
@@ -93,7 +95,7 @@ def decide(rec: Recording, candidates: Sequence[str], *, second_round: Sequence[
            gate: Gate | None = None, expected_field: float | None = None,
            compensate: list[str] | None = None, units: Units = UNKNOWN) -> Decision:
     """``calibrate``'s decision on ``rec`` (module notes); the block bootstrap is left to the
-    caller (:func:`magbench.pipeline.calibration.bootstrap_check`). ``units``: the declared
+    caller (:func:`magbench.pipeline.bootstrap.bootstrap_check`). ``units``: the declared
     unit of the samples (a field strength the Earth cannot give in it is a FAIL)."""
     has_inertial = inertial_of(rec).source != "none"
     rec, lag = lag_corrected(rec) if has_inertial else (rec, 0.0)

@@ -30,13 +30,14 @@ from magbench.core.model import Calibration
 from magbench.core.units import UNKNOWN, Units
 from magbench.methods.api import calibrate as magbench_calibrate
 from magbench.methods.registry import get_method
-from magbench.pipeline.calibration import CalibrationResult, estimate
 from magbench.pipeline.flight import (
     mounting_rotation,
     time_varying_terms,
     unused_regressors,
     usable_regressors,
 )
+from magbench.pipeline.holdout import estimate
+from magbench.pipeline.result import CalibrationResult
 from magbench.sources.recordings import Recording
 
 __all__ = ["ARDUPILOT_LOGS", "add_mounting", "add_time_varying", "calibration_json",

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-from magbench.pipeline.calibration import CalibrationResult
+from magbench.pipeline.result import CalibrationResult
 from magbench.sources.recordings import Recording
 
 __all__ = ["PICTURE_COMPRESSION", "PICTURE_DPI", "PICTURE_SAMPLES", "picture_arguments",

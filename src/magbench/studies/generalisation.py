@@ -55,7 +55,7 @@ from magbench.core.seeding import rng
 from magbench.engine.sweep import Study
 from magbench.engine.trial import run_method
 from magbench.pipeline.auto import candidate_rounds
-from magbench.pipeline.calibration import bootstrap_check
+from magbench.pipeline.bootstrap import bootstrap_check
 from magbench.pipeline.decision import decide, written_correction
 from magbench.pipeline.fitting import DEFAULT_MAX_SAMPLES, applicability, fit_recording, is_usable
 from magbench.pipeline.holdout import estimate
