@@ -92,6 +92,18 @@ def test_an_extra_score_joins_the_tie():
     assert plain.chosen["algorithm"] == "sphere" and extra.chosen["algorithm"] == "fang"
 
 
+def test_a_vetoed_candidate_says_why_in_its_note():
+    reason = "held-out direction error 9.00 deg, 4.00 deg worse than fang's 5.00 deg"
+    t = [{**r, "direction_ok": ok, "veto": why} for r, ok, why in zip(
+        table([("fang", 1.0, 1.0, 0), ("als", 0.5, 0.5, 0), ("sphere", 1.0, 1.0, 0)]),
+        [1.0, np.nan, np.nan], ["", reason, ""], strict=True)]
+    out = by_name(choose(t, {}, 20.0, scores=("J_r_out", "J_r_worst", "direction_ok")).ranked)
+    assert out["als"]["note"] == f"set aside: {reason}" and not out["als"]["eligible"]
+    # a missing score without a reason is still said to be missing
+    assert out["sphere"]["note"].startswith("no out-of-sample score")
+    assert out["fang"]["eligible"]
+
+
 def test_a_refused_fit_passes_the_choice_to_the_next_of_the_tie():
     out = run([("fang", 1.0, 1.0, 0), ("ellipsoid", 1.0, 1.0, 0)],
               refuse=lambda r: "test refusal" if r["algorithm"] == "fang" else "")

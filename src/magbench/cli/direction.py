@@ -20,15 +20,13 @@ __all__ = ["direction_lines", "mark_vetoes", "measured_inclination"]
 
 
 def mark_vetoes(ranked: list[dict], veto: DirectionVeto) -> None:
-    """The ranking's note of each candidate the direction set aside (in place), and its
-    held-out heading as a column when one was measured."""
+    """Each candidate's held-out heading as a column of the ranking (in place), when one was
+    measured; the note of one the direction set aside is the choice's own
+    (:func:`magbench.pipeline.choice.eligibility`)."""
     if not veto.scores:
         return
     for row in ranked:
-        name = str(row["algorithm"])
-        row["heading_out_deg"] = veto.scores.get(name, math.nan)
-        if name in veto.vetoes:
-            row["note"] = f"set aside: {veto.vetoes[name]}"
+        row["heading_out_deg"] = veto.scores.get(str(row["algorithm"]), math.nan)
 
 
 def measured_inclination(cal: Calibration, rec, keep: np.ndarray) -> float | None:

@@ -111,6 +111,8 @@ def eligibility(table: Sequence[Mapping], gap_deg: float, scores: Sequence[str] 
         off_scale = bool(r["meaningful"]) and has and field > max_field_pct
         if not r["meaningful"]:
             note = _why_not(r)
+        elif not has and r.get("veto"):
+            note = f"set aside: {r['veto']}"
         elif not has:
             note = "no out-of-sample score (a fold's fit failed or was degenerate)"
         elif off_scale:

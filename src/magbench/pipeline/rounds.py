@@ -42,7 +42,6 @@ J_R_MINIMISER = "wu_shi_nm"
 ExtraScore = Callable[[list[dict], list[dict], Recording], tuple[str, Sequence[float]]]
 
 
-
 def fit_round(work: Recording, names: Sequence[str], *, preprocess: str, options: dict,
               seed: int, call_timeout_s: float | None) -> list[dict]:
     """Every method of ``names`` on all of ``work`` and on each fold
@@ -75,7 +74,10 @@ def _rank_trials(trials: list[dict], work: Recording, gap_deg: float, centre: np
     scores = SCORES
     if extra is not None:
         column, values = extra(summary, trials, work)
-        summary = [{**r, column: v} for r, v in zip(summary, values, strict=True)]
+        # Why a score is missing, when the extra score says (a direction veto's reason).
+        why = getattr(extra, "vetoes", {})
+        summary = [{**r, column: v, "veto": why.get(str(r["algorithm"]), "")}
+                   for r, v in zip(summary, values, strict=True)]
         scores = (*SCORES, column)
     corrected = {r["algorithm"]: held_out_corrected(trials, work, r["algorithm"])
                  for r in summary}
