@@ -92,13 +92,13 @@ def draw_figures(results_dir: Path | str) -> list[Path]:
 
 def bench(cfg: DictConfig) -> int:
     """``python -m magbench bench``: time every method; writes ``<results_dir>/bench/``."""
-    from magbench.cli.config import _flag, check_common, check_scale, selected_algorithms
+    from magbench.cli.config import check_common, check_flag, check_scale, selected_algorithms
 
     common = check_common(cfg)
     names = selected_algorithms(cfg)
     sizes = check_scale(cfg)
     writable_folder(common["results_dir"], "results_dir")
-    if _flag(cfg.get("timing_check", False), "timing_check"):
+    if check_flag(cfg.get("timing_check", False), "timing_check"):
         return timing_check(cfg)
     if sizes is not None:
         return scale(sizes, common)

@@ -40,6 +40,7 @@ __all__ = [
     "check_common",
     "check_compensate",
     "check_field_strength",
+    "check_flag",
     "check_instance",
     "check_integer",
     "check_number",
@@ -57,6 +58,7 @@ __all__ = [
     "is_list_of",
     "nominal_point",
     "number",
+    "one_or_more_of",
     "overwrite_wanted",
     "plain",
     "plain_override",
@@ -383,6 +385,17 @@ def is_list_of(check: Callable[[object, str], object]) -> Callable[[object, str]
     return check_list
 
 
+def one_or_more_of(choices: Sequence[str]) -> Callable[[object, str], list[str]]:
+    """A :class:`Key` check: one of ``choices`` or a non-empty list of them (as a list)."""
+    def check(value: object, what: str) -> list[str]:
+        value = plain(value)
+        value = [value] if isinstance(value, str) else list(value or [])
+        if not value or any(v not in choices for v in value):
+            raise UsageError(f"{what} must be a list from {', '.join(choices)}, got {value}")
+        return value
+    return check
+
+
 def plain(node: object, what: str = "") -> object:
     """``node`` as plain Python data (lists, dicts) if it is an OmegaConf node."""
     return OmegaConf.to_container(node, resolve=True) if OmegaConf.is_config(node) else node
@@ -460,7 +473,7 @@ def check_option_value(value: object, default: object, what: str) -> object:
     """``value`` if it has the type of the option's ``default`` (an integer option takes a
     non-negative integer, a float option a finite number, a flag true or false)."""
     if isinstance(default, bool):
-        return _flag(value, what)
+        return check_flag(value, what)
     if isinstance(default, int):
         return check_integer(value, what, 0)
     if isinstance(default, float):
@@ -499,8 +512,8 @@ def check_common(cfg: DictConfig) -> dict:
             timeout, "call_timeout_s", lambda t: 0 < t <= MAX_TIMEOUT_S,
             f"in (0, {MAX_TIMEOUT_S:g}] seconds (or null for no limit)"),
         "plugins": tuple(plugins),
-        "progress": _flag(cfg.progress, "progress"),
-        "overwrite": _flag(cfg.get("overwrite", False), "overwrite"),
+        "progress": check_flag(cfg.progress, "progress"),
+        "overwrite": check_flag(cfg.get("overwrite", False), "overwrite"),
         "results_dir": _results_dir(cfg),
     }
 
@@ -543,10 +556,11 @@ def _scheduler_address(value: object) -> str | None:
 
 def picture_wanted(cfg: DictConfig) -> bool:
     """``calibrate``'s ``picture`` key: whether to draw ``calibration.png``."""
-    return _flag(cfg.get("picture", True), "picture")
+    return check_flag(cfg.get("picture", True), "picture")
 
 
-def _flag(value: object, key: str) -> bool:
+def check_flag(value: object, key: str) -> bool:
+    """``value`` if it is a boolean (a :class:`Key` check too), else exit 2 saying so."""
     if not isinstance(value, bool):
         raise UsageError(f"{key} must be true or false, got {value!r}")
     return value
@@ -690,7 +704,7 @@ def overwrite_wanted(cfg: DictConfig) -> bool:
     """``overwrite`` of calibrate (false when unset); checked against the folder under its
     lock (:func:`magbench.cli.outfolder.hold`)."""
     value = cfg.get("overwrite")
-    return _flag(value if value is not None else False, "overwrite")
+    return check_flag(value if value is not None else False, "overwrite")
 
 
 def check_site(cfg: DictConfig) -> tuple[Site | None, dt.date | None]:

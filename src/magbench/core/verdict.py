@@ -92,8 +92,8 @@ def noise_p95_pct(y: np.ndarray, radius: float) -> float:
         return np.nan
     # One axis at a time, in place: the whole-array expression held four (K, 3) arrays at
     # once (the differences, their deviations and the medians' partition copies), the
-    # largest share of ``calibrate``'s memory on a long recording (issue 40). Same values: a
-    # median selects them.
+    # largest share of ``calibrate``'s memory on a long recording. Same values: a median
+    # selects them.
     spreads = np.empty(y.shape[1])
     for j in range(y.shape[1]):
         d2 = np.diff(y[:, j], n=2)

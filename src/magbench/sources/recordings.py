@@ -741,7 +741,7 @@ def read_samples(path: Path | str, columns: Sequence[object] | None = None, *,
     y = table if order == list(range(table.shape[1])) else table[:, order]
     if y is not table:
         # The other columns are copied out too: a view of one (t) would keep the whole table
-        # alive next to the samples' copy for as long as the recording (issue 40).
+        # alive next to the samples' copy for as long as the recording.
         values = {p: v if p in mag else v.copy() for p, v in values.items()}
         del table
     t = None

@@ -311,10 +311,12 @@ def _auto_row(rec, protocol, fit, test, raw, options, seed, timeout, radius, cen
 
 def evaluate_protocol(rec: Recording, protocol: str, *, fixed: Sequence[str],
                       peers: bool = True, options: dict | None = None, seed: int = 0,
-                      call_timeout_s: float | None = None) -> tuple[list[dict], list[dict]]:
+                      call_timeout_s: float | None = None, field: float | None = None
+                      ) -> tuple[list[dict], list[dict]]:
     """Rows (and their times) of every entrant on ``rec`` under ``protocol``: the automatic
     choice, each of ``fixed``, each installed peer (``peers``); one skipped row when the
-    protocol does not apply."""
+    protocol does not apply. ``field``: the recording's field strength, the raw spread's
+    scale (its robust radius by default; a caller running every protocol passes it once)."""
     options = options or {}
     parts = split(rec, protocol, seed)
     if isinstance(parts, str):
@@ -325,7 +327,8 @@ def evaluate_protocol(rec: Recording, protocol: str, *, fixed: Sequence[str],
                         "time_s": 0.0}]
     fit, test = parts
     mean_spread, direction = scores(test)
-    raw = (scores(test, field=screen(rec.y).radius)[0], direction, mean_spread)
+    field = screen(rec.y).radius if field is None else field
+    raw = (scores(test, field=field)[0], direction, mean_spread)
     centre, radius = sphere_fit(fit.y)
     rows, times = [], []
     row, t = _auto_row(rec, protocol, fit, test, raw, options, seed, call_timeout_s, radius,
@@ -414,10 +417,11 @@ class GeneralisationStudy(Study):
     def run_unit(self, name: str) -> dict[str, list[dict]]:
         rec = load_recording(self.root, name, check=False)
         rows, times = [], []
+        field = screen(rec.y).radius
         for protocol in self.protocols:
             r, t = evaluate_protocol(rec, protocol, fixed=list(self.algorithms),
                                      peers=self.peers, options=self.options, seed=self.seed,
-                                     call_timeout_s=self.call_timeout_s)
+                                     call_timeout_s=self.call_timeout_s, field=field)
             rows += r
             times += t
         intervals = interval_rows(rec, options=self.options, seed=self.seed,

@@ -9,9 +9,11 @@ from omegaconf import DictConfig
 from magbench.cli.config import (
     Key,
     UsageError,
+    check_flag,
     check_options,
     field_default,
     integer,
+    one_or_more_of,
     plain,
 )
 from magbench.cli.kinds import Kind, register_kind
@@ -67,21 +69,6 @@ def report(results_dir: Path) -> str:
     return generalisation_section(results_dir)
 
 
-def _protocols(value: object, what: str) -> list[str]:
-    value = plain(value)
-    value = [value] if isinstance(value, str) else list(value or [])
-    bad = [p for p in value if p not in PROTOCOLS]
-    if bad or not value:
-        raise UsageError(f"{what} must be a list from {', '.join(PROTOCOLS)}, got {value}")
-    return value
-
-
-def _boolean(value: object, what: str) -> bool:
-    if not isinstance(value, bool):
-        raise UsageError(f"{what} must be true or false, got {value!r}")
-    return value
-
-
 KIND = register_kind(Kind(
     name="generalisation",
     what="fit on part of each real recording, score on the rest: calibrate vs fixed fits",
@@ -89,9 +76,9 @@ KIND = register_kind(Kind(
         Key("datasets", "all", "'all' or a list of recording folder names",
             lambda v, what: plain(v)),
         Key("protocols", list(PROTOCOLS), "which parts are fitted and scored: "
-            + ", ".join(PROTOCOLS), _protocols),
+            + ", ".join(PROTOCOLS), one_or_more_of(PROTOCOLS)),
         Key("peers", True, "also score navlib's and magcal's fits when installed (the peers "
-            "extra)", _boolean),
+            "extra)", check_flag),
         Key("bootstrap", field_default(GeneralisationStudy, "bootstrap"), "block-bootstrap "
             "refits of the interval check (halves of recordings of two minutes or more; 0: no "
             "check)", integer(0, 10_000)),

@@ -10,7 +10,7 @@ from omegaconf import DictConfig
 from magbench.cli.config import (
     Key,
     UsageError,
-    _flag,
+    check_flag,
     check_options,
     check_trials,
     field_default,
@@ -168,7 +168,7 @@ KIND = register_kind(Kind(
         Key("lag_max_s", _d("lag_max_s"), "mc: magnetometer lag uniform in [0, this] s",
             number(lambda x: 0 <= x <= 1, "in [0, 1] s")),
         Key("correct_lag", _d("correct_lag"), "measure the magnetometer lag and remove it "
-            "before fitting and scoring", _flag),
+            "before fitting and scoring", check_flag),
     ),
     build=build, finish=finish, figures=figures, section=section, report=report,
     needs_data=True))

@@ -14,6 +14,7 @@ from magbench.cli.config import (
     field_default,
     integer,
     number,
+    one_or_more_of,
     plain,
     selected_algorithms,
 )
@@ -85,15 +86,6 @@ def report(results_dir: Path) -> str:
     return real_report_section(results_dir)
 
 
-def _preprocess(value: object, what: str) -> list[str]:
-    value = plain(value)
-    value = [value] if isinstance(value, str) else list(value or [])
-    bad = [p for p in value if p not in PREPROCESSING]
-    if bad or not value:
-        raise UsageError(f"{what} must be a list from {', '.join(PREPROCESSING)}, got {value}")
-    return value
-
-
 KIND = register_kind(Kind(
     name="real", what="every method on real recordings (data_dir), Figure 6", keys=(
         Key("datasets", "all", "'all' or a list of recording folder names",
@@ -102,7 +94,7 @@ KIND = register_kind(Kind(
             "thinned to every ceil(n/max_samples)-th sample", integer(8, 10_000_000)),
         Key("preprocess", list(field_default(RealStudy, "preprocess")), "scale: divide by the "
             "mean norm (the review's); centre: also subtract the sphere-fit centre",
-            _preprocess),
+            one_or_more_of(PREPROCESSING)),
         Key("coverage_ratio", field_default(RealStudy, "coverage_ratio"), "meaningful fits "
             "keep at least this share of the sphere fit's coverage",
             number(lambda r: 0 <= r <= 1, "in [0, 1]")),
