@@ -100,6 +100,21 @@ def test_a_fit_worse_in_direction_by_more_than_the_tolerance_is_vetoed():
     assert direction_vetoes({"a": float("nan")}) == {}
 
 
+def test_the_veto_measures_against_a_fit_that_could_be_chosen():
+    scores = {"magical": 11.6, "sphere": 13.7, "magyc_nls": 12.7}
+    # magical stopped at its iteration cap, so it cannot be chosen: it sets nobody aside
+    assert direction_vetoes(scores, among={"sphere", "magyc_nls"}) == {}
+    assert set(direction_vetoes(scores)) == {"sphere"}
+    # without a chosen-able candidate with a score, the best of all is the reference
+    assert set(direction_vetoes(scores, among={"als"})) == {"sphere"}
+
+
+def test_the_veto_tolerance_grows_with_the_error():
+    # 10 % of a 40 deg error: 43 deg is within it, 45 deg is not; at 5 deg, 1 deg holds
+    assert set(direction_vetoes({"a": 40.0, "b": 43.0, "c": 45.0})) == {"c"}
+    assert set(direction_vetoes({"a": 5.0, "b": 5.9, "c": 6.1})) == {"c"}
+
+
 BERLIN = Site(52.51, 13.33)
 
 

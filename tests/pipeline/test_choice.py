@@ -71,6 +71,19 @@ def test_a_gyro_aided_fit_must_beat_the_best_magnetometer_fit(gyro, chosen):
             by_name(out.ranked)["sar_ls"]["note"]
 
 
+def test_a_pass_mark_both_share_does_not_keep_a_gyro_fit_out():
+    # A veto's column is 1 for every candidate it lets through: neither can beat the other
+    # on it, so it must not decide the gyro rule; the held-out J_r scores do.
+    t = [{**r, "direction_ok": 1.0} for r in table([("fang", 1.0, 1.0, 0),
+                                                    ("sar_ls", 0.5, 0.5, 0)])]
+    scores = ("J_r_out", "J_r_worst", "direction_ok")
+    assert choose(t, {}, 20.0, scores=scores).chosen["algorithm"] == "sar_ls"
+    worse = [{**r, "direction_ok": d} for r, d in zip(t, [1.0, 2.0], strict=True)]
+    out = choose(worse, {}, 20.0, scores=scores)
+    assert out.chosen["algorithm"] == "fang"
+    assert "must beat" in by_name(out.ranked)["sar_ls"]["note"]
+
+
 def test_each_step_alone():
     t = eligibility(annotate(table([("fang", 1.0, 1.0, 0), ("magical", np.nan, np.nan, 30)]),
                              {}), 20.0)

@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import datetime as dt
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Collection, Mapping, Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -231,25 +231,36 @@ def world_reference(cal: Calibration, y: np.ndarray, attitude: np.ndarray) -> np
     return mean_direction(world_field((y[ok] - b) @ A.T, attitude[ok]))
 
 
-def direction_vetoes(direction_deg: dict[str, float], tol_deg: float = 1.0) -> dict[str, str]:
+def direction_vetoes(direction_deg: dict[str, float], tol_deg: float = 1.0,
+                     tol_share: float = 0.1, among: Collection[str] | None = None
+                     ) -> dict[str, str]:
     """Candidates whose held-out direction error exceeds the best one's by more than
-    ``tol_deg``, each with the reason (a candidate with a NaN score is not vetoed).
+    ``max(tol_deg, tol_share * best)``, each with the reason (a candidate with a NaN score is
+    not vetoed).
 
     Parameters
     ----------
     direction_deg : dict
         Candidate name -> its held-out direction error (e.g. heading RMS or gyro RMS), deg.
-    tol_deg : float
-        What the direction may lose to the best before a candidate is set aside.
+    tol_deg, tol_share : float
+        What the direction may lose to the best before a candidate is set aside: degrees, or
+        a share of the best's error when that is larger (a held-out error of 40 deg is not
+        known to 1 deg).
+    among : collection of str, optional
+        The candidates that could be chosen on every other ground: the best is sought among
+        them (a fit the choice could never take must not set the others aside); among all
+        when none of them has a score.
     """
     finite = {k: v for k, v in direction_deg.items() if math.isfinite(v)}
     if not finite:
         return {}
-    best_name = min(finite, key=finite.get)
-    best = finite[best_name]
+    pool = {k: v for k, v in finite.items() if among is None or k in among} or finite
+    best_name = min(pool, key=pool.get)
+    best = pool[best_name]
+    limit = best + max(tol_deg, tol_share * best)
     return {k: f"held-out direction error {v:.2f} deg, {v - best:.2f} deg worse than "
                f"{best_name}'s {best:.2f} deg"
-            for k, v in finite.items() if v > best + tol_deg}
+            for k, v in finite.items() if v > limit}
 
 
 def field_check(strength: float, inclination_deg: float | None, site: Site, date: dt.date,
@@ -420,9 +431,10 @@ def fold_direction(trials: Sequence[Mapping], work: Recording, name: str,
 class DirectionVeto:
     """The ``extra`` score of :func:`magbench.pipeline.calibration.calibrate_recording`: with
     a reference attitude, every candidate's held-out heading RMS over the same folds as the
-    magnitude score; a candidate more than ``tol_deg`` worse than the best is scored NaN, so it
-    is not eligible (a fit that improves magnitude but worsens direction is not chosen), the
-    others 1 (they tie). ``scores`` and ``vetoes`` keep the last call's numbers to print."""
+    magnitude score; a candidate worse than the best that could be chosen (``choosable``) by more
+    than the tolerance (:func:`direction_vetoes`) is scored NaN, so it is not eligible (a fit
+    that improves magnitude but worsens direction is not chosen), the others 1 (they tie).
+    ``scores`` and ``vetoes`` keep the last call's numbers to print."""
 
     column = "direction_ok"
 
@@ -439,7 +451,8 @@ class DirectionVeto:
             return self.column, [1.0] * len(names)
         attitude_only = Inertial(attitude=inertial.attitude)
         self.scores = {n: fold_direction(trials, work, n, attitude_only) for n in names}
-        self.vetoes = direction_vetoes(self.scores, self.tol_deg)
+        among = {n for n, r in zip(names, summary, strict=True) if r.get("choosable", True)}
+        self.vetoes = direction_vetoes(self.scores, self.tol_deg, among=among)
         return self.column, [math.nan if n in self.vetoes else 1.0 for n in names]
 
 

@@ -100,7 +100,8 @@ def calibrate_recording(rec: Recording, candidates: Sequence[str], *,
     expected_field : float or (low, high), optional
         The field strength expected, in the recording's units.
     extra : callable, optional
-        Another score for the choice: ``extra(summary, trials, work) -> (column, values)``,
+        Another score for the choice: ``extra(summary, trials, work) -> (column, values)``
+        (a summary row's ``choosable``: eligible on every other ground),
         one value per row of ``summary`` (lower is better); a simpler model must tie on it too
         (:func:`magbench.pipeline.choice.choose`'s ``scores``). When it has a ``scores``
         mapping (method -> held-out heading RMS, deg, as

@@ -17,7 +17,7 @@ import numpy as np
 
 from magbench.core.robust import refusal_reason
 from magbench.core.verdict import MAX_GAP_DEG
-from magbench.pipeline.choice import ROBUST_ON_CAPS, SCORES, Choice, choose
+from magbench.pipeline.choice import ROBUST_ON_CAPS, SCORES, Choice, annotate, choose, eligibility
 from magbench.pipeline.holdout import (
     estimate,
     evaluate_folds,
@@ -38,7 +38,8 @@ FIRST_ROUND = ("sphere", "twostep_hi", "diagonal", "ellipsoid", "fang", "twostep
 #: The method whose objective (Wu and Shi's (11)) is K times J_r (81).
 J_R_MINIMISER = "wu_shi_nm"
 #: ``extra(summary, trials, work) -> (column, values)``: a further score for the choice
-#: (``summary`` and ``trials`` are lists of records, :mod:`magbench.pipeline.holdout`).
+#: (``summary`` and ``trials`` are lists of records, :mod:`magbench.pipeline.holdout`; a
+#: summary row's ``choosable``: whether the candidate is eligible on every other ground).
 ExtraScore = Callable[[list[dict], list[dict], Recording], tuple[str, Sequence[float]]]
 
 
@@ -72,15 +73,20 @@ def _rank_trials(trials: list[dict], work: Recording, gap_deg: float, centre: np
     agreed = agreed_field(summary, radius)
     summary = [{**r, **sphere_scores(trials, r, agreed)} for r in summary]
     scores = SCORES
+    corrected = {r["algorithm"]: held_out_corrected(trials, work, r["algorithm"])
+                 for r in summary}
     if extra is not None:
-        column, values = extra(summary, trials, work)
+        # The extra score may compare each candidate with those the choice could take on
+        # every other ground (``choosable``).
+        choosable = [bool(r["eligible"]) for r in eligibility(
+            annotate(summary, corrected), gap_deg, SCORES, max_field_pct)]
+        column, values = extra([{**r, "choosable": c} for r, c in
+                                zip(summary, choosable, strict=True)], trials, work)
         # Why a score is missing, when the extra score says (a direction veto's reason).
         why = getattr(extra, "vetoes", {})
         summary = [{**r, column: v, "veto": why.get(str(r["algorithm"]), "")}
                    for r, v in zip(summary, values, strict=True)]
         scores = (*SCORES, column)
-    corrected = {r["algorithm"]: held_out_corrected(trials, work, r["algorithm"])
-                 for r in summary}
     return choose(summary, corrected, gap_deg, scores=scores, max_field_pct=max_field_pct,
                   refuse=lambda row: refusal_reason(*estimate(row), work.y, centre))
 
