@@ -182,6 +182,31 @@ def test_direction_losses_use_their_own_tolerance():
     assert not plain["has_attitude"] and plain["loss"] and plain["loss_compass"]
 
 
+def test_compass_harm_and_needless_fails_and_the_peers_comparison():
+    def case(auto, auto_deg, fixed_deg, peers=()):
+        rows = _rows("p", "half", auto, {"sphere": 6.0, "fang": 6.0}, raw=40.0, peers=peers)
+        for r, d in zip(rows, (auto_deg, *fixed_deg, *[np.nan] * len(peers)), strict=True):
+            r["raw_direction_deg"], r["direction_deg"] = 20.0, d
+        return case_table(pd.DataFrame(rows)).loc[0]
+
+    # nothing written; by magnitude a fit would have helped (40 % raw), but by direction
+    # every fixed fit is worse than the raw data's 20 deg: no needless FAIL by the compass
+    worse = case(None, np.nan, (30.0, 25.0))
+    assert worse["needless_fail"] and not worse["needless_fail_compass"]
+    better = case(None, np.nan, (12.0, 25.0))
+    assert better["needless_fail_compass"]
+    # written and turning the field further astray than raw: harmful by the compass
+    astray = case(6.0, 22.5, (12.0, 25.0))
+    assert not astray["harmful"] and astray["harmful_compass"]
+    # the peers: 6.0 against a peer's 5.8 ties (tolerance 0.29), against 5.0 loses
+    assert not case(6.0, 12.0, (12.0, 12.0), {"navlib.x": 5.8})["loss_peers"]
+    lost = case(6.0, 12.0, (12.0, 12.0), {"navlib.x": 5.0, "magcal.y": 7.0})
+    assert lost["loss_peers"] and not case(6.0, 12.0, (12.0, 12.0))["loss_peers"]
+    table = protocol_table(pd.DataFrame([worse, better, astray, lost]))
+    assert table.loc[0, ["needless_fail", "needless_fail_compass", "harmful_compass",
+                         "losses_peers"]].tolist() == [2, 1, 1, 1]
+
+
 def test_a_degenerate_fit_never_is_the_best_in_hindsight():
     rows = _rows("a", "half", 1.0, {"sphere": 1.0, "crassidis": 0.01})
     rows[-1]["degenerate"] = True

@@ -463,6 +463,16 @@ def _direction_loss(auto: Mapping, fixed: pd.DataFrame) -> bool:
     return bool(not user <= best.min() + tolerance_deg(best.min()))
 
 
+def _direction_helps(auto: Mapping, fixed: pd.DataFrame) -> bool:
+    """Whether the best fixed fit's world-frame direction spread beats the raw data's by
+    more than :func:`tolerance_deg` (False without an attitude)."""
+    best = fixed["direction_deg"].to_numpy(float)
+    best = best[np.isfinite(best)]
+    raw = float(auto["raw_direction_deg"])
+    return bool(best.size and np.isfinite(raw) and raw > best.min() +
+                tolerance_deg(best.min()))
+
+
 def case_table(trials: pd.DataFrame) -> pd.DataFrame:
     """One row per (dataset, protocol) that was run: the automatic choice's score (raw when
     nothing was written), the best fixed method in hindsight, the regret, and whether it is a
@@ -472,7 +482,10 @@ def case_table(trials: pd.DataFrame) -> pd.DataFrame:
     spread instead (the issue's first definition, which a large offset deflates);
     ``loss_direction`` compares world-frame direction spreads where an attitude exists;
     ``loss_compass`` is the score the choice serves: by direction where the recording has
-    an attitude (its direction veto decides there), by magnitude elsewhere."""
+    an attitude (its direction veto decides there), by magnitude elsewhere, and so are
+    ``harmful_compass`` and ``needless_fail_compass``. ``loss_peers``: worse by magnitude
+    than the best installed peer (navlib, magcal) by more than the tolerance, the comparison
+    a user of those libraries makes (False without peers)."""
     import pandas as pd
 
     out = []
@@ -504,6 +517,16 @@ def case_table(trials: pd.DataFrame) -> pd.DataFrame:
                float(auto["raw_direction_deg"]),
                "raw_direction_deg": float(auto["raw_direction_deg"])}
         row["loss_compass"] = row["loss_direction"] if row["has_attitude"] else row["loss"]
+        user_dir = row["auto_direction_deg"]
+        row["harmful_compass"] = (bool(written and not user_dir <= row["raw_direction_deg"])
+                                  if row["has_attitude"] else row["harmful"])
+        row["needless_fail_compass"] = (bool(not written and _direction_helps(auto, fixed))
+                                        if row["has_attitude"] else row["needless_fail"])
+        peers = g[(g["kind"] == "peer") & g["written"].astype(bool)
+                  & ~g["degenerate"].astype(bool)]["spread_pct"].to_numpy(float)
+        peers = peers[np.isfinite(peers)]
+        row["loss_peers"] = bool(peers.size and not score <= peers.min() +
+                                 tolerance(peers.min()))
         for _, r in g[g["kind"] != "auto"].iterrows():
             row[f"pct:{r['algorithm']}"] = _user_score(r) if r["status"] == "ok" else raw
         out.append(row)
@@ -538,6 +561,9 @@ def protocol_table(cases: pd.DataFrame) -> pd.DataFrame:
                "harmful": int(g["harmful"].sum()),
                "harmful_mean_norm": int(g["harmful_mean_norm"].sum()),
                "needless_fail": int(g["needless_fail"].sum()),
+               "losses_peers": int(g["loss_peers"].sum()),
+               "harmful_compass": int(g["harmful_compass"].sum()),
+               "needless_fail_compass": int(g["needless_fail_compass"].sum()),
                "direction_cases": int(np.isfinite(g["raw_direction_deg"].to_numpy(float)).sum()),
                "losses_direction": int(g["loss_direction"].sum()),
                "losses_compass": int(g["loss_compass"].sum()),
