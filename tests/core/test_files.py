@@ -95,3 +95,52 @@ def test_plain_frames_take_the_column_writer_and_others_to_csv():
 
     fast = [_csv_columns(f) is not None for f in awkward_frames()]
     assert fast == [True, True, True, True, True, True, False, False, True]
+
+
+#: Takes and releases the lock ``n`` times, each time checking, under the lock, that no other
+#: holder is inside (a shared marker file) and counting the times it was refused.
+CONTENDER = """
+import os, sys
+from pathlib import Path
+from magbench.core.files import LockHeld, exclusive_lock
+lock, inside, n = Path(sys.argv[1]), Path(sys.argv[2]), int(sys.argv[3])
+held = refused = 0
+while held < n:
+    try:
+        with exclusive_lock(lock, f"pid {os.getpid()}"):
+            fd = os.open(inside, os.O_CREAT | os.O_EXCL | os.O_WRONLY)   # fails if another is in
+            os.close(fd)
+            os.unlink(inside)
+            held += 1
+    except LockHeld:
+        refused += 1
+print(held, refused)
+"""
+
+
+def test_the_lock_admits_one_holder_at_a_time_and_leaves_no_file(tmp_path):
+    # Two processes taking and removing the lock file as fast as they can: a contender that
+    # opened the file just before its holder removed it must not hold a second lock.
+    import subprocess
+    import sys
+
+    lock, inside = tmp_path / ".lock", tmp_path / "inside"
+    procs = [subprocess.Popen([sys.executable, "-c", CONTENDER, str(lock), str(inside), "300"],
+                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+             for _ in range(2)]
+    results = [p.communicate(timeout=120) for p in procs]
+    for p, (out, err) in zip(procs, results, strict=True):
+        assert p.returncode == 0, err
+        assert out.split()[0] == "300"
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_a_held_lock_refuses_a_second_block_and_names_its_holder(tmp_path):
+    from magbench.core.files import LockHeld, exclusive_lock
+
+    with exclusive_lock(tmp_path / ".lock", "pid 1 since noon") as held:
+        assert held and (tmp_path / ".lock").read_text() == "pid 1 since noon"
+        with pytest.raises(LockHeld) as refused, exclusive_lock(tmp_path / ".lock"):
+            pass
+        assert refused.value.holder == "pid 1 since noon"
+    assert not (tmp_path / ".lock").exists()

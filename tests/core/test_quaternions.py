@@ -11,6 +11,7 @@ from magbench.core.quaternions import (
     quat_multiply,
     quat_rotate,
     quat_to_matrix,
+    quat_to_rotvec,
 )
 from magbench.core.rotations import rotation_exp
 
@@ -41,3 +42,29 @@ def test_rotate_agrees_with_the_matrix_and_products_compose():
 def test_rotation_about_an_axis_is_right_handed():
     q = quat_about_axis(np.array([0.0, 0.0, 2.0]), np.pi / 2)
     assert np.allclose(quat_rotate(q, np.array([1.0, 0.0, 0.0])), [0.0, 1.0, 0.0])
+
+
+def test_known_answers_scalar_first_active_hamilton():
+    # 90 deg about z: the quaternion (cos 45, 0, 0, sin 45), x -> y, y -> -x (active).
+    q = quat_about_axis(np.array([0.0, 0.0, 1.0]), np.pi / 2)
+    h = np.sqrt(0.5)
+    assert np.allclose(q, [h, 0, 0, h], atol=1e-15)
+    assert np.allclose(quat_to_matrix(q), [[0, -1, 0], [1, 0, 0], [0, 0, 1]], atol=1e-15)
+    assert np.allclose(quat_to_rotvec(q), [0, 0, np.pi / 2], atol=1e-15)
+    # Hamilton: i j = k (90 deg about x after 90 deg about y is not about z; i j = k is the
+    # product of the 180 deg rotations).
+    assert np.allclose(quat_multiply([0, 1, 0, 0], [0, 0, 1, 0]), [0, 0, 0, 1], atol=1e-15)
+    # 180 deg about x: w = 0, kept with the first non-zero part positive.
+    assert np.allclose(matrix_to_quat(np.diag([1.0, -1.0, -1.0])), [0, 1, 0, 0], atol=1e-15)
+
+
+def test_missing_rows_stay_missing_and_shapes_broadcast():
+    q = np.array([[1.0, 0, 0, 0], [np.nan] * 4, [0.0, 0, 0, 0]])
+    R = quat_to_matrix(q)
+    assert R.shape == (3, 3, 3)
+    assert np.array_equal(R[0], np.eye(3)) and np.isnan(R[1:]).all()
+    v = quat_rotate(q, np.array([1.0, 2.0, 3.0]))
+    assert np.array_equal(v[0], [1.0, 2.0, 3.0]) and np.isnan(v[1:]).all()
+    assert np.isnan(quat_to_rotvec(q)[1:]).all()
+    assert quat_to_matrix(np.ones((2, 5, 4))).shape == (2, 5, 3, 3)
+    assert quat_multiply(np.ones((2, 5, 4)), np.array([1.0, 0, 0, 0])).shape == (2, 5, 4)

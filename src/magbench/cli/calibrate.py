@@ -42,7 +42,6 @@ import json
 import os
 import sys
 import time
-import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -71,9 +70,9 @@ from magbench.cli.outfolder import Staging, hold
 from magbench.cli.picture import PictureWorker, draw_picture
 from magbench.core.files import write_records_csv, write_text_atomic
 from magbench.core.model import Calibration
-from magbench.core.units import Units, parse_units
+from magbench.core.units import Units
 from magbench.core.verdict import Gate
-from magbench.methods.registry import get_method, methods
+from magbench.methods.registry import methods
 from magbench.pipeline.auto import candidate_rounds
 from magbench.pipeline.bootstrap import bootstrap_check
 from magbench.pipeline.decision import decide
@@ -86,20 +85,14 @@ from magbench.pipeline.export import (
     write_exports,
 )
 from magbench.pipeline.fitting import DEFAULT_MAX_SAMPLES, PREPROCESSING, applicability
-from magbench.pipeline.flight import check_regressors
 from magbench.pipeline.holdout import estimate
 from magbench.pipeline.picture import picture_job
+from magbench.pipeline.reading import MIN_COVERAGE, read_recording, recording_units
 from magbench.pipeline.result import CalibrationResult
-from magbench.sources.logs import is_log, log_units
-from magbench.sources.recordings import Recording, read_samples
+from magbench.sources.recordings import Recording
 
 __all__ = ["MIN_COVERAGE", "answer_line", "check_gate", "default_out", "detail_lines",
            "run_calibrate"]
-
-#: Coverage below which a recording is refused: lower than the sweeps' 0.3, because thin
-#: coverage now falls back to the sphere model instead of a full fit (a hemisphere of real
-#: data can measure 0.28).
-MIN_COVERAGE = 0.2
 
 
 def _candidates(cfg: DictConfig, rec_has_gyro: bool) -> tuple[list[str], list[str]]:
@@ -424,9 +417,7 @@ def _settings(cfg: DictConfig) -> _Run:
     if preprocess not in PREPROCESSING:
         raise UsageError(f"preprocess must be one of {', '.join(PREPROCESSING)}, got "
                          f"{preprocess!r}")
-    units = check_units(cfg)
-    if not units.known and not units.counts and is_log(path):
-        units = parse_units(log_units(path))    # a log's compass unit is the firmware's
+    units = recording_units(path, check_units(cfg))
     out = Path(str(cfg.out)) if cfg.get("out") else default_out(path)
     overwrite = overwrite_wanted(cfg)
     name = cfg.get("method")
@@ -446,24 +437,14 @@ def _settings(cfg: DictConfig) -> _Run:
 
 
 def _read(run: _Run) -> Recording:
-    """The recording, its reader's warnings printed one line each; one line if unreadable."""
-    need = get_method(run.name).min_samples if run.name else min(
-        get_method(m).min_samples for m in methods())
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always")
-        try:
-            rec = read_samples(run.path, run.columns, min_samples=need,
-                               min_coverage=MIN_COVERAGE, instance=run.instance)
-        except ValueError as exc:
-            raise UsageError(str(exc)) from None
-    for w in caught:
-        print(f"magbench: warning: {w.message}", file=sys.stderr)
-    if run.compensate:
-        try:
-            check_regressors(rec, run.compensate)
-        except ValueError as exc:
-            raise UsageError(str(exc)) from None
-    return rec
+    """The recording (:func:`magbench.pipeline.reading.read_recording`), its reader's warnings
+    printed one line each; one line if unreadable."""
+    try:
+        return read_recording(run.path, run.columns, method=run.name, instance=run.instance,
+                              compensate=run.compensate,
+                              warn=lambda m: print(f"magbench: warning: {m}", file=sys.stderr))
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
 
 
 def _cure_line(payload: dict) -> str:

@@ -147,10 +147,11 @@ def compose_config(overrides: Sequence[str]) -> DictConfig:
     """Compose ``conf/config.yaml`` with Hydra overrides (``key=value`` strings), after
     :func:`check_override_keys`.
 
-    Overrides of plain values (:func:`plain_override`) are applied to the configuration files
-    directly, which gives the config Hydra's compose API would give without importing Hydra;
-    any other override (another sweep, quoted or nested values, interpolations, sweeps of
-    values, ``~key``) is composed by Hydra, whose messages name what is wrong.
+    Overrides of plain values (:func:`plain_override`, parsed by Hydra's own parser) are
+    applied to the configuration files directly, which gives the config Hydra's compose API
+    would give without Hydra's config search and defaults machinery; any other override
+    (another sweep, nested values, interpolations, sweeps of values, ``~key``) is composed by
+    Hydra, whose messages name what is wrong.
     """
     check_override_keys(overrides)
     cfg = _compose_plain(overrides)
@@ -169,67 +170,47 @@ def compose_config(overrides: Sequence[str]) -> DictConfig:
         raise UsageError(text) from None
 
 
-#: Hydra's override grammar (``hydra/grammar/OverrideLexer.g4``) for the values
-#: :func:`plain_override` types itself: a value that is exactly one such token.
-_INT_UNSIGNED = r"(?:0|[1-9](?:_?[0-9])*)"
-_POINT_FLOAT = rf"(?:{_INT_UNSIGNED}\.|(?:{_INT_UNSIGNED})?\.[0-9](?:_?[0-9])*)"
-_FLOAT = re.compile(rf"[+-]?(?:(?:{_INT_UNSIGNED}|{_POINT_FLOAT})[eE][+-]?[0-9](?:_?[0-9])*"
-                    rf"|{_POINT_FLOAT}|[Ii][Nn][Ff]|[Nn][Aa][Nn])")
-_INT = re.compile(rf"[+-]?{_INT_UNSIGNED}")
-_BOOL = re.compile(r"[Tt][Rr][Uu][Ee]|[Ff][Aa][Ll][Ss][Ee]")
-_NULL = re.compile(r"[Nn][Uu][Ll][Ll]")
-#: An unquoted value Hydra reads as text: its letters, digits and unquoted characters, without
-#: '$' (interpolations), '\\' (escapes), white space, quotes, brackets, braces or commas.
-_TEXT = re.compile(r"[A-Za-z0-9_\-/+.%*@?|:]*")
-_KEY = re.compile(r"(\+\+)?([A-Za-z_][A-Za-z0-9_]*(?:\.[A-Za-z_][A-Za-z0-9_]*)*)")
 #: Top-level keys whose overrides are left to Hydra (a sweep's file, Hydra's own settings).
 _HYDRA_KEYS = ("sweep", "hydra")
 
 
-class _NotPlain(Exception):
-    """An override :func:`plain_override` leaves to Hydra."""
-
-
-def _scalar(text: str) -> object:
-    """One value as Hydra types it: null, a bool, an int, a float or text."""
-    if _NULL.fullmatch(text):
-        return None
-    if _BOOL.fullmatch(text):
-        return text.lower() == "true"
-    if _INT.fullmatch(text):
-        return int(text)
-    if _FLOAT.fullmatch(text):
-        return float(text)
-    if _TEXT.fullmatch(text):
-        return text
-    raise _NotPlain(text)
+def _flat_value(value: object) -> bool:
+    """Whether a parsed override value is a scalar or a flat list of scalars, without an
+    interpolation (which Hydra's compose resolves against the config)."""
+    if isinstance(value, list):
+        return all(not isinstance(v, list | dict) and _flat_value(v) for v in value)
+    if isinstance(value, str):
+        return "${" not in value
+    return value is None or isinstance(value, bool | int | float)
 
 
 def plain_override(override: str) -> tuple[str, bool, object]:
     """``(key, add, value)`` of a ``[++]key=value`` override whose value is a plain scalar or a
-    flat list of them (``[mx,my,mz]``), typed as Hydra types it; ``add``: the ``++`` prefix.
+    flat list of them (``[mx,my,mz]``), parsed and typed by Hydra's own override parser;
+    ``add``: the ``++`` prefix.
 
     Raises
     ------
     ValueError
-        Any other override, which is left to Hydra: a key of another form, a quoted, nested or
-        interpolated value, white space, a comma outside brackets (Hydra's sweep of values).
+        Any other override, which is left to Hydra's compose: one that does not parse, a
+        package, ``+key`` or ``~key``, a sweep of values (a comma outside brackets), a nested,
+        dict or interpolated value, or a key of another sweep or of Hydra's settings.
     """
-    key, sep, text = override.partition("=")
-    match = _KEY.fullmatch(key)
-    if not sep or match is None or match.group(2).split(".")[0] in _HYDRA_KEYS:
-        raise ValueError(f"not a plain override: {override!r}")
+    # Imported here, not at load: ``--help`` and the commands without overrides skip it.
+    from hydra.core.override_parser.overrides_parser import OverridesParser
+    from hydra.core.override_parser.types import OverrideType, ValueType
+    from hydra.errors import HydraException
+
     try:
-        if text.startswith("[") and text.endswith("]"):
-            items = text[1:-1].split(",") if text != "[]" else []
-            if "" in items:
-                raise _NotPlain(text)
-            value: object = [_scalar(v) for v in items]
-        else:
-            value = _scalar(text)
-    except _NotPlain:
+        parsed = OverridesParser.create().parse_override(override)
+    except HydraException:
         raise ValueError(f"not a plain override: {override!r}") from None
-    return match.group(2), bool(match.group(1)), value
+    key = parsed.key_or_group
+    if (parsed.package is not None or parsed.value_type is not ValueType.ELEMENT
+            or parsed.type not in (OverrideType.CHANGE, OverrideType.FORCE_ADD)
+            or key.split(".")[0] in _HYDRA_KEYS or not _flat_value(parsed.value())):
+        raise ValueError(f"not a plain override: {override!r}")
+    return key, parsed.type is OverrideType.FORCE_ADD, parsed.value()
 
 
 def _compose_plain(overrides: Sequence[str]) -> DictConfig | None:

@@ -4,14 +4,11 @@ A calibration is several files (``calibration.json``, ``calibration.h``, the fir
 ``ranking.csv``, ``calibration.png``) that must belong to one run: a firmware file beside
 another recording's JSON would flash another sensor's offsets. So :func:`hold`:
 
-1. takes the operating system's lock (``flock``) on a file beside ``out`` (``.NAME.lock`` in
-   its parent, not inside it, so that it does not travel with the swapped folder), refusing a
-   second writer in one line; the lock is held from the overwrite check to the last write, and
-   its file is removed while still held, so nothing is left behind. A writer that opened the
-   file before that removal finds, once it has the lock, that the path no longer names the
-   file it locked, and tries again (so two writers never hold two different files). The
-   ``filelock`` library was weighed: its current release keeps the file on release (its waiters
-   share the inode), and its install and import cost more than these lines (docs/decisions.md);
+1. takes the operating system's lock on a file beside ``out`` (``.NAME.lock`` in its parent,
+   not inside it, so that it does not travel with the swapped folder), refusing a second
+   writer in one line; the lock is held from the overwrite check to the last write, and its
+   file is removed while still held, so nothing is left behind
+   (:func:`magbench.core.files.exclusive_lock`, ``filelock`` underneath);
 2. checks the overwrite rule *under the lock* (``out`` holding a calibration needs
    ``overwrite=true``), and refuses an ``out`` holding files ``calibrate`` does not write
    (the whole folder is replaced);
@@ -39,7 +36,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 from magbench.cli.config import UsageError, writable_folder
-from magbench.core.files import file_sha256, write_text_atomic
+from magbench.core.files import LockHeld, exclusive_lock, file_sha256, write_text_atomic
 
 __all__ = ["CARRIED", "MANIFEST", "OUTPUTS", "Staging", "check_manifest", "hold"]
 
@@ -119,29 +116,6 @@ def _recover(out: Path) -> None:
         shutil.rmtree(path, ignore_errors=True)
 
 
-def _lock(path: Path) -> int | None:
-    """An open descriptor holding ``path``'s exclusive lock, or None if another process has it
-    (module notes). Without ``fcntl`` (Windows) no lock is taken."""
-    try:
-        import fcntl
-    except ImportError:
-        return os.open(os.devnull, os.O_RDONLY)
-    while True:
-        fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            os.close(fd)
-            return None
-        try:
-            same = os.stat(path).st_ino == os.fstat(fd).st_ino
-        except FileNotFoundError:
-            same = False
-        if same:
-            return fd
-        os.close(fd)            # the holder removed it as we opened it: take the new one
-
-
 def _foreign(out: Path) -> list[str]:
     return sorted(p.name for p in out.iterdir() if p.name not in OUTPUTS + CARRIED)
 
@@ -163,11 +137,12 @@ def hold(out: Path | str, overwrite: bool) -> Iterator[Staging]:
         raise UsageError(f"out={out} is a file; expected a folder")
     parent = writable_folder(out.parent if str(out.parent) else Path("."), "out")
     out = parent / out.name
-    lock_path = parent / f".{out.name}.lock"
-    fd = _lock(lock_path)
-    if fd is None:
+    lock = contextlib.ExitStack()
+    try:
+        lock.enter_context(exclusive_lock(parent / f".{out.name}.lock"))
+    except LockHeld:
         raise UsageError(f"out={out} is being written by another magbench calibrate; wait "
-                         "for it to finish or choose another out=")
+                         "for it to finish or choose another out=") from None
     staging = None
     try:
         _recover(out)
@@ -191,9 +166,7 @@ def hold(out: Path | str, overwrite: bool) -> Iterator[Staging]:
     finally:
         if staging is not None:
             shutil.rmtree(staging.path, ignore_errors=True)
-        # Removed while still held (module notes): nothing is left beside the folder.
-        lock_path.unlink(missing_ok=True)
-        os.close(fd)
+        lock.close()            # the lock file is removed while still held
 
 
 def check_manifest(folder: Path) -> str:

@@ -2,6 +2,12 @@
 
 Every file magbench writes goes to a temporary name beside its destination and is renamed into
 place (atomic on POSIX), so a killed run leaves either the old file or the new one.
+
+:func:`exclusive_lock` is the one lock of a folder (a sweep's results folder, ``calibrate``'s
+out folder): ``filelock``'s operating-system lock, which dies with its process, so a killed run
+blocks nothing. Its file is removed while still held, so a finished folder keeps none; a
+contender that opened the file just before is not handed a lock on the removed file
+(``filelock`` checks that the locked file still has a name, from 4.0) and tries once more.
 """
 
 from __future__ import annotations
@@ -21,8 +27,9 @@ import numpy as np
 if TYPE_CHECKING:
     import pandas as pd
 
-__all__ = ["CHUNK_ROWS", "atomic_path", "csv_cell", "file_sha256", "not_a_file",
-           "read_csv_columns", "write_csv_atomic", "write_records_csv", "write_text_atomic"]
+__all__ = ["CHUNK_ROWS", "LockHeld", "atomic_path", "csv_cell", "exclusive_lock", "file_sha256",
+           "not_a_file", "read_csv_columns", "write_csv_atomic", "write_records_csv",
+           "write_text_atomic"]
 
 #: Rows parsed at a time by :func:`read_csv_columns`: the parser's buffers (every column of
 #: the chunk, as text and as values) stay at a few hundred MB whatever the file's length.
@@ -67,6 +74,74 @@ def atomic_path(path: Path | str) -> Iterator[Path]:
         os.replace(tmp, path)
     finally:
         tmp.unlink(missing_ok=True)
+
+
+class LockHeld(Exception):
+    """Another holder has the lock; ``holder`` is the note it wrote into the lock file."""
+
+    def __init__(self, path: Path, holder: str) -> None:
+        super().__init__(f"{path} is held by {holder}")
+        self.holder = holder
+
+
+@contextlib.contextmanager
+def exclusive_lock(path: Path | str, note: str = "") -> Iterator[bool]:
+    """Hold the exclusive lock of ``path`` for the block, without waiting (module notes).
+
+    Parameters
+    ----------
+    path : Path or str
+        The lock file; created, and removed at the end of the block.
+    note : str
+        Written into the lock file while held: what a refused contender reports.
+
+    Yields
+    ------
+    bool
+        True; False on a POSIX system without ``fcntl``, where no lock is taken.
+
+    Raises
+    ------
+    LockHeld
+        Another process, or another block of this one, holds the lock.
+    """
+    path = Path(path)
+    if os.name != "nt" and not _has_fcntl():
+        yield False
+        return
+    from filelock import FileLock, Timeout
+
+    # fallback_to_soft=False: a marker file would outlive a killed holder and block the next run.
+    lock = FileLock(path, timeout=0, fallback_to_soft=False)
+    for attempt in range(2):
+        try:
+            lock.acquire()
+            break
+        except Timeout:
+            # A second try covers a holder that removed the file and released just as this
+            # attempt opened it; a live holder refuses again.
+            if attempt:
+                try:
+                    holder = path.read_text().strip()
+                except OSError:
+                    holder = ""
+                raise LockHeld(path, holder or "another process") from None
+    try:
+        if note:
+            path.write_text(note)
+        yield True
+    finally:
+        with contextlib.suppress(OSError):      # Windows refuses to remove an open file
+            path.unlink()
+        lock.release()
+
+
+def _has_fcntl() -> bool:
+    try:
+        import fcntl  # noqa: F401
+    except ImportError:
+        return False
+    return True
 
 
 def write_csv_atomic(frame: pd.DataFrame, path: Path | str) -> None:

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from magbench.core.quaternions import quat_conjugate, quat_multiply
+from magbench.core.quaternions import quat_conjugate, quat_multiply, quat_to_rotvec
 from magbench.core.rotations import skew
 
 __all__ = ["attitude_rate", "best_lag", "direction_rate", "gyro_lag", "magnetometer_lag", "shift",
@@ -45,12 +45,8 @@ def attitude_rate(t: np.ndarray, attitude: np.ndarray) -> np.ndarray:
     q = np.asarray(attitude, dtype=float)
     lo = np.r_[0, np.arange(len(q) - 2), len(q) - 2]
     hi = np.r_[1, np.arange(2, len(q)), len(q) - 1]
-    d = quat_multiply(quat_conjugate(q[lo]), q[hi])
-    d = d * np.where(d[:, :1] < 0, -1.0, 1.0)
-    norm = np.linalg.norm(d[:, 1:], axis=1)
-    angle = 2.0 * np.arctan2(norm, d[:, 0])
-    scale = np.where(norm > 1e-15, angle / np.where(norm > 1e-15, norm, 1.0), 2.0)
-    return d[:, 1:] * (scale / (t[hi] - t[lo]))[:, None]
+    d = quat_to_rotvec(quat_multiply(quat_conjugate(q[lo]), q[hi]))
+    return d / (t[hi] - t[lo])[:, None]
 
 
 def _correlation(a: np.ndarray, b: np.ndarray) -> float:

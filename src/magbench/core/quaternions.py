@@ -3,28 +3,58 @@
 Scalar first, ``q = (w, x, y, z)``, Hamilton convention; an attitude ``q`` maps sensor axes to
 world axes, ``v_world = q v_sensor q*`` (the convention of the BROAD recordings and of the
 attitude columns magbench reads). Arrays are ``(..., 4)``; every function broadcasts.
+
+The arithmetic is :class:`scipy.spatial.transform.Rotation`'s (active rotations, Hamilton
+product, the same convention): these functions only fix the scalar-first layout, broadcast, and
+carry NaN rows through as NaN (scipy refuses them). scipy normalises every quaternion it is
+given, so a quaternion that is not unit is read as the rotation it points to.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 
+from magbench.core.rotations import rotation_class
+
 __all__ = ["matrix_to_quat", "quat_about_axis", "quat_conjugate", "quat_multiply",
-           "quat_rotate", "quat_to_matrix"]
+           "quat_rotate", "quat_to_matrix", "quat_to_rotvec"]
+
+
+def _rowwise(fn: Callable[..., np.ndarray], out_tail: tuple[int, ...],
+             *arrays: tuple[np.ndarray, int]) -> np.ndarray:
+    """``fn`` over the broadcast rows of ``arrays`` (each ``(array, trailing ndim)``), with NaN
+    out where any input row is not finite or is a zero quaternion."""
+    lead = np.broadcast_shapes(*(a.shape[:a.ndim - nd] for a, nd in arrays))
+    flat = [np.broadcast_to(a, lead + a.shape[a.ndim - nd:]).reshape((-1,) + a.shape[a.ndim - nd:])
+            for a, nd in arrays]
+    ok = np.ones(len(flat[0]), dtype=bool) if flat else np.ones(0, dtype=bool)
+    for f in flat:
+        ok &= np.isfinite(f.reshape(len(f), -1)).all(axis=1)
+        if f.shape[1:] == (4,):
+            ok &= np.any(f != 0, axis=1)
+    out = np.full((len(ok),) + out_tail, np.nan)
+    if ok.any():
+        out[ok] = fn(*(f[ok] for f in flat))
+    return out.reshape(lead + out_tail)
+
+
+def _rot(q: np.ndarray) -> object:
+    return rotation_class().from_quat(q, scalar_first=True)
 
 
 def quat_multiply(p: np.ndarray, q: np.ndarray) -> np.ndarray:
-    """Hamilton product ``p q`` of ``(..., 4)`` quaternions (scalar first)."""
+    """Hamilton product ``p q`` of ``(..., 4)`` quaternions (scalar first): the rotation ``q``
+    then ``p``."""
     p, q = np.asarray(p, dtype=float), np.asarray(q, dtype=float)
-    pw, pv = p[..., :1], p[..., 1:]
-    qw, qv = q[..., :1], q[..., 1:]
-    w = pw * qw - np.sum(pv * qv, axis=-1, keepdims=True)
-    v = pw * qv + qw * pv + np.cross(pv, qv)
-    return np.concatenate([w, v], axis=-1)
+    return _rowwise(lambda a, b: (_rot(a) * _rot(b)).as_quat(scalar_first=True), (4,),
+                    (p, 1), (q, 1))
 
 
 def quat_conjugate(q: np.ndarray) -> np.ndarray:
     """``q* = (w, -x, -y, -z)``: the inverse rotation of a unit quaternion."""
+    # A sign flip, exact; scipy's inv() would also normalise.
     q = np.asarray(q, dtype=float)
     return np.concatenate([q[..., :1], -q[..., 1:]], axis=-1)
 
@@ -32,64 +62,36 @@ def quat_conjugate(q: np.ndarray) -> np.ndarray:
 def quat_to_matrix(q: np.ndarray) -> np.ndarray:
     """Rotation matrices ``(..., 3, 3)`` of unit quaternions: ``R v = q v q*``."""
     q = np.asarray(q, dtype=float)
-    w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
-    R = np.empty(q.shape[:-1] + (3, 3))
-    R[..., 0, 0] = 1 - 2 * (y * y + z * z)
-    R[..., 0, 1] = 2 * (x * y - w * z)
-    R[..., 0, 2] = 2 * (x * z + w * y)
-    R[..., 1, 0] = 2 * (x * y + w * z)
-    R[..., 1, 1] = 1 - 2 * (x * x + z * z)
-    R[..., 1, 2] = 2 * (y * z - w * x)
-    R[..., 2, 0] = 2 * (x * z - w * y)
-    R[..., 2, 1] = 2 * (y * z + w * x)
-    R[..., 2, 2] = 1 - 2 * (x * x + y * y)
-    return R
+    return _rowwise(lambda a: _rot(a).as_matrix(), (3, 3), (q, 1))
 
 
 def quat_rotate(q: np.ndarray, v: np.ndarray) -> np.ndarray:
     """``q v q*`` for ``(..., 4)`` unit quaternions and ``(..., 3)`` vectors."""
     q, v = np.asarray(q, dtype=float), np.asarray(v, dtype=float)
-    qv = q[..., 1:]
-    # v + 2 w (u x v) + 2 u x (u x v), the product written out (no 3x3 per sample).
-    t = 2.0 * np.cross(qv, v)
-    return v + q[..., :1] * t + np.cross(qv, t)
+    return _rowwise(lambda a, b: _rot(a).apply(b), (3,), (q, 1), (v, 1))
 
 
 def matrix_to_quat(R: np.ndarray) -> np.ndarray:
-    """Unit quaternions (``w >= 0``) of ``(..., 3, 3)`` rotation matrices.
-
-    Shepperd's method: the largest of ``w, x, y, z`` is taken from the diagonal and the others
-    from the off-diagonal sums, so no branch divides by a small number.
-    """
+    """Unit quaternions (``w >= 0``) of ``(..., 3, 3)`` rotation matrices."""
     R = np.asarray(R, dtype=float)
-    tr = np.trace(R, axis1=-2, axis2=-1)
-    d = np.stack([tr, R[..., 0, 0], R[..., 1, 1], R[..., 2, 2]], axis=-1)
-    case = np.argmax(d, axis=-1)
-    out = np.empty(R.shape[:-2] + (4,))
-    a = R[..., 2, 1] - R[..., 1, 2]
-    b = R[..., 0, 2] - R[..., 2, 0]
-    c = R[..., 1, 0] - R[..., 0, 1]
-    sxy = R[..., 0, 1] + R[..., 1, 0]
-    sxz = R[..., 0, 2] + R[..., 2, 0]
-    syz = R[..., 1, 2] + R[..., 2, 1]
-    rows = [
-        (1 + tr, a, b, c),
-        (a, 1 + 2 * R[..., 0, 0] - tr, sxy, sxz),
-        (b, sxy, 1 + 2 * R[..., 1, 1] - tr, syz),
-        (c, sxz, syz, 1 + 2 * R[..., 2, 2] - tr),
-    ]
-    for k, comps in enumerate(rows):
-        sel = case == k
-        if np.any(sel):
-            s = 0.5 / np.sqrt(comps[k][sel])
-            out[sel] = np.stack([v[sel] * s for v in comps], axis=-1)
-    out *= np.where(out[..., :1] < 0, -1.0, 1.0)
-    return out
+    Rotation = rotation_class()
+    return _rowwise(lambda a: Rotation.from_matrix(a).as_quat(canonical=True, scalar_first=True),
+                    (4,), (R, 2))
 
 
 def quat_about_axis(axis: np.ndarray, angle: np.ndarray) -> np.ndarray:
     """The rotation by ``angle`` (radians, right-handed) about ``axis`` (normalised here)."""
     axis = np.asarray(axis, dtype=float)
     axis = axis / np.linalg.norm(axis, axis=-1, keepdims=True)
-    half = 0.5 * np.asarray(angle, dtype=float)[..., None]
-    return np.concatenate([np.cos(half), np.sin(half) * axis], axis=-1)
+    angle = np.asarray(angle, dtype=float)[..., None]
+    # from_rotvec keeps cos(angle/2) as w (no sign canonicalisation), as the formula does.
+    Rotation = rotation_class()
+    return _rowwise(lambda a, t: Rotation.from_rotvec(a * t).as_quat(scalar_first=True), (4,),
+                    (axis, 1), (angle, 1))
+
+
+def quat_to_rotvec(q: np.ndarray) -> np.ndarray:
+    """Rotation vectors ``(..., 3)`` (axis times angle, radians, angle in ``[0, pi]``) of
+    ``(..., 4)`` quaternions: the logarithm, taken the short way (``q`` and ``-q`` agree)."""
+    q = np.asarray(q, dtype=float)
+    return _rowwise(lambda a: _rot(a).as_rotvec(), (3,), (q, 1))

@@ -53,7 +53,14 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import IO, ClassVar
 
-from magbench.core.files import atomic_path, file_sha256, write_csv_atomic, write_text_atomic
+from magbench.core.files import (
+    LockHeld,
+    atomic_path,
+    exclusive_lock,
+    file_sha256,
+    write_csv_atomic,
+    write_text_atomic,
+)
 from magbench.engine.isolation import die_with_parent, run_isolated, watch_calls
 from magbench.engine.plugins import load_plugins
 from magbench.engine.record import fit_module, method_code, study_code, write_run_record
@@ -155,73 +162,23 @@ def _hash(data: object) -> str:
     return hashlib.sha256(text.encode()).hexdigest()[:16]
 
 
-def _lock_exclusive(handle: IO[str]) -> bool:
-    """Take the operating system's exclusive lock on an open file without waiting; False if
-    another process holds it. ``fcntl`` where it exists (POSIX), ``msvcrt`` on Windows, chosen
-    here rather than at import so that nothing that imports the engine needs either."""
-    try:
-        import fcntl
-    except ImportError:
-        fcntl = None
-    if fcntl is not None:
-        try:
-            fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            return False
-        return True
-    try:
-        import msvcrt
-    except ImportError:
-        _warn("no file locking on this system: two runs on one results folder are not refused")
-        return True
-    try:
-        handle.seek(0)
-        msvcrt.locking(handle.fileno(), msvcrt.LK_NBLCK, 1)
-    except OSError:
-        return False
-    return True
-
-
-def _names(path: Path, handle: IO[str]) -> bool:
-    """Whether ``path`` still names the open file ``handle`` (not removed or replaced)."""
-    try:
-        return os.stat(path).st_ino == os.fstat(handle.fileno()).st_ino
-    except FileNotFoundError:
-        return False
-
-
 @contextlib.contextmanager
 def folder_lock(folder: Path) -> Iterator[None]:
     """Hold an exclusive lock on ``folder`` (``.lock``) for the block; :class:`FolderBusy` if
     another holder (another process, or another block of this one) has it. The lock dies with
-    its process, so a killed run leaves none."""
+    its process, so a killed run leaves none (:func:`magbench.core.files.exclusive_lock`)."""
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
-    path = folder / ".lock"
-    handle = open(path, "a+")
-    held = _lock_exclusive(handle)
-    # The file is removed while held (below), so a finished folder keeps no .lock; a file
-    # opened just before that removal is an orphan, and its holder takes the new one instead.
-    while held and not _names(path, handle):
-        handle.close()
-        handle = open(path, "a+")
-        held = _lock_exclusive(handle)
+    note = f"pid {os.getpid()} since {datetime.now(UTC):%Y-%m-%d %H:%M:%S} UTC"
     try:
-        if not held:
-            handle.seek(0)
-            holder = handle.read().strip() or "another process"
-            raise FolderBusy(f"{folder} is in use by a running magbench ({holder}); wait for "
-                             "it to finish or choose another results_dir")
-        handle.seek(0)
-        handle.truncate()
-        handle.write(f"pid {os.getpid()} since {datetime.now(UTC):%Y-%m-%d %H:%M:%S} UTC")
-        handle.flush()
-        yield
-    finally:
-        if held:
-            with contextlib.suppress(OSError):      # Windows keeps an open file
-                path.unlink()
-        handle.close()
+        with exclusive_lock(folder / ".lock", note) as held:
+            if not held:
+                _warn("no file locking on this system: two runs on one results folder are not "
+                      "refused")
+            yield
+    except LockHeld as exc:
+        raise FolderBusy(f"{folder} is in use by a running magbench ({exc.holder}); wait for "
+                         "it to finish or choose another results_dir") from None
 
 
 #: Folders held by :func:`run_lock` in this process: :func:`run_study` runs in them without

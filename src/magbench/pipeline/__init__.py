@@ -2,8 +2,9 @@
 
 The steps, in order, and where each is:
 
-1. *read*: :mod:`magbench.sources.recordings` and :mod:`magbench.sources.logs` (a CSV or a
-   flight log, the columns, the unit); :mod:`magbench.pipeline.alignment` removes the
+1. *read*: :func:`magbench.pipeline.reading.read_recording` over the readers of
+   :mod:`magbench.sources.recordings` and :mod:`magbench.sources.logs` (a CSV or a flight
+   log, the columns, the unit, the coverage); :mod:`magbench.pipeline.alignment` removes the
    magnetometer's lag against the inertial streams and checks for an offset that changes.
 2. *screen*: :func:`magbench.pipeline.screening.prepare` (thinning by direction, the outlier
    screen of :func:`magbench.core.robust.screen`, the coverage) and, after the choice,

@@ -25,6 +25,7 @@ from magbench.pipeline.calibration import calibrate_recording
 from magbench.pipeline.choice import ranking_frame
 from magbench.pipeline.fitting import DEFAULT_MAX_SAMPLES
 from magbench.pipeline.holdout import estimate
+from magbench.pipeline.reading import MIN_COVERAGE
 from magbench.pipeline.result import CalibrationResult
 from magbench.pipeline.rounds import FIRST_ROUND
 from magbench.sources.recordings import Recording
@@ -33,9 +34,6 @@ if TYPE_CHECKING:     # the ranking table only: calibrate imports this module, n
     import pandas as pd
 
 __all__ = ["AutoCalibration", "calibrate_auto", "candidate_rounds"]
-
-#: The coverage below which a recording is refused (``calibrate``'s MIN_COVERAGE).
-MIN_COVERAGE = 0.2
 
 
 def candidate_rounds(has_gyro: bool, chosen: str | Sequence[str] = "auto"
