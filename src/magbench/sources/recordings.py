@@ -661,7 +661,7 @@ def _count_lines(path: Path) -> int:
     """Line breaks in ``path`` plus one (an upper bound on its data rows)."""
     n = 1
     with open(path, "rb") as handle:
-        while block := handle.read(1 << 24):
+        while block := handle.read(1 << 20):
             n += block.count(b"\n")
     return n
 
@@ -1068,7 +1068,7 @@ def log_recording(path: Path | str, instance: object = None, *, min_samples: int
                     n_rows=len(y), columns=MAG_COLUMNS,
                     instance=("instance", str(chosen)),
                     extra=extra or None)
-    if check:
-        check_geometry(rec.y, min_coverage=min_coverage, min_thickness=min_thickness,
-                       what=path.name)
+    if check:               # on an even stride, as for a CSV (GEOMETRY_SAMPLES)
+        check_geometry(rec.y[::math.ceil(rec.K / GEOMETRY_SAMPLES)], min_coverage=min_coverage,
+                       min_thickness=min_thickness, what=path.name)
     return rec
