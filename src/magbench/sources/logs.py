@@ -323,8 +323,11 @@ def _read_ulog(path: Path) -> FlightLog:
         return np.asarray(d.get("timestamp_sample", d["timestamp"]), dtype=float) / 1e6
 
     def cols(d: dict, names: list[str]) -> np.ndarray:
-        return np.column_stack([np.asarray(d[n], dtype=float) if n in d else
-                                np.full(len(d["timestamp"]), np.nan) for n in names])
+        # filled a column at a time: no float copy of every field beside the stacked array
+        out = np.empty((len(d["timestamp"]), len(names)))
+        for j, n in enumerate(names):
+            out[:, j] = d[n] if n in d else np.nan
+        return out
 
     mags, devices = {}, {}
     for (name, i), d in data.items():

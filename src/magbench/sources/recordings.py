@@ -1061,7 +1061,9 @@ def log_recording(path: Path | str, instance: object = None, *, min_samples: int
     if y.shape[0] < min_samples:
         raise ValueError(f"{path.name}: instance {chosen} has {y.shape[0]} usable samples; at "
                          f"least {min_samples} are needed")
-    extra = {c: table[c] for c in EXTRA_COLUMNS if c in table}
+    # their own arrays: a view of the compass's temperature would keep the log's whole
+    # (K, 4) compass array alive beside the samples' copy
+    extra = {c: np.ascontiguousarray(table[c]) for c in EXTRA_COLUMNS if c in table}
     rec = Recording(path.stem, y, table["t"],
                     _as_columns([table[c] for c in gyro_cols])
                     if all(c in table for c in gyro_cols) else None,
