@@ -20,10 +20,11 @@ cube of a grid over the samples' range (no centre needed), from which a sphere f
 
 *Memory.* ``calibrate`` screens every sample of a recording (10 million rows are 240 MB of
 samples), so the helpers that see every row work a block of :data:`BLOCK_ROWS` rows at a time
-(:func:`row_norms`, :func:`direction_cells`, :func:`distinct_rows`) or fill one array in place
-(:func:`sphere_fit`), instead of building ``(K, 3)`` temporaries such as ``y - centre``. Each row
-goes through the same operations as in one whole-array expression, so the values are the same
-to the last bit.
+(:func:`row_norms`, :func:`direction_cells`, :func:`distinct_rows`, :func:`sphere_fit`),
+instead of building ``(K, 3)`` temporaries such as ``y - centre``. Each row goes through the same
+operations as in one whole-array expression, so the values are the same to the last bit; the
+sphere fit of more than one block is the exception: its least squares are solved by TSQR
+(:mod:`magbench.core.tsqr`), equal to ``lstsq`` on the whole design to round-off.
 """
 
 from __future__ import annotations
@@ -149,6 +150,12 @@ def sphere_fit(y: np.ndarray, rows: np.ndarray | None = None) -> tuple[np.ndarra
     -------
     centre : ndarray, shape (3,)
     radius : float
+
+    Notes
+    -----
+    At most :data:`BLOCK_ROWS` rows are solved by ``np.linalg.lstsq`` on the design matrix
+    ``[2 z, 1]`` (``z = y / scale``); more rows a block at a time by TSQR
+    (:func:`magbench.core.tsqr.lstsq_blocks`), in memory of one block.
     """
     y = np.asarray(y, dtype=float)
     n = y.shape[0] if rows is None else int(np.count_nonzero(rows))
