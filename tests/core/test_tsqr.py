@@ -74,3 +74,22 @@ def test_sphere_fit_in_blocks_matches_the_whole_design(monkeypatch):
     # a mask and a copy of the selected samples give the same blocks, so the same bits
     assert np.array_equal(blocks[0], sphere_fit(y[rows])[0]) and blocks[1] == sphere_fit(
         y[rows])[1]
+
+
+def test_the_lag_fit_in_blocks_matches_the_whole_design(monkeypatch):
+    from magbench.core.lag import _rate_fit
+
+    rng = np.random.default_rng(5)
+    u = rng.normal(size=(3000, 3))
+    u /= np.linalg.norm(u, axis=1)[:, None]
+    rate = rng.normal(size=(3000, 3))
+    A = np.eye(3) + 0.1 * rng.normal(size=(3, 3))
+    observed = np.cross(u, rate @ A.T) + 0.01 * rng.normal(size=(3000, 3))
+    rate[::97] = np.nan                                 # rows outside the rate stream
+    whole = _rate_fit(u, rate, observed)                # one block: lstsq on the design
+    monkeypatch.setattr(geometry, "BLOCK_ROWS", 256)
+    blocks = _rate_fit(u, rate, observed)
+    assert np.array_equal(np.isnan(blocks), np.isnan(whole)) and np.isnan(whole[::97]).all()
+    np.testing.assert_allclose(blocks, whole, rtol=1e-10, atol=1e-12)
+    rate[:] = np.nan                                    # no finite row: NaN, as the whole fit
+    assert np.isnan(_rate_fit(u, rate, observed)).all()
