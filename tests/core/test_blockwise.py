@@ -36,17 +36,26 @@ def blocks(request, monkeypatch):
     return request.param
 
 
+def _same(value, known, blocks: int):
+    """``value == known`` to the last bit, or to round-off when the samples span several
+    blocks, which :func:`sphere_fit` solves by TSQR instead of one ``lstsq``."""
+    if blocks >= 5000:
+        return value == known
+    return value == pytest.approx(known, rel=1e-12, abs=0.0)
+
+
 def test_known_answers_of_the_whole_array_versions(blocks):
     y = _samples()
     c, r = sphere_fit(y)
-    assert c.tolist() == [16.237076096047375, -9.634658156767403, 4.523059111454031]
-    assert r == 53.82013777683104
+    assert _same(c.tolist(), [16.237076096047375, -9.634658156767403, 4.523059111454031], blocks)
+    assert _same(r, 53.82013777683104, blocks)
     s = screen(y)
-    assert s.centre.tolist() == [12.03290821836166, -7.059471539211055, 3.5012954141253583]
-    assert s.radius == 51.456724496981856
+    assert _same(s.centre.tolist(), [12.03290821836166, -7.059471539211055, 3.5012954141253583],
+                 blocks)
+    assert _same(s.radius, 51.456724496981856, blocks)
     assert (int(s.inliers.sum()), int(s.kept.sum())) == (4948, 5000)
     assert noise_p95_pct(y, 51.0) == 124.04654695852514
-    assert central_spread_pct(y - c) == 6.150265911983223
+    assert _same(central_spread_pct(y - c), 6.150265911983223, blocks)
     distinct = distinct_rows(y)
     assert (distinct.size, int(distinct.sum())) == (1802, 2872121)
 

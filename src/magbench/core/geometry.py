@@ -20,10 +20,11 @@ cube of a grid over the samples' range (no centre needed), from which a sphere f
 
 *Memory.* ``calibrate`` screens every sample of a recording (10 million rows are 240 MB of
 samples), so the helpers that see every row work a block of :data:`BLOCK_ROWS` rows at a time
-(:func:`row_norms`, :func:`direction_cells`, :func:`distinct_rows`) or fill one array in place
-(:func:`sphere_fit`), instead of building ``(K, 3)`` temporaries such as ``y - centre``. Each row
-goes through the same operations as in one whole-array expression, so the values are the same
-to the last bit.
+(:func:`row_norms`, :func:`direction_cells`, :func:`distinct_rows`, :func:`sphere_fit`),
+instead of building ``(K, 3)`` temporaries such as ``y - centre``. Each row goes through the same
+operations as in one whole-array expression, so the values are the same to the last bit; the
+sphere fit of more than one block is the exception: its least squares are solved by TSQR
+(:mod:`magbench.core.tsqr`), equal to ``lstsq`` on the whole design to round-off.
 """
 
 from __future__ import annotations
@@ -31,6 +32,8 @@ from __future__ import annotations
 import math
 
 import numpy as np
+
+from magbench.core.tsqr import lstsq_blocks
 
 __all__ = ["BLOCK_ROWS", "CELL_CAP_FACTOR", "CELL_CAP_MIN", "COVERAGE_ANGLE_DEG",
            "COVERAGE_GRID", "DIRECTION_CELLS", "GOLDEN_RATIO", "MIN_COVERAGE", "MIN_THICKNESS",
@@ -147,22 +150,34 @@ def sphere_fit(y: np.ndarray, rows: np.ndarray | None = None) -> tuple[np.ndarra
     -------
     centre : ndarray, shape (3,)
     radius : float
+
+    Notes
+    -----
+    At most :data:`BLOCK_ROWS` rows are solved by ``np.linalg.lstsq`` on the design matrix
+    ``[2 z, 1]`` (``z = y / scale``); more rows a block at a time by TSQR
+    (:func:`magbench.core.tsqr.lstsq_blocks`), in memory of one block.
     """
     y = np.asarray(y, dtype=float)
-    # The design matrix [2 z, 1] is filled in place, its first three columns first holding the
-    # samples and then z = y / scale: the least-squares call copies it anyway, so a separate z
-    # and the parts of np.hstack would be two more arrays of the samples' size alive with it.
     n = y.shape[0] if rows is None else int(np.count_nonzero(rows))
+    if n <= BLOCK_ROWS:
+        c, r2, scale = _sphere_fit_whole(y, rows, n)
+    else:
+        c, r2, scale = _sphere_fit_blocks(y, rows)
+    if not r2 > 0:
+        raise ValueError("the sphere fit has no real radius; the samples do not lie near a "
+                         "sphere or ellipsoid")
+    return c * scale, math.sqrt(r2) * scale
+
+
+def _sphere_fit_whole(y: np.ndarray, rows: np.ndarray | None, n: int
+                      ) -> tuple[np.ndarray, float, float]:
+    """:func:`sphere_fit` of at most one block by ``lstsq`` on the whole design: centre and
+    squared radius over ``scale``, and ``scale``."""
+    # The design matrix [2 z, 1] is filled in place, its first three columns first holding the
+    # samples and then z = y / scale.
     A = np.empty((n, 4))
     z = A[:, :3]
-    if rows is None:
-        z[...] = y
-    else:
-        filled = 0
-        for block in _blocks(y.shape[0]):
-            chosen = y[block][rows[block]]
-            z[filled:filled + chosen.shape[0]] = chosen
-            filled += chosen.shape[0]
+    z[...] = y if rows is None else y[rows]
     squares = np.einsum("ij,ij->i", z, z)
     scale = float(np.sqrt(np.mean(squares))) or 1.0
     z /= scale
@@ -171,11 +186,56 @@ def sphere_fit(y: np.ndarray, rows: np.ndarray | None = None) -> tuple[np.ndarra
     A[:, 3] = 1.0
     sol = np.linalg.lstsq(A, squares, rcond=None)[0]
     c = sol[:3]
-    r2 = float(sol[3] + c @ c)
-    if not r2 > 0:
-        raise ValueError("the sphere fit has no real radius; the samples do not lie near a "
-                         "sphere or ellipsoid")
-    return c * scale, math.sqrt(r2) * scale
+    return c, float(sol[3] + c @ c), scale
+
+
+def _sphere_fit_blocks(y: np.ndarray, rows: np.ndarray | None
+                       ) -> tuple[np.ndarray, float, float]:
+    """:func:`sphere_fit` of many blocks by TSQR (:func:`magbench.core.tsqr.lstsq_blocks`):
+    the same answer as :func:`_sphere_fit_whole` to round-off, without the design matrix and
+    LAPACK's copies of it (five times the samples' bytes)."""
+    total, n = 0.0, 0
+    for z in _selected_blocks(y, rows):
+        total += float(np.einsum("ij,ij->", z, z))
+        n += z.shape[0]
+    scale = math.sqrt(total / n) or 1.0
+
+    def design():
+        for block in _selected_blocks(y, rows):
+            A = np.empty((block.shape[0], 4))
+            z = A[:, :3]
+            np.divide(block, scale, out=z)
+            squares = np.einsum("ij,ij->i", z, z)
+            z *= 2.0
+            A[:, 3] = 1.0
+            yield A, squares
+
+    sol = lstsq_blocks(design())[0]
+    c = sol[:3]
+    return c, float(sol[3] + c @ c), scale
+
+
+def _selected_blocks(y: np.ndarray, rows: np.ndarray | None):
+    """The rows of ``y`` selected by the mask ``rows`` (all without one), in order, as arrays
+    of :data:`BLOCK_ROWS` rows (the last may be shorter): the same blocks as
+    ``y[rows]`` cut into blocks, so a mask and a copy give the same answer to the last bit."""
+    if rows is None:
+        yield from (y[block] for block in _blocks(y.shape[0]))
+        return
+    pending: list[np.ndarray] = []
+    size = 0
+    for block in _blocks(y.shape[0]):
+        chosen = y[block][rows[block]]
+        while chosen.shape[0]:
+            part = chosen[:BLOCK_ROWS - size]
+            chosen = chosen[part.shape[0]:]
+            pending.append(part)
+            size += part.shape[0]
+            if size == BLOCK_ROWS:
+                yield np.concatenate(pending)
+                pending, size = [], 0
+    if size:
+        yield np.concatenate(pending)
 
 
 def unit_rows(x: np.ndarray) -> np.ndarray:
@@ -299,7 +359,10 @@ def direction_cells(directions: np.ndarray, *, cells: int = DIRECTION_CELLS,
     d = np.asarray(directions, dtype=float)
     c = None if centre is None else np.asarray(centre, dtype=float)
     bands = max(1, round(math.sqrt(cells / 2.0)))
-    out = np.empty(d.shape[0], dtype=np.int64)
+    # two bytes a sample, not eight, for the usual few hundred cells: the cells of every
+    # sample (and the copies a caller's np.unique makes) are a long recording's arrays
+    small = 2 * bands * bands <= 1 << 15
+    out = np.empty(d.shape[0], dtype=np.int16 if small else np.int64)
     for rows in _blocks(d.shape[0]):
         block = d[rows] if c is None else d[rows] - c
         n = np.sqrt(np.einsum("ij,ij->i", block, block))

@@ -16,8 +16,10 @@ from __future__ import annotations
 
 import numpy as np
 
+from magbench.core import geometry
 from magbench.core.quaternions import quat_conjugate, quat_multiply, quat_to_rotvec
 from magbench.core.rotations import skew
+from magbench.core.tsqr import lstsq_blocks
 
 __all__ = ["attitude_rate", "best_lag", "direction_rate", "gyro_lag", "magnetometer_lag", "shift",
            "stream_lag"]
@@ -126,16 +128,50 @@ def stream_lag(t: np.ndarray, reference: np.ndarray, late: np.ndarray,
                     max_lag_s)
 
 
+def _rate_design(u: np.ndarray, rate: np.ndarray, observed: np.ndarray
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """The design ``(K, 3, 9)`` of ``[u]x A w`` in the entries of ``A``, and its finite rows."""
+    design = np.einsum("kij,kl->kijl", skew(u), rate).reshape(len(u), 3, 9)
+    return design, np.isfinite(design).all(axis=(1, 2)) & np.isfinite(observed).all(axis=1)
+
+
 def _rate_fit(u: np.ndarray, rate: np.ndarray, observed: np.ndarray) -> np.ndarray:
     """``[u]x A w`` with the 3x3 ``A`` that best fits ``observed`` (least squares over the
-    finite rows; NaN elsewhere)."""
-    design = np.einsum("kij,kl->kijl", skew(u), rate).reshape(len(u), 3, 9)
-    ok = np.isfinite(design).all(axis=(1, 2)) & np.isfinite(observed).all(axis=1)
+    finite rows; NaN elsewhere).
+
+    Up to :data:`~magbench.core.geometry.BLOCK_ROWS` samples by ``lstsq`` on the whole design
+    (216 bytes a sample, and LAPACK's copy); more a block at a time by TSQR
+    (:func:`magbench.core.tsqr.lstsq_blocks`), equal to round-off in memory of one block."""
     out = np.full(observed.shape, np.nan)
-    if ok.sum() < 4:
+    step = geometry.BLOCK_ROWS
+    if len(u) <= step:
+        design, ok = _rate_design(u, rate, observed)
+        if ok.sum() < 4:
+            return out
+        a = np.linalg.lstsq(design[ok].reshape(-1, 9), observed[ok].reshape(-1),
+                            rcond=None)[0]
+        out[ok] = design[ok] @ a
         return out
-    a = np.linalg.lstsq(design[ok].reshape(-1, 9), observed[ok].reshape(-1), rcond=None)[0]
-    out[ok] = design[ok] @ a
+    count = 0
+
+    def rows():
+        nonlocal count
+        for start in range(0, len(u), step):
+            block = slice(start, start + step)
+            design, ok = _rate_design(u[block], rate[block], observed[block])
+            count += int(ok.sum())
+            yield design[ok].reshape(-1, 9), observed[block][ok].reshape(-1)
+
+    try:
+        a = lstsq_blocks(rows())[0]
+    except ValueError:              # no finite row
+        return out
+    if count < 4:
+        return out
+    for start in range(0, len(u), step):
+        block = slice(start, start + step)
+        design, ok = _rate_design(u[block], rate[block], observed[block])
+        out[block][ok] = design[ok] @ a
     return out
 
 

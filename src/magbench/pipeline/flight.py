@@ -42,8 +42,9 @@ def mounting_rotation(rec: Recording, A: np.ndarray, b: np.ndarray,
     corrected : ndarray of shape (K, 3), optional
         The corrected samples to use instead of ``A (y - b)`` (with time-varying terms).
     """
-    if rec.extra is None:
-        return None
+    if rec.extra is None or not (all(c in rec.extra for c in QUATERNION)
+                                 or all(c in rec.extra for c in ACCEL)):
+        return None         # before the corrected samples, a (K, 3) array, are built
     base = np.ones(rec.K, bool) if keep is None else np.asarray(keep, bool)
     m = (rec.y - b) @ np.asarray(A).T if corrected is None else np.asarray(corrected)
     base = base & np.isfinite(m).all(axis=1)

@@ -106,6 +106,8 @@ class Stream:
     def clean(self) -> Stream:
         """Sorted by time, repeated times and rows with a non-finite time dropped."""
         keep = np.isfinite(self.t)
+        if keep.all() and (self.t.size < 2 or bool((np.diff(self.t) > 0).all())):
+            return Stream(self.t, self.values)      # the usual log: no copies of its rows
         t, v = self.t[keep], self.values[keep]
         order = np.argsort(t, kind="stable")
         t, v = t[order], v[order]
@@ -321,8 +323,11 @@ def _read_ulog(path: Path) -> FlightLog:
         return np.asarray(d.get("timestamp_sample", d["timestamp"]), dtype=float) / 1e6
 
     def cols(d: dict, names: list[str]) -> np.ndarray:
-        return np.column_stack([np.asarray(d[n], dtype=float) if n in d else
-                                np.full(len(d["timestamp"]), np.nan) for n in names])
+        # filled a column at a time: no float copy of every field beside the stacked array
+        out = np.empty((len(d["timestamp"]), len(names)))
+        for j, n in enumerate(names):
+            out[:, j] = d[n] if n in d else np.nan
+        return out
 
     mags, devices = {}, {}
     for (name, i), d in data.items():
@@ -520,14 +525,18 @@ def _read_dataflash(path: Path) -> FlightLog:
                              f"{', '.join(lacking)} (its fields: {', '.join(columns.all)}); "
                              f"expected {', '.join(MAG_FIELDS)}")
         if message == "MAG" and "I" in columns:
-            parts += [(int(i), columns.rows(columns["I"] == i))
-                      for i in np.unique(columns["I"])]
+            numbers = np.unique(columns["I"])
+            # one compass needs no copy of its rows
+            parts += [(int(i), columns if numbers.size == 1 else columns.rows(columns["I"] == i))
+                      for i in numbers]
         else:
             parts.append((0 if message == "MAG" else int(message[-1]) - 1, columns))
-    for i, f in parts:
+    while parts:            # each compass's columns freed once its stream is built
+        i, f = parts.pop(0)
         raw = np.column_stack([f[f"Mag{a}"] - (f[f"Ofs{a}"] if f"Ofs{a}" in f else 0.0)
                                - (f[f"MO{a}"] if f"MO{a}" in f else 0.0) for a in "XYZ"])
         mags[i] = Stream(f["TimeUS"] / 1e6, raw).clean()
+        del f
     if path.suffix.lower() == ".log" and mags:
         names = tuple(k for k in ("MAG", "MAG2", "MAG3") if k in rows)
         # pymavlink's text reader returns the message after a dropped line twice: distinct
@@ -539,6 +548,8 @@ def _read_dataflash(path: Path) -> FlightLog:
         if dropped > 0:
             notes.append(f"{path.name}: {dropped} compass line(s) dropped (fewer fields than "
                          "their format lists)")
+    for message in ("MAG", "MAG2", "MAG3"):      # read into ``mags``: the fields are freed
+        rows.pop(message, None)
     log = FlightLog(path, "dataflash", mags, "milligauss", notes=notes)
     for message, group, names, fields in (
             ("IMU", "gyro", ("gx", "gy", "gz"), ("GyrX", "GyrY", "GyrZ")),

@@ -504,38 +504,48 @@ def _quiet(reader: Iterator[pd.DataFrame]) -> Iterator[pd.DataFrame]:
 
 
 def _read_columns(path: Path, layout: dict, wanted: dict[int, str], where: _Where,
-                  optional: Sequence[int] = ()) -> tuple[np.ndarray, set[int]]:
-    """The columns at the positions in ``wanted`` (position -> name) as floats, in the order
-    of their positions (shape (rows, len(wanted))), and the ``optional`` positions that held
-    text (NaN in the table; the caller decides what they mean).
+                  optional: Sequence[int] = (), first: Sequence[int] = ()
+                  ) -> tuple[np.ndarray, np.ndarray, set[int]]:
+    """The columns at the positions in ``wanted`` (position -> name) as floats, in two
+    arrays: those in ``first`` in that order (shape (rows, len(first)), duplicates once), and
+    the others in the order of their positions; and the ``optional`` positions that held text
+    (NaN in the table; the caller decides what they mean).
 
     Read in chunks of :data:`CHUNK_ROWS` rows by pandas' C parser, keeping only those columns,
     so memory follows the floats kept (24 bytes a row for three axes), never the file's text:
-    10 million rows once took 4.5 GB as Python strings. A chunk whose column the parser could
-    not turn into numbers (text, padded spaces) goes through :func:`_numeric`, which accepts
-    what the text reader accepts and names the first bad cell. A small file of plain numbers
-    is read by NumPy instead (:func:`_plain_table`), which gives the same values without
-    importing pandas (whose import ``calibrate`` avoids).
+    10 million rows once took 4.5 GB as Python strings. The samples (``first``) are parsed
+    straight into their own array, so they are never copied out of a wider table that holds
+    them a second time. A chunk whose column the parser could not turn into numbers (text,
+    padded spaces) goes through :func:`_numeric`, which accepts what the text reader accepts
+    and names the first bad cell. A small file of plain numbers is read by NumPy instead
+    (:func:`_plain_table`), which gives the same values without importing pandas (whose import
+    ``calibrate`` avoids).
     """
-    positions = sorted(wanted)
+    firsts = list(dict.fromkeys(first))
+    others = [p for p in sorted(wanted) if p not in firsts]
     plain = _plain_table(path, layout, where.sniffed)
-    if plain is not None:                # laid out as the pandas path's table below
-        return np.ascontiguousarray(plain[:, positions]), set()
+    if plain is not None:                # laid out as the pandas path's arrays below
+        return (np.ascontiguousarray(plain[:, firsts]), np.ascontiguousarray(plain[:, others]),
+                set())
     import pandas as pd
 
-    chunks: list[np.ndarray] = []
+    chunks: list[tuple[np.ndarray, np.ndarray]] = []
     failed: set[int] = set()
-    # A plain file's line count bounds its rows: fill one array instead of concatenating
+    # A plain file's line count bounds its rows: fill the arrays instead of concatenating
     # chunks, which would hold every sample twice at the end.
-    table = None if layout.get("compression") else np.empty((_count_lines(path),
-                                                               len(positions)))
+    tables = None
+    if not layout.get("compression"):
+        n = _count_lines(path)
+        tables = (np.empty((n, len(firsts))), np.empty((n, len(others))))
+    place = {p: (0, firsts.index(p)) if p in firsts else (1, others.index(p)) for p in wanted}
     try:
         compression = layout.get("compression")
         with _open_binary(path, compression) as source, pd.read_csv(
-                source, usecols=positions, chunksize=CHUNK_ROWS, engine="c",
+                source, usecols=sorted(wanted), chunksize=CHUNK_ROWS, engine="c",
                 na_values=_NA_TOKENS, keep_default_na=False,
                 **{**layout, "compression": None}) as reader:
-            offset = _fill(_quiet(reader), table, chunks, wanted, where, optional, failed)
+            offset = _fill(_quiet(reader), tables, chunks, wanted, place, where, optional,
+                           failed)
 
     except pd.errors.ParserError as exc:
         if "Expected" in str(exc) and "fields" in str(exc):
@@ -545,11 +555,14 @@ def _read_columns(path: Path, layout: dict, wanted: dict[int, str], where: _Wher
         raise ValueError(f"cannot read {path} as CSV: {' '.join(str(exc).split())}") from None
     except (UnicodeDecodeError, EOFError, OSError) as exc:
         raise ValueError(f"cannot read {path} as CSV: {' '.join(str(exc).split())}") from None
-    if table is not None:
-        return table[:offset], failed
+    if tables is not None:
+        return tables[0][:offset], tables[1][:offset], failed
     if len(chunks) == 1:
-        return chunks[0], failed
-    return (np.concatenate(chunks) if chunks else np.empty((0, len(positions)))), failed
+        return chunks[0][0], chunks[0][1], failed
+    if not chunks:
+        return np.empty((0, len(firsts))), np.empty((0, len(others))), failed
+    return (np.concatenate([c[0] for c in chunks]), np.concatenate([c[1] for c in chunks]),
+            failed)
 
 
 #: Largest file :func:`_plain_table` reads (it holds the text and every column at once).
@@ -603,32 +616,36 @@ def _plain_table(path: Path, layout: dict, sniffed: dict) -> np.ndarray | None:
     return table
 
 
-def _fill(reader: Iterator[pd.DataFrame], table: np.ndarray | None, chunks: list[np.ndarray],
-          wanted: dict[int, str], where: _Where, optional: Sequence[int],
+def _fill(reader: Iterator[pd.DataFrame], tables: tuple[np.ndarray, np.ndarray] | None,
+          chunks: list[tuple[np.ndarray, np.ndarray]], wanted: dict[int, str],
+          place: dict[int, tuple[int, int]], where: _Where, optional: Sequence[int],
           failed: set[int]) -> int:
-    """Parse each chunk into ``table`` (or append it to ``chunks``); returns the rows read."""
+    """Parse each chunk into ``tables`` (or append it to ``chunks``), the column at position
+    ``p`` into column ``place[p][1]`` of array ``place[p][0]``; returns the rows read."""
     import pandas as pd
 
     positions = sorted(wanted)
+    widths = [sum(1 for w, _ in place.values() if w == k) for k in (0, 1)]
     offset = 0
     for chunk in reader:
-        block = (np.empty((len(chunk), len(positions))) if table is None else
-                 table[offset:offset + len(chunk)])
+        blocks = (tuple(np.empty((len(chunk), w)) for w in widths) if tables is None else
+                  tuple(t[offset:offset + len(chunk)] for t in tables))
         for j, p in enumerate(positions):
             column = chunk.iloc[:, j]
+            target = blocks[place[p][0]][:, place[p][1]]
             if pd.api.types.is_numeric_dtype(column) and \
                     not pd.api.types.is_bool_dtype(column):
-                block[:, j] = column.to_numpy(dtype=float)
+                target[:] = column.to_numpy(dtype=float)
             elif p in optional:
                 try:
-                    block[:, j] = _numeric(chunk, j, wanted[p], where, offset)
+                    target[:] = _numeric(chunk, j, wanted[p], where, offset)
                 except ValueError:
-                    block[:, j] = np.nan
+                    target[:] = np.nan
                     failed.add(p)
             else:
-                block[:, j] = _numeric(chunk, j, wanted[p], where, offset)
-        if table is None:
-            chunks.append(block)
+                target[:] = _numeric(chunk, j, wanted[p], where, offset)
+        if tables is None:
+            chunks.append(blocks)
         offset += len(chunk)
     return offset
 
@@ -644,7 +661,7 @@ def _count_lines(path: Path) -> int:
     """Line breaks in ``path`` plus one (an upper bound on its data rows)."""
     n = 1
     with open(path, "rb") as handle:
-        while block := handle.read(1 << 24):
+        while block := handle.read(1 << 20):
             n += block.count(b"\n")
     return n
 
@@ -730,23 +747,24 @@ def read_samples(path: Path | str, columns: Sequence[object] | None = None, *,
     extra_pos = {header.index(c): c for c in EXTRA_COLUMNS
                  if header and c in header and header.index(c) not in wanted}
     wanted |= extra_pos
-    table, failed = _read_columns(path, layout, wanted, where,
-                                  optional=(() if t_pos is None else (t_pos,)) + tuple(extra_pos))
-    keep, chosen = _instance_rows(path, layout, header, instance, table.shape[0])
+    # The samples come in their own array (no copy of 10 million rows out of a wider
+    # table); the other columns are views of a second one.
+    y, rest, failed = _read_columns(
+        path, layout, wanted, where,
+        optional=(() if t_pos is None else (t_pos,)) + tuple(extra_pos), first=mag)
+    keep, chosen = _instance_rows(path, layout, header, instance, y.shape[0])
     if keep is not None:
-        table = table[keep]
-    values = {p: table[:, j] for j, p in enumerate(sorted(wanted))}
-    order = [sorted(wanted).index(i) for i in mag]
-    # The usual three-column file is its own sample array: no copy of 10 million rows.
-    y = table if order == list(range(table.shape[1])) else table[:, order]
-    if y is not table:
-        # The other columns are copied out too: a view of one (t) would keep the whole table
-        # alive next to the samples' copy for as long as the recording.
-        values = {p: v if p in mag else v.copy() for p, v in values.items()}
-        del table
+        y, rest = y[keep], rest[keep]
+    firsts = list(dict.fromkeys(mag))
+    values = {p: y[:, firsts.index(p)] for p in firsts} | {
+        p: rest[:, j] for j, p in enumerate(p for p in sorted(wanted) if p not in firsts)}
+    if len(firsts) < len(mag):          # a column named twice
+        y = y[:, [firsts.index(i) for i in mag]]
     t = None
     if t_pos is not None:
-        t = values[t_pos]
+        # its own array when others ride along (gyro, attitude): a view would keep them
+        # all alive beside their own copies for as long as the recording
+        t = np.ascontiguousarray(values[t_pos])
         if t_pos in failed:
             t = _times(path, layout, t_pos, where, keep, gyro_pos is not None)
         if t is not None and np.isnan(t).all():
@@ -1043,14 +1061,16 @@ def log_recording(path: Path | str, instance: object = None, *, min_samples: int
     if y.shape[0] < min_samples:
         raise ValueError(f"{path.name}: instance {chosen} has {y.shape[0]} usable samples; at "
                          f"least {min_samples} are needed")
-    extra = {c: table[c] for c in EXTRA_COLUMNS if c in table}
+    # their own arrays: a view of the compass's temperature would keep the log's whole
+    # (K, 4) compass array alive beside the samples' copy
+    extra = {c: np.ascontiguousarray(table[c]) for c in EXTRA_COLUMNS if c in table}
     rec = Recording(path.stem, y, table["t"],
                     _as_columns([table[c] for c in gyro_cols])
                     if all(c in table for c in gyro_cols) else None,
                     n_rows=len(y), columns=MAG_COLUMNS,
                     instance=("instance", str(chosen)),
                     extra=extra or None)
-    if check:
-        check_geometry(rec.y, min_coverage=min_coverage, min_thickness=min_thickness,
-                       what=path.name)
+    if check:               # on an even stride, as for a CSV (GEOMETRY_SAMPLES)
+        check_geometry(rec.y[::math.ceil(rec.K / GEOMETRY_SAMPLES)], min_coverage=min_coverage,
+                       min_thickness=min_thickness, what=path.name)
     return rec
