@@ -75,3 +75,24 @@ def test_a_jump_at_rest_ends_a_segment():
     assert not windows.turning.any()
     segments = offset_segments(windows, 0.1)
     assert len(segments) == 2
+
+
+def test_window_offsets_hold_one_window_not_the_recording():
+    # A long attitude log: the pair products are formed a window at a time, so the peak is
+    # far below one (K, 3, 3) array (72 bytes a row).
+    import tracemalloc
+
+    K = 100_000
+    t = np.arange(K) * 0.01
+    angle = 0.3 * t
+    Q = np.zeros((K, 3, 3))
+    Q[:, 0, 0] = Q[:, 1, 1] = np.cos(angle)
+    Q[:, 0, 1], Q[:, 1, 0] = -np.sin(angle), np.sin(angle)
+    Q[:, 2, 2] = 1.0
+    field = np.column_stack([np.cos(angle), -np.sin(angle), np.zeros(K)])
+    tracemalloc.start()
+    windows = window_offsets(t, field, Q)
+    peak = tracemalloc.get_traced_memory()[1]
+    tracemalloc.stop()
+    assert peak < 0.5 * 72 * K
+    assert np.isfinite(windows.jump).all()

@@ -110,10 +110,7 @@ def window_offsets(t: np.ndarray, field: np.ndarray, orientation: np.ndarray, *,
     n = max(1, round(pair_s / dt))
     size = max(2, round(window_s / dt))
     K = len(t)
-    k = np.arange(max(K - n, 0))
-    P = np.einsum("kji,kjl->kil", orientation[k + n], orientation[k])      # Q_j^T Q_k
-    lhs = np.eye(3) - P
-    rhs = field[k + n] - np.einsum("kil,kl->ki", P, field[k])
+    pairs = max(K - n, 0)
     floor = 2.0 * np.sin(np.radians(min_turn_deg) / 2.0)
     start = np.arange(0, max(K - n, 1), size)
     stop = np.minimum(start + size, K)
@@ -121,15 +118,19 @@ def window_offsets(t: np.ndarray, field: np.ndarray, orientation: np.ndarray, *,
     turning = np.zeros(len(start), dtype=bool)
     jump = np.full(len(start), np.nan)
     turn = np.full(len(start), np.nan)
-    cos_turn = np.clip((np.trace(P, axis1=1, axis2=2) - 1.0) / 2.0, -1.0, 1.0)
     for i, s in enumerate(start):
-        rows = slice(s, min(s + size, len(k)))
-        good = np.isfinite(lhs[rows]).all(axis=(1, 2)) & np.isfinite(rhs[rows]).all(axis=1)
+        # One window's pairs at a time: a long log never holds (K, 3, 3) products.
+        k = np.arange(s, min(s + size, pairs))
+        P = np.einsum("kji,kjl->kil", orientation[k + n], orientation[k])    # Q_j^T Q_k
+        lhs = np.eye(3) - P
+        rhs = field[k + n] - np.einsum("kil,kl->ki", P, field[k])
+        good = np.isfinite(lhs).all(axis=(1, 2)) & np.isfinite(rhs).all(axis=1)
         if good.sum() < 3:
             continue
-        A, b = lhs[rows][good], rhs[rows][good]
+        A, b = lhs[good], rhs[good]
+        cos_turn = np.clip((np.trace(P[good], axis1=1, axis2=2) - 1.0) / 2.0, -1.0, 1.0)
         jump[i] = float(np.linalg.norm(b, axis=1).max())
-        turn[i] = float(np.degrees(np.arccos(cos_turn[rows][good].min())))
+        turn[i] = float(np.degrees(np.arccos(cos_turn.min())))
         A2, b2 = A.reshape(-1, 3), b.reshape(-1)
         if np.linalg.svd(A2, compute_uv=False)[-1] >= floor * np.sqrt(good.sum()):
             turning[i] = True
