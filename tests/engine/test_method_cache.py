@@ -6,17 +6,19 @@ process, so each test counts exactly which calls a run made.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import signal
 import subprocess
 import sys
 import time
 from pathlib import Path
+from typing import ClassVar
 
 import pytest
 
 from magbench.engine import sweep as engine
-from magbench.engine.sweep import ResultsExist, run_study
+from magbench.engine.sweep import ResultsExist, Study, run_study
 from magbench.methods.registry import _REGISTRY, unregister
 from magbench.sources.synthetic import Point
 from magbench.studies.review import ReviewStudy
@@ -285,3 +287,53 @@ def test_a_whole_run_differing_only_in_its_plugins_is_reused(tmp_path, calls, ca
         sys.modules.pop("tests.plugins.faulty", None)
     assert calls() == {} and lines(tmp_path) == before
     assert "only the plugins loaded differ" in capsys.readouterr().err
+
+
+@dataclasses.dataclass(frozen=True)
+class Ragged(Study):
+    """Rows per unit that differ from unit to unit (0, 1 or 2 per method) and a table owned
+    by one method: the layout a generalisation study has (a skipped protocol, intervals)."""
+
+    algorithms: tuple = ()
+    options: dict | None = None
+    plugins: tuple = (COUNTING,)
+    name: str = "ragged"
+
+    tables: ClassVar[dict] = {"rows": ("rows.csv", ["unit", "algorithm", "i"]),
+                              "notes": ("notes.csv", ["unit", "note"])}
+    method_column: ClassVar[str] = "algorithm"
+    table_owner: ClassVar[dict] = {"notes": "counting_a"}
+
+    def units(self):
+        return list(range(6))
+
+    def run_unit(self, unit):
+        import numpy as np
+
+        from magbench.methods.registry import get_method
+
+        y = np.random.default_rng(unit).standard_normal((20, 3))
+        rows = []
+        for m in self.algorithms:
+            get_method(m).fit(y)                         # a counted call, per unit and method
+            rows += [{"unit": unit, "algorithm": m, "i": i} for i in range(unit % 3)]
+        notes = ([{"unit": unit, "note": f"n{unit}"}] * (unit % 2)
+                 if "counting_a" in self.algorithms else [])
+        return {"rows": rows, "notes": notes}
+
+
+def test_rows_per_unit_that_differ_and_an_owned_table_are_cached(tmp_path, calls, capsys):
+    run_study(Ragged(("counting_a",)), tmp_path / "inc", chunk_size=1, progress=False)
+    calls()
+    run_study(Ragged(("counting_a", "counting_b")), tmp_path / "inc", chunk_size=1,
+              progress=False)
+    assert calls() == {"counting_b": 6}
+    assert "reusing the rows of counting_a (unchanged)" in capsys.readouterr().err
+    run_study(Ragged(("counting_a", "counting_b")), tmp_path / "full", chunk_size=1,
+              progress=False)
+    for name in ("rows.csv", "notes.csv"):
+        assert lines(tmp_path / "inc", name) == lines(tmp_path / "full", name)
+    record = json.loads((tmp_path / "inc" / "run.json").read_text())
+    assert record["methods"]["counting_a"]["rows_per_unit"] == {
+        "rows": [0, 1, 2, 0, 1, 2], "notes": [0, 1, 0, 1, 0, 1]}
+    assert record["methods"]["counting_b"]["rows_per_unit"]["notes"] == 0
