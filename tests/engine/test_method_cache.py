@@ -289,6 +289,62 @@ def test_a_whole_run_differing_only_in_its_plugins_is_reused(tmp_path, calls, ca
     assert "only the plugins loaded differ" in capsys.readouterr().err
 
 
+def spiral_folder(root: Path, K: int = 900) -> None:
+    """One recording ``spiral``: a sensor turned through every direction, in time order."""
+    import numpy as np
+    import pandas as pd
+
+    s = np.linspace(0.0, 1.0, K)
+    theta, phi = np.arccos(1 - 2 * s), 2 * np.pi * 12 * s
+    m = np.column_stack([np.sin(theta) * np.cos(phi), np.sin(theta) * np.sin(phi),
+                         np.cos(theta)])
+    y = m @ np.diag([52.0, 47.0, 61.0]) + [90.0, -35.0, 12.0]
+    y = y + 0.3 * np.random.default_rng(1).standard_normal((K, 3))
+    (root / "spiral").mkdir(parents=True)
+    pd.DataFrame({"t": np.arange(K) * 0.02, "mx": y[:, 0], "my": y[:, 1],
+                  "mz": y[:, 2]}).to_csv(root / "spiral" / "data.csv", index=False)
+
+
+def test_generalisation_rows_are_cached_per_entrant(tmp_path, calls, capsys):
+    """The generalisation study's entrants (calibrate's choice, each fixed method) are cached
+    one by one: a fixed method added computes only its rows, byte for byte those of a full
+    run; an option of a calibrate candidate changed recomputes that method and calibrate's
+    choice (it may fit the method), and nothing else."""
+    from magbench.studies.generalisation import AUTO, GeneralisationStudy
+
+    spiral_folder(tmp_path / "data")
+
+    def gen(algorithms, options=None):
+        return GeneralisationStudy(str(tmp_path / "data"), ("spiral",), ("blocks", "half"),
+                                   tuple(algorithms), peers=False, bootstrap=0,
+                                   options=options or {}, plugins=(COUNTING,))
+
+    def go(s, folder):
+        run_study(s, folder, chunk_size=1, progress=False, overwrite=True)
+
+    go(gen(["sphere"]), tmp_path / "inc")
+    first = lines(tmp_path / "inc", "generalisation_trials.csv")
+    calls()
+    capsys.readouterr()
+    go(gen(["sphere", "counting_a"]), tmp_path / "inc")
+    assert calls() == {"counting_a": 2}                   # one fit per protocol, nothing else
+    assert f"reusing the rows of {AUTO}, sphere (unchanged); computing counting_a (new)" in \
+        capsys.readouterr().err
+    go(gen(["sphere", "counting_a"]), tmp_path / "full")
+    for table in ("generalisation_trials.csv", "generalisation_intervals.csv"):
+        assert lines(tmp_path / "inc", table) == lines(tmp_path / "full", table)
+    second = lines(tmp_path / "inc", "generalisation_trials.csv")
+    assert [r for r in second if ",counting_a," not in r] == first
+    assert [r.split(",")[2] for r in second[1:]] == [AUTO] * 2 + ["sphere"] * 2 + \
+        ["counting_a"] * 2                                 # entrant by entrant
+    calls()
+    go(gen(["sphere", "counting_a"], {"counting_a": {"shift": 0.5}}), tmp_path / "inc")
+    assert f"computing {AUTO}, counting_a (options changed)" in capsys.readouterr().err
+    assert calls().get("counting_a", 0) >= 2
+    third = lines(tmp_path / "inc", "generalisation_trials.csv")
+    assert of(third, "sphere") == of(second, "sphere")
+
+
 @dataclasses.dataclass(frozen=True)
 class Ragged(Study):
     """Rows per unit that differ from unit to unit (0, 1 or 2 per method) and a table owned
