@@ -393,3 +393,30 @@ def test_rows_per_unit_that_differ_and_an_owned_table_are_cached(tmp_path, calls
     assert record["methods"]["counting_a"]["rows_per_unit"] == {
         "rows": [0, 1, 2, 0, 1, 2], "notes": [0, 1, 0, 1, 0, 1]}
     assert record["methods"]["counting_b"]["rows_per_unit"]["notes"] == 0
+
+
+def test_real_rows_are_cached_per_method(tmp_path, calls, capsys):
+    """The real sweep's rows come method by method within a recording: a method added is its
+    rows only, the table a full run's, and the summaries keep preprocessing first."""
+    import pandas as pd
+
+    from magbench.studies.real import RealStudy
+
+    spiral_folder(tmp_path / "data", K=300)
+
+    def real(algorithms):
+        return RealStudy(str(tmp_path / "data"), ["spiral"], tuple(algorithms),
+                         plugins=(COUNTING,))
+
+    run_study(real(["counting_a", "sphere"]), tmp_path / "inc", progress=False)
+    calls()
+    run_study(real(["counting_a", "sphere", "counting_b"]), tmp_path / "inc", progress=False)
+    assert calls() == {"counting_b": 6}             # 2 preprocessings x 3 fits
+    assert "computing counting_b (new)" in capsys.readouterr().err
+    run_study(real(["counting_a", "sphere", "counting_b"]), tmp_path / "full", progress=False)
+    assert lines(tmp_path / "inc", "real_trials.csv") == \
+        lines(tmp_path / "full", "real_trials.csv")
+    real(["counting_a", "sphere", "counting_b"]).summarize(tmp_path / "inc")
+    summary = pd.read_csv(tmp_path / "inc" / "real_summary.csv")
+    assert list(zip(summary["preprocess"], summary["algorithm"], strict=True)) == [
+        (p, a) for p in ("scale", "centre") for a in ("counting_a", "sphere", "counting_b")]
