@@ -97,6 +97,10 @@ class Study:
     method_column: ClassVar[str | None] = None
     #: Tables without ``method_column`` whose rows all belong to one entrant: {table: name}.
     table_owner: ClassVar[Mapping[str, str]] = {}
+    #: True when an entrant's rows per unit may differ from unit to unit (a skipped case):
+    #: the run then cuts chunks of one unit, whatever ``chunk_size``, so that each chunk's
+    #: record says how many rows each entrant gave (rows cached per method need it).
+    ragged: ClassVar[bool] = False
     #: Settings that are not part of :meth:`base_fingerprint`: the methods' own.
     method_fields: ClassVar[tuple[str, ...]] = ("algorithms", "options", "plugins")
 
@@ -1110,6 +1114,8 @@ def run_study(study: Study, out_dir: Path | str, *, n_jobs: int = 1, chunk_size:
     started, clock = datetime.now(UTC), time.perf_counter()
     load_plugins(study.plugins)
     units = study.units()
+    if study.ragged and study.method_column is not None:
+        chunk_size = 1
     chunks = [(s, min(s + chunk_size, len(units))) for s in range(0, len(units), chunk_size)]
     written = {table: out_dir / file for table, (file, _) in study.tables.items()}
     # Only a run with trials to compute needs the room: a finished one that lacks its figures

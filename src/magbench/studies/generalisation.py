@@ -442,6 +442,7 @@ class GeneralisationStudy(Study):
     method_column: ClassVar[str] = "algorithm"
     method_fields: ClassVar[tuple[str, ...]] = ("algorithms", "options", "plugins", "only")
     table_owner: ClassVar[dict] = {"intervals": AUTO}
+    ragged: ClassVar[bool] = True       # a skipped protocol has calibrate's row only
 
     def entrants(self) -> list[str]:
         every = [AUTO, *self.algorithms, *(_peers() if self.peers else [])]
