@@ -422,3 +422,24 @@ def test_real_rows_are_cached_per_method(tmp_path, calls, capsys):
     summary = pd.read_csv(tmp_path / "inc" / "real_summary.csv")
     assert list(zip(summary["preprocess"], summary["algorithm"], strict=True)) == [
         (p, a) for p in ("scale", "centre") for a in ("counting_a", "sphere", "counting_b")]
+
+
+def test_wushi_rows_are_cached_per_method(tmp_path, calls, capsys):
+    """Wu-Shi's runs come method by method (a control row beside a method's row on the first
+    runs): a method added computes its rows only; Figures 3 and 6's runs, ML's, are kept."""
+    from magbench.studies.wushi import WuShiStudy
+
+    def wushi(algorithms):
+        return WuShiStudy(runs=3, N=120, control_runs=1, alphas_pct=(0, 5),
+                          algorithms=tuple(algorithms), plugins=(COUNTING,))
+
+    run_study(wushi(["wu_shi", "wu_shi_nm", "counting_a"]), tmp_path / "inc", progress=False)
+    calls()
+    run_study(wushi(["wu_shi", "wu_shi_nm", "counting_a", "counting_b"]), tmp_path / "inc",
+              progress=False)
+    assert calls() == {"counting_b": 4}             # 3 runs and 1 control
+    assert "computing counting_b (new)" in capsys.readouterr().err
+    run_study(wushi(["wu_shi", "wu_shi_nm", "counting_a", "counting_b"]), tmp_path / "full",
+              progress=False)
+    for name in ("runs.csv", "fig3_objective.csv", "perturbation_runs.csv"):
+        assert lines(tmp_path / "inc", name) == lines(tmp_path / "full", name)
