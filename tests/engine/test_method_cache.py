@@ -443,3 +443,36 @@ def test_wushi_rows_are_cached_per_method(tmp_path, calls, capsys):
               progress=False)
     for name in ("runs.csv", "fig3_objective.csv", "perturbation_runs.csv"):
         assert lines(tmp_path / "inc", name) == lines(tmp_path / "full", name)
+
+
+
+def test_a_method_added_keeps_the_others_efficiency_rows(tmp_path, calls):
+    """The review sweep's efficiency.csv after a method is added: the reused methods' rows
+    are kept from the run they came from (efficiency.json names it) and the new method's
+    computed, byte for byte a full run's file; a file of another run is recomputed."""
+    import pandas as pd
+
+    from magbench.cli import main
+
+    def sweep(algorithms, folder):
+        assert main(["sweep=baseline", "trials=4", "nominal.K=40", "n_jobs=1",
+                     "progress=false", f"plugins=[{COUNTING}]", f"algorithms=[{algorithms}]",
+                     f"results_dir={folder}", "overwrite=true"]) == 0
+        return folder / "baseline"
+
+    full = sweep("counting_a,sphere,counting_b", tmp_path / "full")
+    for name, fingerprint in (("kept", None), ("other", "another run")):
+        sweep("counting_a,sphere", tmp_path / name)
+        if fingerprint:
+            (tmp_path / name / "baseline" / "efficiency.json").write_text(
+                json.dumps({"fingerprint": fingerprint}))
+        out = sweep("counting_a,sphere,counting_b", tmp_path / name)
+        assert lines(out, "efficiency.csv") == lines(full, "efficiency.csv")
+    # Kept, not recomputed: a row changed by hand stays as it was.
+    out = sweep("counting_a,sphere", tmp_path / "edited")
+    table = pd.read_csv(out / "efficiency.csv")
+    table.loc[table["algorithm"] == "counting_a", "eff_hi"] = 123.0
+    table.to_csv(out / "efficiency.csv", index=False)
+    sweep("counting_a,sphere,counting_b", tmp_path / "edited")
+    table = pd.read_csv(out / "efficiency.csv").set_index("algorithm")
+    assert table.loc["counting_a", "eff_hi"] == 123.0 and "counting_b" in table.index
