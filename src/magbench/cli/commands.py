@@ -26,7 +26,7 @@ from magbench.cli.config import (
 from magbench.cli.kinds import Kind, get_kind, kind_names, kind_of, kind_of_sweep, study_for
 from magbench.core.files import write_csv_atomic, write_text_atomic
 from magbench.engine.record import cpu_model, cpu_seconds, git_commit, process_age_s
-from magbench.engine.sweep import run_lock, run_study
+from magbench.engine.sweep import parallel_backend, run_lock, run_study
 from magbench.figures.speed import plot_scale, plot_scaling
 from magbench.report import write_report
 from magbench.report.build import write_markdown_report
@@ -121,13 +121,16 @@ def draw_figures(results_dir: Path | str, n_jobs: int = 1, *,
         return written
     from joblib import Parallel, delayed
 
-    # One task a folder; the generator dispatches them at once, so this process is free to
-    # do ``meanwhile`` before it collects the figures.
-    parallel = Parallel(n_jobs=n_jobs, backend="loky", batch_size=1, return_as="generator")
-    results = parallel(delayed(figures)(name, folder) for figures, name, folder in jobs)
-    if meanwhile is not None:
-        meanwhile()
-    return [path for paths in results for path in paths]
+    # The sweeps' worker pool (reproduce has it warm, magbench imported); one task a folder;
+    # the generator dispatches them at once, so this process is free to do ``meanwhile``
+    # before it collects the figures.
+    with parallel_backend("loky", n_jobs) as engine:
+        parallel = Parallel(n_jobs=engine["n_jobs"], backend=engine["backend"], batch_size=1,
+                            return_as="generator")
+        results = parallel(delayed(figures)(name, folder) for figures, name, folder in jobs)
+        if meanwhile is not None:
+            meanwhile()
+        return [path for paths in results for path in paths]
 
 
 def bench(cfg: DictConfig) -> int:
