@@ -6,17 +6,19 @@ process, so each test counts exactly which calls a run made.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import signal
 import subprocess
 import sys
 import time
 from pathlib import Path
+from typing import ClassVar
 
 import pytest
 
 from magbench.engine import sweep as engine
-from magbench.engine.sweep import ResultsExist, run_study
+from magbench.engine.sweep import ResultsExist, Study, run_study
 from magbench.methods.registry import _REGISTRY, unregister
 from magbench.sources.synthetic import Point
 from magbench.studies.review import ReviewStudy
@@ -285,3 +287,192 @@ def test_a_whole_run_differing_only_in_its_plugins_is_reused(tmp_path, calls, ca
         sys.modules.pop("tests.plugins.faulty", None)
     assert calls() == {} and lines(tmp_path) == before
     assert "only the plugins loaded differ" in capsys.readouterr().err
+
+
+def spiral_folder(root: Path, K: int = 900) -> None:
+    """One recording ``spiral``: a sensor turned through every direction, in time order."""
+    import numpy as np
+    import pandas as pd
+
+    s = np.linspace(0.0, 1.0, K)
+    theta, phi = np.arccos(1 - 2 * s), 2 * np.pi * 12 * s
+    m = np.column_stack([np.sin(theta) * np.cos(phi), np.sin(theta) * np.sin(phi),
+                         np.cos(theta)])
+    y = m @ np.diag([52.0, 47.0, 61.0]) + [90.0, -35.0, 12.0]
+    y = y + 0.3 * np.random.default_rng(1).standard_normal((K, 3))
+    (root / "spiral").mkdir(parents=True)
+    pd.DataFrame({"t": np.arange(K) * 0.02, "mx": y[:, 0], "my": y[:, 1],
+                  "mz": y[:, 2]}).to_csv(root / "spiral" / "data.csv", index=False)
+
+
+def test_generalisation_rows_are_cached_per_entrant(tmp_path, calls, capsys):
+    """The generalisation study's entrants (calibrate's choice, each fixed method) are cached
+    one by one: a fixed method added computes only its rows, byte for byte those of a full
+    run; an option of a calibrate candidate changed recomputes that method and calibrate's
+    choice (it may fit the method), and nothing else."""
+    from magbench.studies.generalisation import AUTO, GeneralisationStudy
+
+    spiral_folder(tmp_path / "data")
+
+    def gen(algorithms, options=None):
+        return GeneralisationStudy(str(tmp_path / "data"), ("spiral",), ("blocks", "half"),
+                                   tuple(algorithms), peers=False, bootstrap=0,
+                                   options=options or {}, plugins=(COUNTING,))
+
+    def go(s, folder):
+        run_study(s, folder, chunk_size=1, progress=False, overwrite=True)
+
+    go(gen(["sphere"]), tmp_path / "inc")
+    first = lines(tmp_path / "inc", "generalisation_trials.csv")
+    calls()
+    capsys.readouterr()
+    go(gen(["sphere", "counting_a"]), tmp_path / "inc")
+    assert calls() == {"counting_a": 2}                   # one fit per protocol, nothing else
+    assert f"reusing the rows of {AUTO}, sphere (unchanged); computing counting_a (new)" in \
+        capsys.readouterr().err
+    go(gen(["sphere", "counting_a"]), tmp_path / "full")
+    for table in ("generalisation_trials.csv", "generalisation_intervals.csv"):
+        assert lines(tmp_path / "inc", table) == lines(tmp_path / "full", table)
+    second = lines(tmp_path / "inc", "generalisation_trials.csv")
+    assert [r for r in second if ",counting_a," not in r] == first
+    assert [r.split(",")[2] for r in second[1:]] == [AUTO] * 2 + ["sphere"] * 2 + \
+        ["counting_a"] * 2                                 # entrant by entrant
+    calls()
+    go(gen(["sphere", "counting_a"], {"counting_a": {"shift": 0.5}}), tmp_path / "inc")
+    assert f"computing {AUTO}, counting_a (options changed)" in capsys.readouterr().err
+    assert calls().get("counting_a", 0) >= 2
+    third = lines(tmp_path / "inc", "generalisation_trials.csv")
+    assert of(third, "sphere") == of(second, "sphere")
+
+
+@dataclasses.dataclass(frozen=True)
+class Ragged(Study):
+    """Rows per unit that differ from unit to unit (0, 1 or 2 per method) and a table owned
+    by one method: the layout a generalisation study has (a skipped protocol, intervals)."""
+
+    algorithms: tuple = ()
+    options: dict | None = None
+    plugins: tuple = (COUNTING,)
+    name: str = "ragged"
+
+    tables: ClassVar[dict] = {"rows": ("rows.csv", ["unit", "algorithm", "i"]),
+                              "notes": ("notes.csv", ["unit", "note"])}
+    method_column: ClassVar[str] = "algorithm"
+    table_owner: ClassVar[dict] = {"notes": "counting_a"}
+    ragged: ClassVar[bool] = True
+
+    def units(self):
+        return list(range(6))
+
+    def run_unit(self, unit):
+        import numpy as np
+
+        from magbench.methods.registry import get_method
+
+        y = np.random.default_rng(unit).standard_normal((20, 3))
+        rows = []
+        for m in self.algorithms:
+            get_method(m).fit(y)                         # a counted call, per unit and method
+            rows += [{"unit": unit, "algorithm": m, "i": i} for i in range(unit % 3)]
+        notes = ([{"unit": unit, "note": f"n{unit}"}] * (unit % 2)
+                 if "counting_a" in self.algorithms else [])
+        return {"rows": rows, "notes": notes}
+
+
+def test_rows_per_unit_that_differ_and_an_owned_table_are_cached(tmp_path, calls, capsys):
+    # chunk_size is 1 for a ragged study whatever is asked: each chunk says its layout.
+    run_study(Ragged(("counting_a",)), tmp_path / "inc", chunk_size=4, progress=False)
+    calls()
+    run_study(Ragged(("counting_a", "counting_b")), tmp_path / "inc", chunk_size=4,
+              progress=False)
+    assert calls() == {"counting_b": 6}
+    assert "reusing the rows of counting_a (unchanged)" in capsys.readouterr().err
+    run_study(Ragged(("counting_a", "counting_b")), tmp_path / "full", chunk_size=1,
+              progress=False)
+    for name in ("rows.csv", "notes.csv"):
+        assert lines(tmp_path / "inc", name) == lines(tmp_path / "full", name)
+    record = json.loads((tmp_path / "inc" / "run.json").read_text())
+    assert record["methods"]["counting_a"]["rows_per_unit"] == {
+        "rows": [0, 1, 2, 0, 1, 2], "notes": [0, 1, 0, 1, 0, 1]}
+    assert record["methods"]["counting_b"]["rows_per_unit"]["notes"] == 0
+
+
+def test_real_rows_are_cached_per_method(tmp_path, calls, capsys):
+    """The real sweep's rows come method by method within a recording: a method added is its
+    rows only, the table a full run's, and the summaries keep preprocessing first."""
+    import pandas as pd
+
+    from magbench.studies.real import RealStudy
+
+    spiral_folder(tmp_path / "data", K=300)
+
+    def real(algorithms):
+        return RealStudy(str(tmp_path / "data"), ["spiral"], tuple(algorithms),
+                         plugins=(COUNTING,))
+
+    run_study(real(["counting_a", "sphere"]), tmp_path / "inc", progress=False)
+    calls()
+    run_study(real(["counting_a", "sphere", "counting_b"]), tmp_path / "inc", progress=False)
+    assert calls() == {"counting_b": 6}             # 2 preprocessings x 3 fits
+    assert "computing counting_b (new)" in capsys.readouterr().err
+    run_study(real(["counting_a", "sphere", "counting_b"]), tmp_path / "full", progress=False)
+    assert lines(tmp_path / "inc", "real_trials.csv") == \
+        lines(tmp_path / "full", "real_trials.csv")
+    real(["counting_a", "sphere", "counting_b"]).summarize(tmp_path / "inc")
+    summary = pd.read_csv(tmp_path / "inc" / "real_summary.csv")
+    assert list(zip(summary["preprocess"], summary["algorithm"], strict=True)) == [
+        (p, a) for p in ("scale", "centre") for a in ("counting_a", "sphere", "counting_b")]
+
+
+def test_wushi_rows_are_cached_per_method(tmp_path, calls, capsys):
+    """Wu-Shi's runs come method by method (a control row beside a method's row on the first
+    runs): a method added computes its rows only; Figures 3 and 6's runs, ML's, are kept."""
+    from magbench.studies.wushi import WuShiStudy
+
+    def wushi(algorithms):
+        return WuShiStudy(runs=3, N=120, control_runs=1, alphas_pct=(0, 5),
+                          algorithms=tuple(algorithms), plugins=(COUNTING,))
+
+    run_study(wushi(["wu_shi", "wu_shi_nm", "counting_a"]), tmp_path / "inc", progress=False)
+    calls()
+    run_study(wushi(["wu_shi", "wu_shi_nm", "counting_a", "counting_b"]), tmp_path / "inc",
+              progress=False)
+    assert calls() == {"counting_b": 4}             # 3 runs and 1 control
+    assert "computing counting_b (new)" in capsys.readouterr().err
+    run_study(wushi(["wu_shi", "wu_shi_nm", "counting_a", "counting_b"]), tmp_path / "full",
+              progress=False)
+    for name in ("runs.csv", "fig3_objective.csv", "perturbation_runs.csv"):
+        assert lines(tmp_path / "inc", name) == lines(tmp_path / "full", name)
+
+
+
+def test_a_method_added_keeps_the_others_efficiency_rows(tmp_path, calls):
+    """The review sweep's efficiency.csv after a method is added: the reused methods' rows
+    are kept from the run they came from (efficiency.json names it) and the new method's
+    computed, byte for byte a full run's file; a file of another run is recomputed."""
+    import pandas as pd
+
+    from magbench.cli import main
+
+    def sweep(algorithms, folder):
+        assert main(["sweep=baseline", "trials=4", "nominal.K=40", "n_jobs=1",
+                     "progress=false", f"plugins=[{COUNTING}]", f"algorithms=[{algorithms}]",
+                     f"results_dir={folder}", "overwrite=true"]) == 0
+        return folder / "baseline"
+
+    full = sweep("counting_a,sphere,counting_b", tmp_path / "full")
+    for name, fingerprint in (("kept", None), ("other", "another run")):
+        sweep("counting_a,sphere", tmp_path / name)
+        if fingerprint:
+            (tmp_path / name / "baseline" / "efficiency.json").write_text(
+                json.dumps({"fingerprint": fingerprint}))
+        out = sweep("counting_a,sphere,counting_b", tmp_path / name)
+        assert lines(out, "efficiency.csv") == lines(full, "efficiency.csv")
+    # Kept, not recomputed: a row changed by hand stays as it was.
+    out = sweep("counting_a,sphere", tmp_path / "edited")
+    table = pd.read_csv(out / "efficiency.csv")
+    table.loc[table["algorithm"] == "counting_a", "eff_hi"] = 123.0
+    table.to_csv(out / "efficiency.csv", index=False)
+    sweep("counting_a,sphere,counting_b", tmp_path / "edited")
+    table = pd.read_csv(out / "efficiency.csv").set_index("algorithm")
+    assert table.loc["counting_a", "eff_hi"] == 123.0 and "counting_b" in table.index

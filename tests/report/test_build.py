@@ -28,3 +28,17 @@ def test_sections_come_in_order_and_empty_ones_are_left_out(tmp_path):
     assert text.count("\n## ") == 1
     text = build_report(tmp_path, sections=(lambda d: "## A\n", lambda d: "", lambda d: "## B"))
     assert text.endswith("\n## A\n\n## B\n")
+
+
+def test_figures_drawn_by_two_workers_are_the_files_drawn_by_one(tmp_path):
+    """The report draws the folders' figures on n_jobs workers while it writes report.md:
+    every file, the PNGs included, is byte for byte what one process writes."""
+    for jobs in (1, 2):
+        (tmp_path / f"j{jobs}" / "gamma").mkdir(parents=True)
+        gamma_case().to_csv(tmp_path / f"j{jobs}" / "gamma" / "summary.csv", index=False)
+        assert main(["report", f"results_dir={tmp_path / f'j{jobs}'}", f"n_jobs={jobs}"]) == 0
+    files = sorted(p.relative_to(tmp_path / "j1") for p in (tmp_path / "j1").rglob("*")
+                   if p.is_file())
+    assert {"gamma/fig2_gamma.png", "report.md", "report.html"} <= set(map(str, files))
+    for name in files:
+        assert (tmp_path / "j1" / name).read_bytes() == (tmp_path / "j2" / name).read_bytes()

@@ -26,9 +26,10 @@ from magbench.cli.config import (
 from magbench.cli.kinds import Kind, get_kind, kind_names, kind_of, kind_of_sweep, study_for
 from magbench.core.files import write_csv_atomic, write_text_atomic
 from magbench.engine.record import cpu_model, cpu_seconds, git_commit, process_age_s
-from magbench.engine.sweep import run_lock, run_study
+from magbench.engine.sweep import parallel_backend, run_lock, run_study
 from magbench.figures.speed import plot_scale, plot_scaling
 from magbench.report import write_report
+from magbench.report.build import write_markdown_report
 from magbench.report.speed import bench_report_section
 from magbench.studies.speed import format_reproduce_times, reproduce_times, run_bench
 from magbench.studies.timing import repeat_timing
@@ -75,19 +76,61 @@ def result_folders(results_dir: Path) -> dict[str, Kind]:
     return out
 
 
-def draw_figures(results_dir: Path | str) -> list[Path]:
-    """Redraw every figure under ``results_dir`` from its CSV files."""
-    results_dir = Path(results_dir)
+def _bench_figures(name: str, folder: Path) -> list[Path]:
+    """The benchmark's figures (``bench/``), from its CSV files."""
     written = []
-    for name, kind in result_folders(results_dir).items():
-        written += kind.figures(name, results_dir / name)
-    if (results_dir / "bench" / "calls.csv").exists():
-        written.append(plot_scaling(pd.read_csv(results_dir / "bench" / "calls.csv"),
-                                    results_dir / "bench" / "scaling.png"))
-    if (results_dir / "bench" / "scale.csv").exists():
-        written.append(plot_scale(pd.read_csv(results_dir / "bench" / "scale.csv"),
-                                  results_dir / "bench" / "scale.png"))
+    if (folder / "calls.csv").exists():
+        written.append(plot_scaling(pd.read_csv(folder / "calls.csv"), folder / "scaling.png"))
+    if (folder / "scale.csv").exists():
+        written.append(plot_scale(pd.read_csv(folder / "scale.csv"), folder / "scale.png"))
     return written
+
+
+def _figure_jobs(results_dir: Path) -> list[tuple]:
+    """``(figures, name, folder)`` of every folder with figures: each sweep's, the bench's."""
+    jobs = [(kind.figures, name, results_dir / name)
+            for name, kind in result_folders(results_dir).items()]
+    return [*jobs, (_bench_figures, "bench", results_dir / "bench")]
+
+
+def draw_figures(results_dir: Path | str, n_jobs: int = 1, *,
+                 meanwhile: object = None) -> list[Path]:
+    """Redraw every figure under ``results_dir`` from its CSV files.
+
+    Parameters
+    ----------
+    results_dir : path
+        The results folder.
+    n_jobs : int
+        Worker processes drawing the folders' figures side by side (1: here, one after
+        another); each figure is drawn by one process as it would be alone, so the files
+        are the same either way.
+    meanwhile : callable, optional
+        Work for this process while the workers draw (the report's text), called once.
+
+    Returns
+    -------
+    list of Path
+        The figures written, folder by folder in :func:`result_folders` order.
+    """
+    jobs = _figure_jobs(Path(results_dir))
+    if n_jobs == 1 or len(jobs) < 2:
+        written = [path for figures, name, folder in jobs for path in figures(name, folder)]
+        if meanwhile is not None:
+            meanwhile()
+        return written
+    from joblib import Parallel, delayed
+
+    # The sweeps' worker pool (reproduce has it warm, magbench imported); one task a folder;
+    # the generator dispatches them at once, so this process is free to do ``meanwhile``
+    # before it collects the figures.
+    with parallel_backend("loky", n_jobs) as engine:
+        parallel = Parallel(n_jobs=engine["n_jobs"], backend=engine["backend"], batch_size=1,
+                            return_as="generator")
+        results = parallel(delayed(figures)(name, folder) for figures, name, folder in jobs)
+        if meanwhile is not None:
+            meanwhile()
+        return [path for paths in results for path in paths]
 
 
 def bench(cfg: DictConfig) -> int:
@@ -217,14 +260,20 @@ def timing_check(cfg: DictConfig) -> int:
 
 
 def report(cfg: DictConfig) -> int:
-    """``python -m magbench report``: redraw the figures and rewrite ``report.md``."""
+    """``python -m magbench report``: redraw the figures and rewrite ``report.md``.
+
+    The figures are drawn by ``n_jobs`` worker processes while this one writes the Markdown
+    report; the HTML page, which embeds the figures, comes last."""
     results_dir = Path(str(cfg.results_dir)).expanduser()
     if not results_dir.is_dir():
         raise UsageError(f"results_dir={results_dir} is not a folder of results; expected the "
                          "folder a sweep wrote (python -m magbench sweep=NAME results_dir=...)")
     writable_folder(results_dir, "results_dir")
-    figures = draw_figures(results_dir)
+    n_jobs = check_common(cfg)["n_jobs"]
     sections = [k.report for k in map(get_kind, kind_names()) if k.report is not None]
-    path = write_report(results_dir, sections)
+    path, texts = results_dir / "report.md", {}     # each section computed once for both
+    figures = draw_figures(results_dir, os.cpu_count() or 1 if n_jobs < 0 else n_jobs,
+                           meanwhile=lambda: write_markdown_report(results_dir, sections, texts))
+    write_report(results_dir, sections, markdown=False, texts=texts)
     print(f"report written to {path} ({len(figures)} figures redrawn from the CSV files)")
     return 0

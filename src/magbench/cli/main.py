@@ -124,7 +124,7 @@ COMMANDS: dict[str, tuple[Callable[..., int], str, str, tuple[str, ...]]] = {
                   "python -m magbench reproduce",
                   ("results_dir", "n_jobs", "progress", "data_dir")),
     "report": (_report, "redraw every figure and rewrite results/report.md from the CSV files",
-               "python -m magbench report", ("results_dir",)),
+               "python -m magbench report", ("results_dir", "n_jobs")),
     "bench": (_bench, "time every method, its scaling with K, peers and parallel speed-up",
               "python -m magbench bench", ("results_dir", "algorithms", "progress",
                                            "timing_check", "sweep", "scale", "n_jobs")),

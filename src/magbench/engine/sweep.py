@@ -67,7 +67,7 @@ from magbench.engine.record import fit_module, method_code, study_code, write_ru
 from magbench.engine.warm import warm_methods
 
 __all__ = ["FolderBusy", "ResultsExist", "Study", "TooLarge", "check_capacity", "finished_run",
-           "folder_lock", "parallel_backend", "run_lock", "run_study"]
+           "folder_lock", "parallel_backend", "run_lock", "run_study", "settings_hash"]
 
 
 class FolderBusy(RuntimeError):
@@ -98,9 +98,16 @@ class Study:
 
     #: The column naming the method of every row of every table, for a study whose rows are
     #: cached per method (it has ``algorithms`` and ``options`` fields, and each unit gives
-    #: each method the same number of rows, one method after another in ``algorithms``
-    #: order, which depend on nothing but the unit and that method); None: whole runs only.
+    #: its rows one entrant after another in :meth:`entrants` order, which depend on nothing
+    #: but the unit and that entrant; how many may differ from unit to unit when each chunk
+    #: holds one unit); None: whole runs only.
     method_column: ClassVar[str | None] = None
+    #: Tables without ``method_column`` whose rows all belong to one entrant: {table: name}.
+    table_owner: ClassVar[Mapping[str, str]] = {}
+    #: True when an entrant's rows per unit may differ from unit to unit (a skipped case):
+    #: the run then cuts chunks of one unit, whatever ``chunk_size``, so that each chunk's
+    #: record says how many rows each entrant gave (rows cached per method need it).
+    ragged: ClassVar[bool] = False
     #: Settings that are not part of :meth:`base_fingerprint`: the methods' own.
     method_fields: ClassVar[tuple[str, ...]] = ("algorithms", "options", "plugins")
 
@@ -139,8 +146,14 @@ class Study:
                       "tables": {k: list(v[1]) for k, v in self.tables.items()},
                       "code": study_code(type(self).__module__)})
 
+    def entrants(self) -> list[str]:
+        """The names whose rows are cached one by one (the ``method_column`` values, in row
+        order within a unit): the selected ``algorithms`` unless a study has entrants of its
+        own (an automatic choice, peers), with keys from :meth:`method_key`."""
+        return list(self.algorithms)
+
     def with_methods(self, names: Sequence[str]) -> Study:
-        """The same study on the methods ``names`` only (their options kept)."""
+        """The same study on the entrants ``names`` only (their options kept)."""
         options = getattr(self, "options", None) or {}
         return dataclasses.replace(self, algorithms=tuple(names),
                                    options={k: v for k, v in options.items() if k in names})
@@ -156,10 +169,23 @@ class Study:
         return {"options": _hash(json.loads(json.dumps(options, default=str))),
                 "code": f"{module}:{method_code(module)}"}
 
-def _hash(data: object) -> str:
-    """SHA-256 (16 hex digits) of ``data`` as sorted JSON."""
+def settings_hash(data: object) -> str:
+    """SHA-256 (16 hex digits) of ``data`` as sorted JSON: the fingerprints' and keys' hash.
+
+    Parameters
+    ----------
+    data : object
+        Plain data (anything JSON takes; other values as their ``str``).
+
+    Returns
+    -------
+    str
+    """
     text = json.dumps(data, sort_keys=True, default=str)
     return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
+_hash = settings_hash
 
 
 @contextlib.contextmanager
@@ -430,17 +456,20 @@ class _Parts:
             write_csv_atomic(pd.DataFrame(rows.get(table, []), columns=list(columns)), path)
             sums[table] = {"rows": len(rows.get(table, [])), "sha256": file_sha256(path)}
             if column is not None:
-                layout[table] = _layout(rows.get(table, []), stop - start, column)
+                owner = self.study.table_owner.get(table)
+                layout[table] = (_layout(rows.get(table, []), stop - start, column)
+                                 if owner is None else
+                                 _owned_layout(rows.get(table, []), stop - start, owner))
         if column is not None:
             sums["layout"] = layout
         # The record goes last: a chunk counts as done only once all its tables are in place.
         write_text_atomic(json.dumps(sums), self.dir / f"{self._stem(start, stop)}.json")
 
-    def layout(self, chunks: Sequence[tuple[int, int]]) -> dict[str, list] | None:
-        """The rows per unit of each method in every table, ``{table: [[method, n], ...]}``,
-        if every chunk gives the same (None otherwise, or for a study without
-        ``method_column``)."""
-        found = None
+    def layout(self, chunks: Sequence[tuple[int, int]]) -> list[dict[str, list]] | None:
+        """The rows of each entrant in every table, one ``{table: [[method, n], ...]}`` per
+        unit of ``chunks`` (each chunk's units alike), or None when a chunk's units differ
+        (or for a study without ``method_column``)."""
+        out: list[dict[str, list]] = []
         for start, stop in chunks:
             try:
                 layout = json.loads((self.dir / f"{self._stem(start, stop)}.json")
@@ -449,41 +478,39 @@ class _Parts:
                 return None
             if not layout or any(v is None for v in layout.values()):
                 return None
-            if found is None:
-                found = layout
-            elif layout != found:
-                return None
-        return found
+            out.extend([layout] * (stop - start))
+        return out
 
     def merge_with(self, chunks: Sequence[tuple[int, int]], table: str, dest: Path,
-                   staged: _Staged, computed: Sequence[tuple[str, int]],
+                   staged: _Staged, computed: Sequence[Mapping[str, list]],
                    order: Sequence[str]) -> int:
-        """Interleave, unit by unit, the reused rows (``staged``) and the chunks' rows (whose
-        methods give ``computed`` rows per unit) into ``dest``, methods in ``order``."""
-        reused = staged.layout(table)
+        """Interleave, unit by unit, the reused rows (``staged``) and the chunks' rows
+        (``computed``: each unit's ``{table: [[method, n], ...]}``, :meth:`layout`) into
+        ``dest``, methods in ``order``."""
         column = self.study.method_column
         n = 0
         with atomic_path(dest) as tmp, open(tmp, "w", newline="") as out, \
                 open(staged.path(table), newline="") as old:
             header = old.readline()
             out.write(header)
-            index = next(csv.reader([header])).index(column)
+            index = _column_index(header, column, table in self.study.table_owner)
             old_records = _records(old)
             for start, stop in chunks:
                 with open(self.path(start, stop, table), newline="") as part:
                     if part.readline() != header:
                         raise ValueError(f"{part.name}: header differs from the reused rows'")
                     new_records = _records(part)
-                    for _ in range(start, stop):
-                        unit = _take(old_records, reused, index, old.name)
-                        unit.update(_take(new_records, computed, index, part.name))
+                    for u in range(start, stop):
+                        unit = _take(old_records, staged.layout(table, u), index, old.name)
+                        unit.update(_take(new_records, computed[u].get(table, []), index,
+                                          part.name))
                         for method in order:
                             for record in unit.get(method, ()):
                                 out.write(record)
                                 n += 1
             if not chunks:
-                for _ in range(staged.units):
-                    unit = _take(old_records, reused, index, old.name)
+                for u in range(staged.units):
+                    unit = _take(old_records, staged.layout(table, u), index, old.name)
                     for method in order:
                         for record in unit.get(method, ()):
                             out.write(record)
@@ -528,6 +555,31 @@ def _layout(rows: Sequence[dict], n_units: int, column: str) -> list[list] | Non
     return runs
 
 
+def _owned_layout(rows: Sequence[dict], n_units: int, owner: str) -> list[list] | None:
+    """:func:`_layout` of a table whose rows all belong to ``owner``: known for a chunk of
+    one unit (or without rows); with more, nothing tells how the rows split among them."""
+    if not rows:
+        return []
+    return [[owner, len(rows)]] if n_units == 1 else None
+
+
+def _column_index(header: str, column: str | None, owned: bool) -> int | None:
+    """Where ``column`` is in a table's header (None for a table owned by one entrant)."""
+    return None if owned else next(csv.reader([header])).index(column)
+
+
+def _count(value: int | Sequence[int], unit: int) -> int:
+    """An entrant's rows in ``unit``: ``run.json`` keeps one number when every unit gives
+    the same, else one per unit."""
+    return int(value) if isinstance(value, int) else int(value[unit])
+
+
+def _compact(counts: Sequence[int]) -> int | list[int]:
+    """One number when every unit gives the same rows, else the list (for ``run.json``)."""
+    return int(counts[0]) if counts and all(c == counts[0] for c in counts) else \
+        [int(c) for c in counts] if counts else 0
+
+
 def _records(handle: IO[str]) -> Iterator[str]:
     """The raw CSV records of ``handle`` (read with ``newline=""``), each with its line end:
     a quoted field may hold line breaks, so lines are joined while a quote is open."""
@@ -541,10 +593,10 @@ def _records(handle: IO[str]) -> Iterator[str]:
         yield pending
 
 
-def _take(records: Iterator[str], layout: Sequence[tuple[str, int]], index: int,
+def _take(records: Iterator[str], layout: Sequence[tuple[str, int]], index: int | None,
           where: str) -> dict[str, list[str]]:
     """One unit's records from ``records``: ``n`` of each method of ``layout`` in turn, each
-    checked to name its method in column ``index``."""
+    checked to name its method in column ``index`` (None: a table owned by one entrant)."""
     unit: dict[str, list[str]] = {}
     for method, n in layout:
         got = unit.setdefault(method, [])
@@ -552,7 +604,7 @@ def _take(records: Iterator[str], layout: Sequence[tuple[str, int]], index: int,
             record = next(records, None)
             if record is None:
                 raise ValueError(f"{where}: fewer rows than its layout says")
-            if next(csv.reader(io.StringIO(record)))[index] != method:
+            if index is not None and next(csv.reader(io.StringIO(record)))[index] != method:
                 raise ValueError(f"{where}: a row of another method where {method}'s was due")
             got.append(record)
     return unit
@@ -581,9 +633,9 @@ class _Staged:
     def units(self) -> int:
         return int(self.record.get("units", 0))
 
-    def layout(self, table: str) -> list[tuple[str, int]]:
+    def layout(self, table: str, unit: int) -> list[tuple[str, int]]:
         per = self.record["rows_per_unit"]
-        return [(m, int(per[m][table])) for m in self.methods]
+        return [(m, _count(per[m][table], unit)) for m in self.methods]
 
     def load(self, study: Study, keys: Mapping[str, str]) -> bool:
         """Take an intact ``reused.json`` of this study whose keys still hold; False (and
@@ -614,22 +666,23 @@ class _Staged:
     def extract(self, study: Study, source: _Source, methods: Sequence[str]) -> bool:
         """Copy ``methods``' rows out of the finished tables of ``source``; False (nothing
         staged, with a warning) if those tables do not hold what their record says."""
-        order = [m for m in study.algorithms if m in methods]
+        order = [m for m in study.entrants() if m in methods]
         column = study.method_column
         tables = {}
         try:
             for table, (file, _) in study.tables.items():
-                layout = [(m, int(source.methods[m]["rows_per_unit"][table]))
-                          for m in source.order]
+                per = [source.methods[m]["rows_per_unit"][table] for m in source.order]
                 dest = self.path(table)
                 with atomic_path(dest) as tmp, open(tmp, "w", newline="") as out, \
                         open(source.folder / file, newline="") as old:
                     header = old.readline()
                     out.write(header)
-                    index = next(csv.reader([header])).index(column)
+                    index = _column_index(header, column, table in study.table_owner)
                     records = _records(old)
                     n = 0
-                    for _ in range(source.units):
+                    for u in range(source.units):
+                        layout = [(m, _count(v, u)) for m, v in zip(source.order, per,
+                                                                    strict=True)]
                         unit = _take(records, layout, index, old.name)
                         for method in order:
                             out.writelines(unit[method])
@@ -669,7 +722,7 @@ def _method_keys(study: Study) -> dict[str, dict] | None:
     if not isinstance(getattr(study, "algorithms", None), Sequence):
         return None
     out = {}
-    for name in study.algorithms:
+    for name in study.entrants():
         parts = study.method_key(name)
         out[name] = {**parts, "key": _hash(parts)}
     return out
@@ -732,23 +785,26 @@ def _same_methods(study: Study, out_dir: Path, keys: Mapping[str, dict] | None) 
 
 
 def _method_record(study: Study, keys: Mapping[str, dict], staged: _Staged,
-                   computed: Mapping[str, list] | None) -> dict:
-    """run.json's per-method part: the base, the method order, each method's key, options and
-    code hashes and rows per unit of each table (absent when not known: not reusable later),
-    and which methods this run reused and computed."""
+                   computed: Sequence[Mapping[str, list]] | None) -> dict:
+    """run.json's per-method part: the base, the entrant order, each entrant's key, options
+    and code hashes and rows per unit of each table (one number, or one per unit when they
+    differ; absent when not known: not reusable later), and which this run reused and
+    computed. ``computed``: each unit's layout (:meth:`_Parts.layout`)."""
     methods = {}
-    for name in study.algorithms:
+    entrants = study.entrants()
+    for name in entrants:
         entry = {k: keys[name][k] for k in ("key", "options", "code")}
         if name in staged.methods:
             entry["rows_per_unit"] = staged.record["rows_per_unit"][name]
         elif computed is not None:
-            entry["rows_per_unit"] = {t: dict(map(tuple, computed.get(t, []))).get(name, 0)
-                                      for t in study.tables}
+            entry["rows_per_unit"] = {
+                t: _compact([dict(map(tuple, unit.get(t, []))).get(name, 0)
+                             for unit in computed]) for t in study.tables}
         methods[name] = entry
-    return {"base": study.base_fingerprint(), "method_order": list(study.algorithms),
+    return {"base": study.base_fingerprint(), "method_order": entrants,
             "methods": methods, "methods_reused": staged.methods,
             "reused_from": staged.record.get("source_fingerprint", "") if staged.methods else "",
-            "methods_computed": [m for m in study.algorithms if m not in staged.methods]}
+            "methods_computed": [m for m in entrants if m not in staged.methods]}
 
 
 def _plan_message(out_dir: Path, reused: Sequence[str], compute: Mapping[str, str]) -> str:
@@ -1015,6 +1071,8 @@ def run_study(study: Study, out_dir: Path | str, *, n_jobs: int = 1, chunk_size:
     started, clock = datetime.now(UTC), time.perf_counter()
     load_plugins(study.plugins)
     units = study.units()
+    if study.ragged and study.method_column is not None:
+        chunk_size = 1
     chunks = [(s, min(s + chunk_size, len(units))) for s in range(0, len(units), chunk_size)]
     written = {table: out_dir / file for table, (file, _) in study.tables.items()}
     # Only a run with trials to compute needs the room: a finished one that lacks its figures
@@ -1060,11 +1118,11 @@ def run_study(study: Study, out_dir: Path | str, *, n_jobs: int = 1, chunk_size:
         reasons: dict[str, str] = {}
         if cached:
             if not staged.load(study, keys) and source is not None:
-                same = [m for m in study.algorithms
+                same = [m for m in study.entrants()
                         if source.methods.get(m, {}).get("key") == keys[m]["key"]]
                 if same:
                     staged.extract(study, source, same)
-            for name in study.algorithms:
+            for name in study.entrants():
                 if name in staged.methods:
                     continue
                 old = (source.methods.get(name) if source else None) or {}
@@ -1073,7 +1131,7 @@ def run_study(study: Study, out_dir: Path | str, *, n_jobs: int = 1, chunk_size:
                                  "options changed" if old.get("options") != keys[name]["options"]
                                  else "not reusable")
         reused = staged.methods
-        compute = [m for m in study.algorithms if m not in reused] if reused else None
+        compute = [m for m in study.entrants() if m not in reused] if reused else None
         work = study if compute is None else study.with_methods(compute)
         parts.fingerprint = work.fingerprint()
         if source is not None or reused:
@@ -1094,15 +1152,14 @@ def run_study(study: Study, out_dir: Path | str, *, n_jobs: int = 1, chunk_size:
                 bar.update(sum(weights[start:stop]))
 
             _run_todo(work, units, todo, parts, done, n_jobs, backend, scheduler_address)
-        computed = parts.layout(run_chunks) if cached and run_chunks else {}
+        computed = parts.layout(run_chunks) if cached and run_chunks else []
         if reused:
             if computed is None:
                 raise RuntimeError(f"{study.name}: the new methods' rows do not come one "
                                    "method after another per unit; they cannot be merged "
                                    "with the reused rows (overwrite=true recomputes all)")
             counts = {table: parts.merge_with(run_chunks, table, written[table], staged,
-                                              [tuple(x) for x in computed.get(table, [])],
-                                              list(study.algorithms))
+                                              computed, study.entrants())
                       for table in study.tables}
         else:
             counts = {table: parts.merge(chunks, table, written[table])

@@ -23,14 +23,15 @@ from magbench.report.claims import claims_section
 from magbench.report.decision import decision_section
 from magbench.report.efficiency import efficiency_section
 from magbench.report.format import render, shorten_for_markdown
-from magbench.report.html import slug, write_html
+from magbench.report.html import section_text, slug, write_html
 from magbench.report.speed import bench_report_section
 from magbench.report.sweeps import SWEEP_SECTIONS, sweep_section
 from magbench.report.table2 import write_sweep_tables
 from magbench.report.table4 import table4_section
 
 __all__ = ["HTML_DETAILS", "REVIEW_SECTIONS", "Section", "build_report", "contents",
-           "header_section", "link_sections", "write_report", "write_sweep_tables"]
+           "header_section", "link_sections", "write_markdown_report", "write_report",
+           "write_sweep_tables"]
 
 #: A report section: the results folder -> its Markdown ('' when it has nothing to say).
 Section = Callable[[Path], str]
@@ -76,14 +77,16 @@ def link_sections(markdown: str) -> str:
     return _SECTION_REF.sub(link, markdown)
 
 
-def build_report(results_dir: Path | str, sections: Sequence[Section] = ()) -> str:
+def build_report(results_dir: Path | str, sections: Sequence[Section] = (),
+                 texts: dict | None = None) -> str:
     """The Markdown of ``results/report.md``, from the CSV files under ``results_dir``:
     :data:`REVIEW_SECTIONS`, then ``sections`` (the study kinds' own parts, in the registry's
     order), then the benchmark's, each ending with a blank line; empty sections are left
-    out."""
+    out. ``texts``: a store of section texts the page reuses
+    (:func:`~magbench.report.html.section_text`)."""
     results_dir = Path(results_dir)
-    parts = [section(results_dir) for section in (*REVIEW_SECTIONS, *sections,
-                                                   bench_report_section)]
+    parts = [section_text(section, results_dir, texts)
+             for section in (*REVIEW_SECTIONS, *sections, bench_report_section)]
     text = link_sections(shorten_for_markdown(
         "\n".join(part.strip() + "\n" for part in parts if part)))
     toc = contents(text)
@@ -93,12 +96,28 @@ def build_report(results_dir: Path | str, sections: Sequence[Section] = ()) -> s
     return head + "\n**Contents**\n\n" + toc + "\n\n## " + rest
 
 
-def write_report(results_dir: Path | str, sections: Sequence[Section] = ()) -> Path:
-    """Write ``<results_dir>/report.md`` and ``report.html`` from the CSV files (figures are
-    drawn separately, before: the page embeds them); ``sections`` as in
-    :func:`build_report`. Returns the Markdown report's path."""
+def write_markdown_report(results_dir: Path | str, sections: Sequence[Section] = (),
+                          texts: dict | None = None) -> Path:
+    """Write ``<results_dir>/report.md`` from the CSV files (it links the figures, so it may
+    be written while they are drawn); ``sections`` and ``texts`` as in :func:`build_report`.
+    Returns its path."""
+    path = Path(results_dir) / "report.md"
+    write_text_atomic(build_report(results_dir, sections, texts), path)
+    return path
+
+
+def write_report(results_dir: Path | str, sections: Sequence[Section] = (), *,
+                 markdown: bool = True, texts: dict | None = None) -> Path:
+    """Write ``<results_dir>/report.md`` (unless ``markdown`` is False: written already, by
+    :func:`write_markdown_report`) and ``report.html`` from the CSV files (figures are drawn
+    separately, before: the page embeds them); ``sections`` as in :func:`build_report`.
+    Each section is computed once for both (``texts``: the store of a Markdown report
+    written before). Returns the Markdown report's path."""
     results_dir = Path(results_dir)
     path = results_dir / "report.md"
-    write_text_atomic(build_report(results_dir, sections), path)
-    write_html(results_dir, (*REVIEW_SECTIONS, *sections, bench_report_section), HTML_DETAILS)
+    texts = {} if texts is None else texts
+    if markdown:
+        write_markdown_report(results_dir, sections, texts)
+    write_html(results_dir, (*REVIEW_SECTIONS, *sections, bench_report_section), HTML_DETAILS,
+               texts)
     return path

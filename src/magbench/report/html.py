@@ -282,17 +282,29 @@ def _toc(body: str) -> str:
             + "</ul></nav>")
 
 
+def section_text(section: Callable[[Path], str], results_dir: Path,
+                 texts: dict | None = None) -> str:
+    """``section(results_dir)``, computed once per ``texts`` (a report's store, shared by its
+    Markdown and its page, which show the same sections); every time without one."""
+    if texts is None:
+        return section(results_dir)
+    if section not in texts:
+        texts[section] = section(results_dir)
+    return texts[section]
+
+
 def build_html(results_dir: Path | str, sections: Sequence[Callable[[Path], str]],
-               details: dict[Callable[[Path], str], Callable[[Path], str]] | None = None
-               ) -> str:
+               details: dict[Callable[[Path], str], Callable[[Path], str]] | None = None,
+               texts: dict | None = None) -> str:
     """The page: every section's Markdown as HTML, the decision table marked, a table of
     contents after the title. ``details`` maps a section to Markdown the page adds under
-    it, folded (the reasoning the Markdown report leaves to the page)."""
+    it, folded (the reasoning the Markdown report leaves to the page); ``texts`` as in
+    :func:`section_text`."""
     results_dir = Path(results_dir)
     details = details or {}
     parts = []
     for section in sections:
-        md = section(results_dir)
+        md = section_text(section, results_dir, texts)
         if not md:
             continue
         html = md_to_html(md.strip(), results_dir)
@@ -324,8 +336,8 @@ def build_html(results_dir: Path | str, sections: Sequence[Callable[[Path], str]
 
 
 def write_html(results_dir: Path | str, sections: Sequence[Callable[[Path], str]],
-               details: dict | None = None) -> Path:
+               details: dict | None = None, texts: dict | None = None) -> Path:
     """Write ``<results_dir>/report.html`` (see :func:`build_html`)."""
     path = Path(results_dir) / "report.html"
-    write_text_atomic(build_html(results_dir, sections, details), path)
+    write_text_atomic(build_html(results_dir, sections, details, texts), path)
     return path

@@ -52,7 +52,7 @@ from magbench.core.geometry import coverage, sphere_fit, unit_rows
 from magbench.core.model import Calibration
 from magbench.core.robust import screen
 from magbench.core.seeding import rng
-from magbench.engine.sweep import Study
+from magbench.engine.sweep import Study, settings_hash
 from magbench.engine.trial import run_method
 from magbench.pipeline.auto import candidate_rounds
 from magbench.pipeline.bootstrap import bootstrap_check
@@ -60,7 +60,7 @@ from magbench.pipeline.decision import decide, written_correction
 from magbench.pipeline.fitting import DEFAULT_MAX_SAMPLES, applicability, fit_recording, is_usable
 from magbench.pipeline.holdout import estimate
 from magbench.sources.recordings import Recording, load_recording
-from magbench.studies.peers import PEER_NEEDS_FIELD, available_peers, fit_peer
+from magbench.studies.peers import PEER_FITS, PEER_NEEDS_FIELD, available_peers, fit_peer
 
 if TYPE_CHECKING:
     import pandas as pd
@@ -99,6 +99,16 @@ def tolerance(best: float) -> float:
 def tolerance_deg(best: float) -> float:
     """How much worse than ``best`` (deg) a direction spread still ties: max(1 deg, 10 %)."""
     return max(1.0, 0.1 * best)
+
+
+def _candidate_pool() -> list[str]:
+    """Every method ``calibrate``'s automatic choice may fit on some recording (with or
+    without a gyroscope, either round): what its rows depend on."""
+    pool: list[str] = []
+    for gyro in (False, True):
+        for names in candidate_rounds(gyro, "auto"):
+            pool += [m for m in names if m not in pool]
+    return pool
 
 
 def fixed_methods() -> list[str]:
@@ -263,10 +273,22 @@ def _peers() -> list[str]:
     return [n for n in available_peers() if n not in PEER_NEEDS_FIELD]
 
 
-def _peer_rows(rec, protocol, fit, test, raw, radius, centre):
+def _peer_version(name: str) -> str:
+    """The installed version of the package peer ``name`` comes from (what its rows depend
+    on besides its adapter, whose code is the study's)."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    package = PEER_FITS[name][0].split(".")[0]
+    try:
+        return f"{package} {version(package)}"
+    except PackageNotFoundError:
+        return f"{package} (version unknown)"
+
+
+def _peer_rows(rec, protocol, fit, test, raw, radius, centre, names=None):
     thin = fit.thinned(DEFAULT_MAX_SAMPLES)
     rows, times = [], []
-    for name in _peers():
+    for name in _peers() if names is None else names:
         start = time.perf_counter()
         try:
             with warnings.catch_warnings():     # a peer's own warnings are not the user's
@@ -310,16 +332,20 @@ def _auto_row(rec, protocol, fit, test, raw, options, seed, timeout, radius, cen
 
 
 def evaluate_protocol(rec: Recording, protocol: str, *, fixed: Sequence[str],
-                      peers: bool = True, options: dict | None = None, seed: int = 0,
-                      call_timeout_s: float | None = None, field: float | None = None
+                      peers: bool | Sequence[str] = True, options: dict | None = None,
+                      seed: int = 0, call_timeout_s: float | None = None,
+                      field: float | None = None, auto: bool = True
                       ) -> tuple[list[dict], list[dict]]:
     """Rows (and their times) of every entrant on ``rec`` under ``protocol``: the automatic
-    choice, each of ``fixed``, each installed peer (``peers``); one skipped row when the
-    protocol does not apply. ``field``: the recording's field strength, the raw spread's
-    scale (its robust radius by default; a caller running every protocol passes it once)."""
+    choice (``auto``), each of ``fixed``, each installed peer (``peers``: True, or the peers
+    to run); one skipped row when the protocol does not apply. ``field``: the recording's
+    field strength, the raw spread's scale (its robust radius by default; a caller running
+    every protocol passes it once)."""
     options = options or {}
     parts = split(rec, protocol, seed)
     if isinstance(parts, str):
+        if not auto:
+            return [], []
         empty = replace(rec, y=np.zeros((0, 3)), t=None, gyro=None, extra=None)
         row = _row(rec, protocol, AUTO, "auto", empty, empty, (np.nan,) * 3,
                    status="SKIPPED", error=parts)
@@ -331,16 +357,18 @@ def evaluate_protocol(rec: Recording, protocol: str, *, fixed: Sequence[str],
     raw = (scores(test, field=field)[0], direction, mean_spread)
     centre, radius = sphere_fit(fit.y)
     rows, times = [], []
-    row, t = _auto_row(rec, protocol, fit, test, raw, options, seed, call_timeout_s, radius,
-                       centre)
-    rows.append(row)
-    times.append(t)
+    if auto:
+        row, t = _auto_row(rec, protocol, fit, test, raw, options, seed, call_timeout_s,
+                           radius, centre)
+        rows.append(row)
+        times.append(t)
     r, t = _fixed_rows(rec, protocol, fit, test, raw, fixed, options, seed, call_timeout_s,
                        radius, centre)
     rows += r
     times += t
     if peers:
-        r, t = _peer_rows(rec, protocol, fit, test, raw, radius, centre)
+        r, t = _peer_rows(rec, protocol, fit, test, raw, radius, centre,
+                          None if peers is True else list(peers))
         rows += r
         times += t
     return rows, [{"dataset": rec.name, "protocol": protocol, "algorithm": r["algorithm"],
@@ -383,7 +411,15 @@ def interval_rows(rec: Recording, *, options: dict | None = None, seed: int = 0,
 
 @dataclass(frozen=True)
 class GeneralisationStudy(Study):
-    """One work unit per recording: every protocol, then the interval check."""
+    """One work unit per recording: every protocol, then the interval check.
+
+    Rows are cached per entrant (:meth:`entrants`): a unit's rows come entrant by entrant
+    (calibrate's choice on every protocol, then each fixed method, then each peer), the
+    interval check is calibrate's. Calibrate's key is its whole candidate pool (every
+    method it may fit on a recording, with its options and code), so a method added to the
+    pool, a plugin that is a candidate among them, recomputes its rows; a peer's key is its
+    package's version. ``only`` (None: every entrant) is what a cached run computes.
+    """
 
     root: str
     datasets: Sequence[str]
@@ -396,12 +432,36 @@ class GeneralisationStudy(Study):
     call_timeout_s: float | None = None
     plugins: Sequence[str] = ()
     name: str = "generalisation"
+    only: tuple[str, ...] | None = None
 
     tables: ClassVar[dict] = {
         "trials": ("generalisation_trials.csv", ROW_COLUMNS),
         "times": ("generalisation_trials_times.csv",
                   ["dataset", "protocol", "algorithm", "time_s"]),
         "intervals": ("generalisation_intervals.csv", INTERVAL_COLUMNS)}
+    method_column: ClassVar[str] = "algorithm"
+    method_fields: ClassVar[tuple[str, ...]] = ("algorithms", "options", "plugins", "only")
+    table_owner: ClassVar[dict] = {"intervals": AUTO}
+    ragged: ClassVar[bool] = True       # a skipped protocol has calibrate's row only
+
+    def entrants(self) -> list[str]:
+        every = [AUTO, *self.algorithms, *(_peers() if self.peers else [])]
+        return every if self.only is None else [e for e in every if e in self.only]
+
+    def with_methods(self, names: Sequence[str]) -> GeneralisationStudy:
+        # Every option is kept: calibrate's choice fits candidates that are not entrants.
+        return replace(self, only=tuple(names))
+
+    def method_key(self, name: str) -> dict[str, str]:
+        if name == AUTO:
+            pool = _candidate_pool()
+            keys = {m: Study.method_key(self, m) for m in pool}
+            return {"options": settings_hash({m: k["options"] for m, k in keys.items()}),
+                    "code": f"candidates {','.join(pool)}:"
+                            f"{settings_hash({m: k['code'] for m, k in keys.items()})}"}
+        if name in PEER_FITS:
+            return {"options": "", "code": _peer_version(name)}
+        return super().method_key(name)
 
     def units(self) -> list[str]:
         return list(self.datasets)
@@ -416,17 +476,26 @@ class GeneralisationStudy(Study):
 
     def run_unit(self, name: str) -> dict[str, list[dict]]:
         rec = load_recording(self.root, name, check=False)
-        rows, times = [], []
+        entrants = self.entrants()
+        per: dict[str, tuple[list, list]] = {e: ([], []) for e in entrants}
         field = screen(rec.y).radius
         for protocol in self.protocols:
-            r, t = evaluate_protocol(rec, protocol, fixed=list(self.algorithms),
-                                     peers=self.peers, options=self.options, seed=self.seed,
-                                     call_timeout_s=self.call_timeout_s, field=field)
-            rows += r
-            times += t
+            r, t = evaluate_protocol(rec, protocol,
+                                     fixed=[a for a in self.algorithms if a in per],
+                                     peers=[p for p in entrants if p in PEER_FITS],
+                                     options=self.options, seed=self.seed,
+                                     call_timeout_s=self.call_timeout_s, field=field,
+                                     auto=AUTO in per)
+            for row, time_row in zip(r, t, strict=True):
+                per[row["algorithm"]][0].append(row)
+                per[row["algorithm"]][1].append(time_row)
+        # Entrant by entrant (the engine caches each one's rows), protocols in order within.
+        rows = [row for e in entrants for row in per[e][0]]
+        times = [row for e in entrants for row in per[e][1]]
         intervals = interval_rows(rec, options=self.options, seed=self.seed,
                                   bootstrap=self.bootstrap,
-                                  call_timeout_s=self.call_timeout_s) if self.bootstrap else []
+                                  call_timeout_s=self.call_timeout_s) \
+            if self.bootstrap and AUTO in per else []
         return {"trials": rows, "times": times, "intervals": intervals}
 
     def summarize(self, out_dir: Path | str) -> None:

@@ -78,6 +78,9 @@ class RealStudy(Study):
     tables: ClassVar[dict] = {"trials": ("real_trials.csv", REAL_ROW_COLUMNS),
                               "times": ("real_trials_times.csv",
                                         ["dataset", "algorithm", "time_s"])}
+    #: Rows cached per method: a recording's rows come method by method (each method's
+    #: preprocessings and fits together); :meth:`summarize` reads them preprocessing first.
+    method_column: ClassVar[str] = "algorithm"
 
     def units(self) -> list[str]:
         return list(self.datasets)
@@ -99,10 +102,12 @@ class RealStudy(Study):
         if name in PARTNERS and PARTNERS[name] in self.datasets:
             partner = load_recording(self.root, PARTNERS[name],
                                      check=False).thinned(self.max_samples)
-        rows, times = split_times(evaluate_recording(
+        rows = evaluate_recording(
             rec, self.algorithms, self.preprocess, options=self.options, seed=self.seed,
             partner=partner, call_timeout_s=self.call_timeout_s,
-            coverage_ratio=self.coverage_ratio, sphere_factor=self.sphere_factor), "dataset")
+            coverage_ratio=self.coverage_ratio, sphere_factor=self.sphere_factor)
+        order = {name: i for i, name in enumerate(self.algorithms)}
+        rows, times = split_times(sorted(rows, key=lambda r: order[r["algorithm"]]), "dataset")
         return {"trials": rows, "times": times}
 
     def summarize(self, out_dir: Path | str) -> tuple[pd.DataFrame, pd.DataFrame]:
@@ -115,6 +120,13 @@ class RealStudy(Study):
         trials["error"] = trials["error"].fillna("")
         trials["test_on"] = trials["test_on"].fillna("")
         trials = with_times(trials, out_dir / "real_trials.csv", "dataset")
+        # Preprocessing first within a recording, methods in their order (the summaries'
+        # order), whatever the order of the rows in the file.
+        first = {name: i for i, name in enumerate(dict.fromkeys(trials["dataset"]))}
+        how = {name: i for i, name in enumerate(self.preprocess)}
+        trials = trials.iloc[np.lexsort((trials["preprocess"].map(how).to_numpy(),
+                                         trials["dataset"].map(first).to_numpy()))]
+        trials = trials.reset_index(drop=True)
         per_recording = recording_summary(trials)
         per_method = method_summary(per_recording)
         write_csv_atomic(per_recording, out_dir / "real_summary.csv")

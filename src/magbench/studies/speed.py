@@ -13,6 +13,7 @@ import functools
 import importlib.util
 import math
 import os
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -623,6 +624,10 @@ def added(samples):
     return _fang(samples)
 """
 ADDED_METHOD = "bench_added"
+#: The same fit as a variant, which ``calibrate`` never takes for a candidate: adding it leaves
+#: calibrate's rows of the generalisation sweep as they are.
+ADDED_VARIANT = ADDED_PLUGIN.replace('"bench_added"', '"bench_variant"').replace(
+    'family="extra"', 'family="variant"')
 
 
 def added_method_seconds(results_dir: Path | str, name: str = ADDED_METHOD) -> float:
@@ -642,7 +647,10 @@ def bench_reproduce(n_jobs: int = 2, data_dir: str | None = None,
     """``make reproduce`` timed three ways, each a fresh ``python -m magbench`` in a temporary
     folder (never ``results/``): the first run's compilation (``warmup`` with an empty numba
     cache), a full reproduce into an empty folder, and the same reproduce again with one
-    plugin method added (:data:`ADDED_PLUGIN`), which computes only that method's rows.
+    plugin method added (:data:`ADDED_PLUGIN`), which computes only that method's rows and,
+    as the method is one of calibrate's candidates, calibrate's rows of the generalisation
+    sweep; and, from a copy of the full reproduce, with the method added as a variant
+    (:data:`ADDED_VARIANT`, not a candidate).
 
     Returns one row per case: ``case``, ``wall_s``, ``cpu_s`` (the process and its workers),
     ``method_s`` (the added method's own calls, for the incremental case) and
@@ -671,15 +679,23 @@ def bench_reproduce(n_jobs: int = 2, data_dir: str | None = None,
             progress(f"make reproduce: {wall:.1f} s wall, {cpu:.1f} CPU-s")
         (tmp / "plugin").mkdir()
         (tmp / "plugin" / "bench_added_plugin.py").write_text(ADDED_PLUGIN)
+        (tmp / "plugin" / "bench_variant_plugin.py").write_text(ADDED_VARIANT)
         added_env = dict(env, PYTHONPATH=os.pathsep.join(
             filter(None, [str(tmp / "plugin"), env.get("PYTHONPATH")])))
-        wall, cpu, _ = _timed_run([*base, "plugins=[bench_added_plugin]"], added_env)
-        own = added_method_seconds(out)
-        rows.append({"case": "make reproduce again, one plugin method added", "wall_s": wall,
-                     "cpu_s": cpu, "method_s": own, "beyond_method_s": wall - own})
-        if progress:
-            progress(f"one method added: {wall:.1f} s wall ({own:.1f} s in its own calls), "
-                     f"{cpu:.1f} CPU-s")
+        shutil.copytree(out, tmp / "repro_variant")
+        for case, module, name, folder in (
+                ("make reproduce again, one plugin method added", "bench_added_plugin",
+                 ADDED_METHOD, out),
+                ("the same, the method a variant (not a calibrate candidate)",
+                 "bench_variant_plugin", "bench_variant", tmp / "repro_variant")):
+            command = [*base[:4], f"results_dir={folder}", *base[5:], f"plugins=[{module}]"]
+            wall, cpu, _ = _timed_run(command, added_env)
+            own = added_method_seconds(folder, name)
+            rows.append({"case": case, "wall_s": wall, "cpu_s": cpu, "method_s": own,
+                         "beyond_method_s": wall - own})
+            if progress:
+                progress(f"{case}: {wall:.1f} s wall ({own:.1f} s in its own calls), "
+                         f"{cpu:.1f} CPU-s")
     table = pd.DataFrame(rows, columns=["case", "wall_s", "cpu_s", "method_s",
                                         "beyond_method_s"])
     table["cpu_model"] = cpu_model()

@@ -42,7 +42,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import ClassVar
 
@@ -198,6 +198,7 @@ class WuShiStudy(Study):
     call_timeout_s: float | None = None
     plugins: Sequence[str] = ()
     name: str = "wushi"
+    only: tuple[str, ...] | None = None       # the entrants a cached run computes (None: all)
 
     tables: ClassVar[dict] = {
         "runs": ("runs.csv", RUN_COLUMNS),
@@ -207,6 +208,27 @@ class WuShiStudy(Study):
                                                    "final_objective", "n_iter", "converged",
                                                    "reason"]),
     }
+
+    #: Rows cached per method: a run's rows come method by method (its control row beside
+    #: its row, on the first ``control_runs`` runs: rows per unit differ); Figures 3 and 6's
+    #: Gauss-Newton runs belong to ML, whose key holds NM's too (they refine with both).
+    method_column: ClassVar[str] = "algorithm"
+    method_fields: ClassVar[tuple[str, ...]] = ("algorithms", "options", "plugins", "only")
+    table_owner: ClassVar[dict] = {"history": ML, "perturbation": ML}
+    ragged: ClassVar[bool] = True
+
+    def entrants(self) -> list[str]:
+        names = self.method_names()
+        return names if self.only is None else [n for n in names if n in self.only]
+
+    def with_methods(self, names: Sequence[str]) -> WuShiStudy:
+        return replace(self, only=tuple(names))
+
+    def method_key(self, name: str) -> dict[str, str]:
+        if name != ML:
+            return super().method_key(name)
+        ml, nm = super().method_key(ML), super().method_key(NM)
+        return {"options": f"{ml['options']}+{nm['options']}", "code": f"{ml['code']}+{nm['code']}"}
 
     def units(self) -> list[int]:
         return list(range(self.runs))
@@ -273,11 +295,14 @@ def run_one(spec: WuShiStudy, run: int) -> dict[str, list[dict]]:
     """Everything for one Monte Carlo run: table rows, Fig. 3 histories, Fig. 6 outcomes."""
     data = simulate(rng(spec.seed, 0, run), spec.N, spec.sigma)
     table = []
-    for name in spec.method_names():
+    names = spec.entrants()
+    for name in names:
         table.append({"run": run, **_method_row(spec, name, data, run)})
         if run < spec.control_runs:
             table.append({"run": run, **_method_row(spec, name, data, run,
                                                     offset_removed=True)})
+    if ML not in names:         # Figures 3 and 6 are ML's rows (a cached run without it)
+        return {"runs": table, "history": [], "perturbation": []}
     scale = unit_scale(data.y)
     history_rows, perturbation_rows = [], []
     try:

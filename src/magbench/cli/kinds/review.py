@@ -88,7 +88,61 @@ def finish(study, out_dir: Path, common: dict) -> None:
         write_timing(study, out_dir, progress=common["progress"])
     summary = study.summarize(out_dir)
     write_sweep_tables(study.name, summary, out_dir, delta=study.delta)
-    write_efficiency(out_dir, study.name, [] if study.axis is None else [study.axis.column])
+    if study.axis is not None or not _extend_efficiency(study, out_dir):
+        write_efficiency(out_dir, study.name, [] if study.axis is None else [study.axis.column])
+    _write_json(out_dir / EFFICIENCY_RECORD, {"fingerprint": study.fingerprint()})
+
+
+#: Beside efficiency.csv: the fingerprint of the run it was computed from.
+EFFICIENCY_RECORD = "efficiency.json"
+
+
+def _write_json(path: Path, data: dict) -> None:
+    import json
+
+    from magbench.core.files import write_text_atomic
+
+    write_text_atomic(json.dumps(data), path)
+
+
+def _extend_efficiency(study, out_dir: Path) -> bool:
+    """After a run that reused some methods' rows, keep their rows of efficiency.csv (each
+    group's bootstrap has its own stream: a method's interval depends on its rows alone) if
+    that file was computed from the run they came from (``efficiency.json``), and compute
+    the others'; False (nothing written) otherwise. The table is the one a whole computation
+    writes: groups in the order of the trials, point by point, methods in order."""
+    import json
+
+    from magbench.core.files import read_csv_columns, write_csv_atomic
+    from magbench.studies.review import POINT_COLUMNS, efficiency_intervals
+
+    try:
+        record = json.loads((out_dir / "run.json").read_text())
+        made_from = json.loads((out_dir / EFFICIENCY_RECORD).read_text())["fingerprint"]
+        old = pd.read_csv(out_dir / "efficiency.csv")
+    except (OSError, ValueError, KeyError, TypeError):
+        return False
+    reused, source = record.get("methods_reused") or [], record.get("reused_from")
+    if not reused or not source or made_from != source:
+        return False
+    by = [*POINT_COLUMNS, "algorithm"]
+    trials = read_csv_columns(out_dir / "trials.csv", [*by, "meaningful", "crb", "sq_err"])
+    fresh = efficiency_intervals(trials[~trials["algorithm"].isin(reused)], by, study.name)
+    kept = old[old["algorithm"].isin(reused)]
+    rows = {name: [r for _, r in frame[frame["algorithm"] == name].iterrows()]
+            for frame, names in ((kept, reused), (fresh, fresh["algorithm"].unique()))
+            for name in names}
+    sizes = trials.groupby(by, sort=False, dropna=False).size()   # in efficiency's order
+    order = [key[-1] for key in sizes.index]
+    counts = {name: order.count(name) for name in set(order)}
+    if any(len(rows.get(name, [])) != n for name, n in counts.items()):
+        return False
+    taken = {name: iter(rows[name]) for name in counts}
+    table = pd.DataFrame([next(taken[name]) for name in order], columns=old.columns)
+    if not (table["n"].to_numpy() == sizes.to_numpy()).all():   # a file of other rows
+        return False
+    write_csv_atomic(table.astype(old.dtypes.to_dict()), out_dir / "efficiency.csv")
+    return True
 
 
 def _extend_timing(study, out_dir: Path, common: dict) -> bool:
