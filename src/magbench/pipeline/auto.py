@@ -36,8 +36,8 @@ if TYPE_CHECKING:     # the ranking table only: calibrate imports this module, n
 __all__ = ["AutoCalibration", "calibrate_auto", "candidate_rounds"]
 
 
-def candidate_rounds(has_gyro: bool, chosen: str | Sequence[str] = "auto"
-                     ) -> tuple[list[str], list[str]]:
+def candidate_rounds(has_gyro: bool, chosen: str | Sequence[str] = "auto", *,
+                     shipped: bool = False) -> tuple[list[str], list[str]]:
     """The first and second round of candidates (``second_round`` of
     :func:`~magbench.pipeline.calibration.calibrate_recording`).
 
@@ -45,17 +45,24 @@ def candidate_rounds(has_gyro: bool, chosen: str | Sequence[str] = "auto"
     never a user's fit), the alignment methods (they need an accelerometer) and, without gyro
     data, the gyro-aided ones, in two rounds
     (:data:`~magbench.pipeline.rounds.FIRST_ROUND` first); ``all``: the same in one round;
-    a list: those methods, in one round.
+    a list: those methods, in one round. ``shipped``: only the methods magbench itself
+    registers (a plugin loaded in this process left out), the choice as shipped.
     """
     if not isinstance(chosen, str):
         return list(chosen), []
     every = [m for m in methods() if get_method(m).family != "variant"
+             and (not shipped or _shipped(m))
              and (get_method(m).magnetometer_only
                   or (has_gyro and not get_method(m).needs_accel))]
     if chosen == "all":
         return every, []
     return ([m for m in every if m in FIRST_ROUND],
             [m for m in every if m not in FIRST_ROUND])
+
+
+def _shipped(name: str) -> bool:
+    """Whether magbench itself registers ``name`` (not a user's plugin)."""
+    return getattr(get_method(name).fit, "__module__", "").split(".")[0] == "magbench"
 
 
 @dataclass(frozen=True)

@@ -102,11 +102,12 @@ def tolerance_deg(best: float) -> float:
 
 
 def _candidate_pool() -> list[str]:
-    """Every method ``calibrate``'s automatic choice may fit on some recording (with or
-    without a gyroscope, either round): what its rows depend on."""
+    """Every method ``calibrate``'s automatic choice as shipped may fit on some recording
+    (with or without a gyroscope, either round): what its rows depend on. A user's plugin is
+    a fixed entrant, not one of its candidates: the study measures the choice users get."""
     pool: list[str] = []
     for gyro in (False, True):
-        for names in candidate_rounds(gyro, "auto"):
+        for names in candidate_rounds(gyro, "auto", shipped=True):
             pool += [m for m in names if m not in pool]
     return pool
 
@@ -306,7 +307,7 @@ def _peer_rows(rec, protocol, fit, test, raw, radius, centre, names=None):
 
 def _auto_row(rec, protocol, fit, test, raw, options, seed, timeout, radius, centre):
     start = time.perf_counter()
-    first, second = candidate_rounds(fit.has_gyro, "auto")
+    first, second = candidate_rounds(fit.has_gyro, "auto", shipped=True)
     try:
         decision = decide(fit, first, second_round=second, options=options, seed=seed,
                           call_timeout_s=timeout, max_samples=DEFAULT_MAX_SAMPLES)
@@ -388,7 +389,7 @@ def interval_rows(rec: Recording, *, options: dict | None = None, seed: int = 0,
         return []
     halves = []
     for part in (rec.rows(np.arange(rec.K // 2)), rec.rows(np.arange(rec.K // 2, rec.K))):
-        first, second = candidate_rounds(part.has_gyro, "auto")
+        first, second = candidate_rounds(part.has_gyro, "auto", shipped=True)
         d = decide(part, first, second_round=second, options=options, seed=seed,
                    call_timeout_s=call_timeout_s, max_samples=DEFAULT_MAX_SAMPLES)
         if not d.written:
