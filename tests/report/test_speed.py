@@ -2,7 +2,7 @@
 
 import pandas as pd
 
-from magbench.report.speed import calibrate_lines
+from magbench.report.speed import calibrate_lines, reproduce_case_lines
 
 
 def test_the_calibrate_table_counts_the_rounds_magbench_was_faster():
@@ -18,3 +18,18 @@ def test_the_calibrate_table_counts_the_rounds_magbench_was_faster():
     # round 2: 0.9 s against magcal's 0.85 s
     assert rows["magcal.ellipsoid_fit"].endswith("| 3 | 0.85 | - | 2 of 3 |")
     assert rows["navlib.cal_mag_twostep_hsi"].endswith("| 3 | 1.2 | - | 3 of 3 |")
+
+
+def test_the_reproduce_cases_table_says_each_case_and_what_lies_beyond_the_method():
+    cases = pd.DataFrame([
+        {"case": "make reproduce, empty results_dir", "wall_s": 263.26, "cpu_s": 473.9,
+         "method_s": float("nan"), "beyond_method_s": float("nan"), "cpu_model": "AMD EPYC",
+         "cpu_count": 2, "load_1min": 2.153},
+        {"case": "make reproduce again, one plugin method added", "wall_s": 38.03,
+         "cpu_s": 64.66, "method_s": 4.505, "beyond_method_s": 33.53, "cpu_model": "AMD EPYC",
+         "cpu_count": 2, "load_1min": 2.153}])
+    lines = reproduce_case_lines(cases)
+    assert "(AMD EPYC, 2 CPUs, load 2.2 at the start" in lines[1]
+    assert "| make reproduce, empty results_dir | 263 | 474 | - | - |" in lines
+    assert "| make reproduce again, one plugin method added | 38 | 64.7 | 4.5 | 33.5 |" in lines
+    assert reproduce_case_lines(cases.iloc[:0]) == []

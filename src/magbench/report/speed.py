@@ -37,6 +37,8 @@ def bench_report_section(results_dir: Path | str) -> str:
         lines += calibrate_lines(pd.read_csv(folder / "calibrate.csv"))
     if (folder / "parallel.csv").exists():
         lines += _parallel_lines(pd.read_csv(folder / "parallel.csv"))
+    if (folder / "reproduce_cases.csv").exists():
+        lines += reproduce_case_lines(pd.read_csv(folder / "reproduce_cases.csv"))
     if (folder / "scale.csv").exists():
         lines += scale_lines(pd.read_csv(folder / "scale.csv"))
     return "\n".join(lines) + "\n"
@@ -93,6 +95,24 @@ def _parallel_lines(par: pd.DataFrame) -> list[str]:
             f"{int(two.methods)} methods took {format_number(par['wall_s'].iloc[0])} s "
             f"with 1 worker and {format_number(two.wall_s)} s with 2 "
             f"(speed-up {format_number(two.speedup, 3)}x on {os.cpu_count()} cores)."]
+
+
+def reproduce_case_lines(cases: pd.DataFrame) -> list[str]:
+    """The table of ``reproduce_cases.csv`` (markdown lines): the first run's compilation,
+    a whole ``make reproduce`` and one method added to a finished one, each with its wall and
+    CPU time and, for a method added, the time in its own calls and beyond them."""
+    if cases.empty:
+        return []
+    first = cases.iloc[0]
+    lines = ["", f"`make reproduce` on this machine ({first.cpu_model}, {int(first.cpu_count)} "
+             f"CPUs, load {format_number(first.load_1min, 2)} at the start; "
+             "`reproduce_cases.csv`):", "",
+             "| case | wall (s) | CPU (s) | in the method's calls (s) | beyond them (s) |",
+             "|---|---:|---:|---:|---:|"]
+    for r in cases.itertuples(index=False):
+        lines.append(f"| {r.case} | {format_number(r.wall_s, 3)} | {format_number(r.cpu_s, 3)} "
+                     f"| {format_number(r.method_s, 2)} | {format_number(r.beyond_method_s, 3)} |")
+    return lines
 
 
 def calibrate_lines(cal: pd.DataFrame) -> list[str]:
