@@ -624,8 +624,8 @@ def added(samples):
     return _fang(samples)
 """
 ADDED_METHOD = "bench_added"
-#: The same fit as a variant, which ``calibrate`` never takes for a candidate: adding it leaves
-#: calibrate's rows of the generalisation sweep as they are.
+#: The same fit as a variant, which ``calibrate`` never takes for a candidate (nor, as shipped,
+#: a plugin: the generalisation sweep's calibrate rows stay as they are either way).
 ADDED_VARIANT = ADDED_PLUGIN.replace('"bench_added"', '"bench_variant"').replace(
     'family="extra"', 'family="variant"')
 
@@ -647,10 +647,10 @@ def bench_reproduce(n_jobs: int = 2, data_dir: str | None = None,
     """``make reproduce`` timed three ways, each a fresh ``python -m magbench`` in a temporary
     folder (never ``results/``): the first run's compilation (``warmup`` with an empty numba
     cache), a full reproduce into an empty folder, and the same reproduce again with one
-    plugin method added (:data:`ADDED_PLUGIN`), which computes only that method's rows and,
-    as the method is one of calibrate's candidates, calibrate's rows of the generalisation
-    sweep; and, from a copy of the full reproduce, with the method added as a variant
-    (:data:`ADDED_VARIANT`, not a candidate).
+    plugin method added (:data:`ADDED_PLUGIN`), which computes only that method's rows (the
+    generalisation sweep scores it as a fixed fit beside calibrate as shipped); and, from a
+    copy of the full reproduce, with the method added as a variant (:data:`ADDED_VARIANT`),
+    which no sweep treats differently any more: the two cases should agree.
 
     Returns one row per case: ``case``, ``wall_s``, ``cpu_s`` (the process and its workers),
     ``method_s`` (the added method's own calls, for the incremental case) and
