@@ -133,7 +133,7 @@ class Study:
 
     def fingerprint(self) -> str:
         """Hash of the settings and tables: parts of another configuration are never reused."""
-        return _hash({"study": type(self).__name__, "settings": self.describe(),
+        return settings_hash({"study": type(self).__name__, "settings": self.describe(),
                       "tables": {k: list(v[1]) for k, v in self.tables.items()}})
 
     def base_fingerprint(self) -> str:
@@ -142,7 +142,7 @@ class Study:
         module and of the magbench modules it uses (:func:`magbench.engine.record.study_code`).
         Rows of two runs with the same base are interchangeable method by method."""
         settings = {k: v for k, v in self.describe().items() if k not in self.method_fields}
-        return _hash({"study": type(self).__name__, "settings": settings,
+        return settings_hash({"study": type(self).__name__, "settings": settings,
                       "tables": {k: list(v[1]) for k, v in self.tables.items()},
                       "code": study_code(type(self).__module__)})
 
@@ -166,7 +166,7 @@ class Study:
 
         options = (getattr(self, "options", None) or {}).get(name) or {}
         module = fit_module(get_method(name).fit)
-        return {"options": _hash(json.loads(json.dumps(options, default=str))),
+        return {"options": settings_hash(json.loads(json.dumps(options, default=str))),
                 "code": f"{module}:{method_code(module)}"}
 
 def settings_hash(data: object) -> str:
@@ -183,9 +183,6 @@ def settings_hash(data: object) -> str:
     """
     text = json.dumps(data, sort_keys=True, default=str)
     return hashlib.sha256(text.encode()).hexdigest()[:16]
-
-
-_hash = settings_hash
 
 
 @contextlib.contextmanager
@@ -724,7 +721,7 @@ def _method_keys(study: Study) -> dict[str, dict] | None:
     out = {}
     for name in study.entrants():
         parts = study.method_key(name)
-        out[name] = {**parts, "key": _hash(parts)}
+        out[name] = {**parts, "key": settings_hash(parts)}
     return out
 
 

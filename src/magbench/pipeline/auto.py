@@ -19,6 +19,7 @@ from magbench.core.geometry import check_geometry
 from magbench.core.model import Calibration, as_samples
 from magbench.core.uncertainty import Intervals
 from magbench.core.verdict import Gate
+from magbench.engine.plugins import plugin_modules
 from magbench.methods.registry import get_method, methods
 from magbench.pipeline.bootstrap import bootstrap_check
 from magbench.pipeline.calibration import calibrate_recording
@@ -51,18 +52,13 @@ def candidate_rounds(has_gyro: bool, chosen: str | Sequence[str] = "auto", *,
     if not isinstance(chosen, str):
         return list(chosen), []
     every = [m for m in methods() if get_method(m).family != "variant"
-             and (not shipped or _shipped(m))
+             and (not shipped or not plugin_modules([m]))
              and (get_method(m).magnetometer_only
                   or (has_gyro and not get_method(m).needs_accel))]
     if chosen == "all":
         return every, []
     return ([m for m in every if m in FIRST_ROUND],
             [m for m in every if m not in FIRST_ROUND])
-
-
-def _shipped(name: str) -> bool:
-    """Whether magbench itself registers ``name`` (not a user's plugin)."""
-    return getattr(get_method(name).fit, "__module__", "").split(".")[0] == "magbench"
 
 
 @dataclass(frozen=True)

@@ -416,10 +416,11 @@ class GeneralisationStudy(Study):
 
     Rows are cached per entrant (:meth:`entrants`): a unit's rows come entrant by entrant
     (calibrate's choice on every protocol, then each fixed method, then each peer), the
-    interval check is calibrate's. Calibrate's key is its whole candidate pool (every
-    method it may fit on a recording, with its options and code), so a method added to the
-    pool, a plugin that is a candidate among them, recomputes its rows; a peer's key is its
-    package's version. ``only`` (None: every entrant) is what a cached run computes.
+    interval check is calibrate's. Calibrate's key is its whole candidate pool as shipped
+    (every method of magbench's it may fit on a recording, with its options and code), so a
+    candidate's options or code changed recompute its rows, while a plugin is a fixed entrant
+    only; a peer's key is its package's version. ``only`` (None: every entrant) is what a
+    cached run computes.
     """
 
     root: str
@@ -522,25 +523,12 @@ def _user_score(row: Mapping, raw: str = "raw_spread_pct") -> float:
     return np.nan if bool(row["degenerate"]) else float(row["spread_pct"])
 
 
-def _direction_loss(auto: Mapping, fixed: pd.DataFrame) -> bool:
-    """Whether the user's world-frame direction spread is worse than the best fixed fit's by
-    more than :func:`tolerance_deg` (False without an attitude)."""
+def _beyond_best_direction(value: float, fixed: pd.DataFrame) -> bool:
+    """Whether a world-frame direction spread ``value`` is worse than the best fixed fit's by
+    more than :func:`tolerance_deg` (NaN is worse; False when no fixed fit has one)."""
     best = fixed["direction_deg"].to_numpy(float)
     best = best[np.isfinite(best)]
-    if not best.size or not np.isfinite(float(auto["raw_direction_deg"])):
-        return False
-    user = float(auto["direction_deg"] if bool(auto["written"]) else auto["raw_direction_deg"])
-    return bool(not user <= best.min() + tolerance_deg(best.min()))
-
-
-def _direction_helps(auto: Mapping, fixed: pd.DataFrame) -> bool:
-    """Whether the best fixed fit's world-frame direction spread beats the raw data's by
-    more than :func:`tolerance_deg` (False without an attitude)."""
-    best = fixed["direction_deg"].to_numpy(float)
-    best = best[np.isfinite(best)]
-    raw = float(auto["raw_direction_deg"])
-    return bool(best.size and np.isfinite(raw) and raw > best.min() +
-                tolerance_deg(best.min()))
+    return bool(best.size and not value <= best.min() + tolerance_deg(best.min()))
 
 
 def case_table(trials: pd.DataFrame) -> pd.DataFrame:
@@ -579,19 +567,20 @@ def case_table(trials: pd.DataFrame) -> pd.DataFrame:
                "harmful": bool(written and not score <= raw),
                "harmful_mean_norm": bool(written and not score <= float(
                    auto["raw_mean_spread_pct"])),
-               "loss_direction": _direction_loss(auto, fixed),
                "has_attitude": bool(np.isfinite(float(auto["raw_direction_deg"]))),
                "needless_fail": bool(not written and best is not None
                                      and raw > best_score + tol),
                "auto_direction_deg": float(auto["direction_deg"]) if written else
                float(auto["raw_direction_deg"]),
                "raw_direction_deg": float(auto["raw_direction_deg"])}
-        row["loss_compass"] = row["loss_direction"] if row["has_attitude"] else row["loss"]
-        user_dir = row["auto_direction_deg"]
+        attitude, user_dir = row["has_attitude"], row["auto_direction_deg"]
+        row["loss_direction"] = attitude and _beyond_best_direction(user_dir, fixed)
+        row["loss_compass"] = row["loss_direction"] if attitude else row["loss"]
         row["harmful_compass"] = (bool(written and not user_dir <= row["raw_direction_deg"])
-                                  if row["has_attitude"] else row["harmful"])
-        row["needless_fail_compass"] = (bool(not written and _direction_helps(auto, fixed))
-                                        if row["has_attitude"] else row["needless_fail"])
+                                  if attitude else row["harmful"])
+        row["needless_fail_compass"] = (
+            not written and _beyond_best_direction(row["raw_direction_deg"], fixed)
+            if attitude else row["needless_fail"])
         peers = g[(g["kind"] == "peer") & g["written"].astype(bool)
                   & ~g["degenerate"].astype(bool)]["spread_pct"].to_numpy(float)
         peers = peers[np.isfinite(peers)]
