@@ -50,13 +50,16 @@ def test_the_section_leads_with_the_counts(tmp_path):
                           "auto_heading_deg": [float("nan"), 95.0],
                           "raw_heading_deg": [float("nan"), 95.0],
                           # b's best fixed fit still points 45 deg astray: no usable compass
-                          "best_fixed_heading_deg": [float("nan"), 45.0]})
+                          "best_fixed_heading_deg": [float("nan"), 45.0],
+                          "loss_oracle": [False, True],
+                          "loss_compass_oracle": [False, False]})
     assert headline(cases) == {"cases": 2, "losses": 1, "harmful": 1, "harmful_mean_norm": 2,
                                "direction_cases": 0, "losses_direction": 0,
                                "heading_cases": 1, "losses_heading": 1,
                                "losses_compass": 1, "harmful_compass": 1,
                                "needless_fail_compass": 1, "needless_unusable": 1,
-                               "losses_peers": 1,
+                               "losses_peers": 1, "losses_oracle": 1,
+                               "losses_compass_oracle": 0,
                                "needless_fail": 0, "not_written": 1, "recordings": 2}
     write(tmp_path / "generalisation", cases)
     text = generalisation_section(tmp_path)
@@ -68,6 +71,7 @@ def test_the_section_leads_with_the_counts(tmp_path):
     assert ("magnitude elsewhere) it loses in 1 of 2 (50 %), writes a correction worse than "
             "raw in 1 and FAILs where a fixed fit would have helped in 1; in 1 of those the best "
             "fixed fit's heading error is still above the gate's 30 deg") in text
+    assert "it would still lose 1 by magnitude and 0 by the compass score" in text
     assert "| sphere | 1/0/1 |" in text and "| a | half | PASS | fang |" in text
 
 

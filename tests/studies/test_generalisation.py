@@ -233,6 +233,21 @@ def test_the_compass_scores_the_heading_not_the_spread_about_its_own_mean():
     assert row["auto_heading_deg"] == 95.0          # the user keeps the raw data
 
 
+def test_the_oracle_counts_what_a_ranking_in_hindsight_would_lose():
+    # calibrate wrote 2.0 against the best fixed fit's 1.0 (a loss); its best eligible
+    # candidate scored 1.02 held out (no loss): the ranking lost this case
+    rows = _rows("a", "half", 2.0, {"sphere": 1.0})
+    rows[0].update(oracle_pct=1.02, oracle_heading_deg=np.nan, oracle_method="sphere")
+    # nothing eligible: the oracle keeps the raw data (10 %) and loses too
+    none = _rows("b", "half", None, {"sphere": 1.0})
+    none[0].update(oracle_pct=np.nan, oracle_heading_deg=np.nan, oracle_method="")
+    cases = case_table(pd.DataFrame(rows + none))
+    assert cases["loss"].tolist() == [True, True]
+    assert cases["loss_oracle"].tolist() == [False, True]
+    assert cases["oracle_pct"].tolist() == [1.02, 10.0]
+    assert protocol_table(cases).loc[0, "losses_oracle"] == 1
+
+
 def test_a_degenerate_fit_never_is_the_best_in_hindsight():
     rows = _rows("a", "half", 1.0, {"sphere": 1.0, "crassidis": 0.01})
     rows[-1]["degenerate"] = True

@@ -36,6 +36,8 @@ def headline(cases: pd.DataFrame) -> dict:
                                       & (cases["best_fixed_heading_deg"]
                                          > Gate().fail_heading_deg)).sum()),
             "losses_peers": int(cases["loss_peers"].sum()),
+            "losses_oracle": int(cases["loss_oracle"].sum()),
+            "losses_compass_oracle": int(cases["loss_compass_oracle"].sum()),
             "not_written": int((~cases["written"].astype(bool)).sum()),
             "recordings": int(cases["dataset"].nunique())}
 
@@ -166,7 +168,13 @@ def generalisation_section(results_dir: Path | str, folder: str = FOLDER) -> str
         f"{h['harmful_compass']} and FAILs where a fixed fit would have helped in "
         f"{h['needless_fail_compass']}; in {h['needless_unusable']} of those the best fixed "
         "fit's heading error is still above the gate's 30 deg (a magnet attached, a phone "
-        "carried past disturbances: no fit gives a usable compass there).",
+        "carried past disturbances: no fit gives a usable compass there). Had it taken, "
+        "among the candidates it judged eligible, the one best on the held-out part, and "
+        "written it whatever its gate said, it would still lose "
+        f"{h['losses_oracle']} by magnitude and {h['losses_compass_oracle']} by the compass "
+        "score: that is all a better ranking could win; the rest is in which fits are "
+        "eligible (a fit stopped at its iteration cap, a degenerate or vetoed one) and in "
+        "the candidates themselves.",
         "",
         f"![calibrate against fixed fits]({folder}/generalisation.png)", "",
         run_note(where, "recordings"), "",

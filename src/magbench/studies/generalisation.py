@@ -24,9 +24,10 @@ mean|m|`` (%) of the corrected samples, and, where the recording carries a refer
 the heading error (RMS, deg, BROAD's definition) against the recording's world field
 (:func:`world_reference`: the field the attitude and the raw samples of the whole recording
 imply), and beside it the world-frame direction spread about its own mean direction, which a
-sensor that barely turns keeps small whatever it points at. The raw data's scores are the "no correction" line; their magnitude
-spread is a share of the *field*, ``100 std|y| / r`` with ``r`` the robust radius of the whole
-recording (:func:`magbench.core.robust.screen`), not of their mean norm: raw samples whose
+sensor that barely turns keeps small whatever it points at. The raw data's scores are the "no
+correction" line; their magnitude spread is a share of the *field*, ``100 std|y| / r`` with
+``r`` the robust radius of the whole recording (:func:`magbench.core.robust.screen`), not of
+their mean norm: raw samples whose
 offset exceeds the field have a mean norm of about the offset, so any spread looks small beside
 it (a phone with a 409 uT hard iron in a 41 uT field: 5 % "raw" while the raw field points
 60-96 deg astray). ``raw_mean_spread_pct`` keeps the mean-norm figure. :func:`case_table` and
@@ -88,7 +89,8 @@ INTERVAL_MIN_S = 120.0
 ROW_COLUMNS = ["dataset", "protocol", "algorithm", "kind", "K_fit", "K_test", "status", "ok",
                "written", "degenerate", "method", "spread_pct", "raw_spread_pct",
                "raw_mean_spread_pct", "direction_deg", "raw_direction_deg", "heading_deg",
-               "raw_heading_deg", "field_ratio", "error"]
+               "raw_heading_deg", "field_ratio", "oracle_method", "oracle_pct",
+               "oracle_heading_deg", "error"]
 INTERVAL_COLUMNS = ["dataset", "axis", "method_first", "method_second", "b_first", "b_second",
                     "half_width_first", "half_width_second", "source_first",
                     "source_second", "agree"]
@@ -257,7 +259,8 @@ def _row(rec: Recording, protocol: str, entrant: str, kind: str, fit: Recording,
             "raw_spread_pct": raw[0], "raw_mean_spread_pct": raw[2],
             "direction_deg": direction, "raw_direction_deg": raw[1],
             "heading_deg": heading, "raw_heading_deg": raw[3], "field_ratio": ratio,
-            "error": error}
+            "oracle_method": "", "oracle_pct": float("nan"),
+            "oracle_heading_deg": float("nan"), "error": error}
 
 
 def _fixed_rows(rec, protocol, fit, test, raw, names, options, seed, timeout, radius,
@@ -351,7 +354,33 @@ def _auto_row(rec, protocol, fit, test, raw, options, seed, timeout, radius, cen
         # What the user is left with is the raw data; the ratio is still worth keeping.
         T, _ = estimate(chosen)
         row["field_ratio"] = float(np.cbrt(abs(np.linalg.det(T))) / radius)
+    row.update(_oracle(decision.result.ranked, test, centre, reference))
     return row, time.perf_counter() - start
+
+
+def _oracle(ranked: Sequence[Mapping], test: Recording, centre: np.ndarray,
+            reference: np.ndarray | None) -> dict:
+    """The best held-out scores among the candidates calibrate judged eligible, as if it had
+    chosen in hindsight and written whatever the gate said: the headroom of its ranking.
+    ``oracle_method`` is the best by magnitude; the heading's best may be another
+    candidate. A degenerate answer is never the best."""
+    best = {"oracle_method": "", "oracle_pct": float("nan"),
+            "oracle_heading_deg": float("nan")}
+    for r in ranked:
+        if not r.get("eligible"):
+            continue
+        try:
+            A, b = Calibration(*estimate(r)).correction()
+        except Exception:               # a singular fit has no score
+            continue
+        if _degenerate(test, A, b, centre):
+            continue
+        spread, _, heading = scores(test, A, b, reference=reference)
+        if not spread >= best["oracle_pct"]:
+            best["oracle_method"], best["oracle_pct"] = str(r["algorithm"]), spread
+        if not heading >= best["oracle_heading_deg"]:
+            best["oracle_heading_deg"] = heading
+    return best
 
 
 def evaluate_protocol(rec: Recording, protocol: str, *, fixed: Sequence[str],
@@ -571,7 +600,10 @@ def case_table(trials: pd.DataFrame) -> pd.DataFrame:
     recording has an attitude, by magnitude elsewhere, and so are ``harmful_compass`` and
     ``needless_fail_compass``. ``loss_peers``: worse by magnitude
     than the best installed peer (navlib, magcal) by more than the tolerance, the comparison
-    a user of those libraries makes (False without peers)."""
+    a user of those libraries makes (False without peers). ``loss_oracle`` and
+    ``loss_compass_oracle``: the same losses for the best of calibrate's eligible
+    candidates in hindsight (:func:`_oracle`), so that what a better ranking could win is
+    told apart from what the candidates and the gate leave."""
     import pandas as pd
 
     out = []
@@ -623,6 +655,16 @@ def case_table(trials: pd.DataFrame) -> pd.DataFrame:
         peers = peers[np.isfinite(peers)]
         row["loss_peers"] = bool(peers.size and not score <= peers.min() +
                                  tolerance(peers.min()))
+        # The oracle leaves the raw data only where no candidate was eligible.
+        oracle = float(auto.get("oracle_pct", np.nan))
+        oracle = raw if np.isnan(oracle) else oracle
+        oracle_heading = float(auto.get("oracle_heading_deg", np.nan))
+        oracle_heading = raw_heading if np.isnan(oracle_heading) else oracle_heading
+        row["oracle_pct"] = oracle
+        row["loss_oracle"] = bool(best is not None and not oracle <= best_score + tol)
+        row["loss_compass_oracle"] = (
+            _beyond_best_direction(oracle_heading, fixed, "heading_deg") if heading
+            else row["loss_oracle"])
         for _, r in g[g["kind"] != "auto"].iterrows():
             row[f"pct:{r['algorithm']}"] = _user_score(r) if r["status"] == "ok" else raw
         out.append(row)
@@ -665,6 +707,8 @@ def protocol_table(cases: pd.DataFrame) -> pd.DataFrame:
                "heading_cases": int(np.isfinite(g["raw_heading_deg"].to_numpy(float)).sum()),
                "losses_heading": int(g["loss_heading"].sum()),
                "losses_compass": int(g["loss_compass"].sum()),
+               "losses_oracle": int(g["loss_oracle"].sum()),
+               "losses_compass_oracle": int(g["loss_compass_oracle"].sum()),
                "not_written": int((~g["written"].astype(bool)).sum())}
         for e in entrants:
             w, t, l_ = _wtl(g["auto_pct"].to_numpy(float), g[f"pct:{e}"].to_numpy(float))
