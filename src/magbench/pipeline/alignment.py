@@ -43,8 +43,7 @@ from magbench.core.offsets import (
     offset_segments,
     window_offsets,
 )
-from magbench.core.quaternions import quat_to_matrix
-from magbench.core.rotations import span_deg
+from magbench.core.quaternions import MatrixView, blocks, quat_span_deg
 from magbench.core.units import infer_units
 from magbench.methods.algorithms._alignment_common import (
     check_spread,
@@ -123,7 +122,7 @@ def attitude_turn_deg(attitude: np.ndarray) -> float:
     """How far an attitude stream (``(K, 4)`` quaternions, NaN rows allowed) turns: the largest
     angle between its first finite row and any other, deg (0 without a finite row)."""
     ok = np.isfinite(attitude).all(axis=1)
-    return span_deg(quat_to_matrix(attitude[ok])) if ok.any() else 0.0
+    return quat_span_deg(attitude[ok])            # a block at a time: no (K, 3, 3) matrices
 
 
 def wahba_alignment(m: np.ndarray, attitude: np.ndarray, n_iter: int = 10) -> np.ndarray:
@@ -138,11 +137,18 @@ def wahba_alignment(m: np.ndarray, attitude: np.ndarray, n_iter: int = 10) -> np
         raise CalibrationFailed(f"the attitude turned through {turned:.0f} deg (< "
                                 f"{MIN_ATTITUDE_SPAN_DEG:g}): it cannot fix the rotation")
     ok = np.isfinite(attitude).all(axis=1)
-    Q, u = quat_to_matrix(attitude[ok]), unit_rows(m[ok])
+    Q, u = MatrixView(attitude[ok]), unit_rows(m[ok])
+    # the matrices are made a block at a time in each pass (a long log's (K, 3, 3) would
+    # be three times its samples), into one (K, 3) array of world or body directions
+    parts, rows = blocks(len(u)), np.empty_like(u)
     R = np.eye(3)
     for _ in range(n_iter):
-        m_w = mean_direction(np.einsum("kij,kj->ki", Q, u @ R.T))
-        R = nearest_rotation(np.einsum("kji,j->ki", Q, m_w).T @ u)
+        for b in parts:
+            rows[b] = np.einsum("kij,kj->ki", Q[b], u[b] @ R.T)
+        m_w = mean_direction(rows)
+        for b in parts:
+            rows[b] = np.einsum("kji,j->ki", Q[b], m_w)
+        R = nearest_rotation(rows.T @ u)
     return R
 
 
@@ -606,7 +612,7 @@ def offset_check(rec: Recording, *, tol: float = 0.1, method: str = "magical",
         return None
     attitude = inertial.attitude
     if attitude is not None and attitude_turn_deg(attitude) >= MIN_ATTITUDE_SPAN_DEG:
-        orientation = quat_to_matrix(attitude)
+        orientation = MatrixView(attitude)         # matrices made a window at a time
     elif rec.gyro is not None:
         orientation = gyro_orientation(rec.t, rec.gyro)
     else:

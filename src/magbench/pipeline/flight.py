@@ -14,7 +14,6 @@ from __future__ import annotations
 import numpy as np
 
 from magbench.core.mounting import MountingResult, detect_mounting
-from magbench.core.quaternions import quat_to_matrix
 from magbench.methods.regressors import HeldOutChoice, StaticFit, held_out_choice
 from magbench.sources.recordings import Recording
 
@@ -52,8 +51,10 @@ def mounting_rotation(rec: Recording, A: np.ndarray, b: np.ndarray,
         q = rec.stack(QUATERNION)
         use = base & np.isfinite(q).all(axis=1)
         if use.sum() >= 2:
-            unit = q[use] / np.linalg.norm(q[use], axis=1, keepdims=True)   # nearly unit
-            return detect_mounting(m[use], attitude=quat_to_matrix(unit))
+            unit = q[use]
+            unit /= np.linalg.norm(unit, axis=1, keepdims=True)             # nearly unit
+            # as quaternions: the detection turns them into matrices a block at a time
+            return detect_mounting(m[use], attitude=unit)
     if all(c in rec.extra for c in ACCEL):
         a = rec.stack(ACCEL)
         use = base & np.isfinite(a).all(axis=1)
