@@ -472,6 +472,10 @@ class _Columns:
     def __getitem__(self, name: str) -> np.ndarray:
         return np.frombuffer(self.values[name], dtype=float)
 
+    def take(self, name: str) -> np.ndarray:
+        """The field ``name``, no longer held here (freed when the caller drops it)."""
+        return np.frombuffer(self.values.pop(name), dtype=float)
+
     def lacking(self, names: tuple[str, ...]) -> list[str]:
         return [n for n in names if n not in self.fields]
 
@@ -489,7 +493,7 @@ class _Unusual(Exception):
 
 
 #: Bytes of a binary log read at a time by :func:`_binary_rows`.
-BINARY_CHUNK = 1 << 24
+BINARY_CHUNK = 1 << 22
 
 #: NumPy types of the DataFlash format characters read as numbers (pymavlink's
 #: ``FORMAT_TO_STRUCT``, with its multipliers); text and arrays are left to pymavlink.
@@ -701,12 +705,7 @@ def _read_dataflash(path: Path) -> FlightLog:
                       for i in numbers]
         else:
             parts.append((0 if message == "MAG" else int(message[-1]) - 1, columns))
-    while parts:            # each compass's columns freed once its stream is built
-        i, f = parts.pop(0)
-        raw = np.column_stack([f[name] for name in RAW_FIELDS])     # Mag - Ofs - MO
-        mags[i] = Stream(f["TimeUS"] / 1e6, raw).clean()
-        del f
-    if path.suffix.lower() == ".log" and mags:
+    if path.suffix.lower() == ".log" and parts:
         names = tuple(k for k in ("MAG", "MAG2", "MAG3") if k in rows)
         # pymavlink's text reader returns the message after a dropped line twice: distinct
         # (time, instance) rows are what it read.
@@ -717,8 +716,17 @@ def _read_dataflash(path: Path) -> FlightLog:
         if dropped > 0:
             notes.append(f"{path.name}: {dropped} compass line(s) dropped (fewer fields than "
                          "their format lists)")
-    for message in ("MAG", "MAG2", "MAG3"):      # read into ``mags``: the fields are freed
+    for message in ("MAG", "MAG2", "MAG3"):      # in ``parts``: freed as they are read
         rows.pop(message, None)
+    while parts:            # each compass's fields freed as its stream is built
+        i, f = parts.pop(0)
+        t = f.take("TimeUS") / 1e6
+        f.values.pop("I", None)
+        raw = np.empty((len(t), 3))                                 # Mag - Ofs - MO
+        for j, name in enumerate(RAW_FIELDS):
+            raw[:, j] = f.take(name)
+        mags[i] = Stream(t, raw).clean()
+        del f, t, raw
     log = FlightLog(path, "dataflash", mags, "milligauss", notes=notes)
     for message, group, names, fields in (
             ("IMU", "gyro", ("gx", "gy", "gz"), ("GyrX", "GyrY", "GyrZ")),
