@@ -405,9 +405,9 @@ def inertial_of(rec: Recording) -> Inertial:
         return rec.stack(names)
 
     attitude = columns(ATTITUDE_COLUMNS)
-    if attitude is not None:
+    if attitude is not None:            # a fresh array: normalised in place
         norm = np.linalg.norm(attitude, axis=1, keepdims=True)
-        attitude = attitude / np.where(norm > 0, norm, np.nan)
+        attitude /= np.where(norm > 0, norm, np.nan)
     return Inertial(rec.t, rec.gyro, columns(ACCEL_COLUMNS), attitude)
 
 
@@ -514,8 +514,10 @@ def lag_corrected(rec: Recording, max_lag_s: float = 0.1) -> tuple[Recording, fl
     if not np.isfinite(lag) or lag == 0.0:
         return rec, 0.0
     y = shift(rec.t, rec.y, lag)
-    keep = np.isfinite(y).all(axis=1)
-    return replace(rec, y=y).rows(np.flatnonzero(keep)), float(lag)
+    keep = np.flatnonzero(np.isfinite(y).all(axis=1))
+    if keep.size and keep[-1] - keep[0] + 1 == keep.size:
+        keep = slice(keep[0], keep[-1] + 1)         # the shift cuts the ends only: views
+    return replace(rec, y=y).rows(keep), float(lag)
 
 
 @dataclass(frozen=True)
