@@ -63,7 +63,9 @@ def _correlation(a: np.ndarray, b: np.ndarray) -> float:
     ok = np.isfinite(a).all(axis=1) & np.isfinite(b).all(axis=1)
     if ok.sum() < 2:
         return np.nan                   # no overlap at this lag (a reference with gaps)
-    a, b = a[ok] - a[ok].mean(axis=0), b[ok] - b[ok].mean(axis=0)
+    a, b = a[ok], b[ok]                 # copies: centred in place (a long log's rows)
+    a -= a.mean(axis=0)
+    b -= b.mean(axis=0)
     denom = np.sqrt(np.sum(a * a) * np.sum(b * b))
     return float(np.sum(a * b) / denom) if denom > 0 else np.nan
 

@@ -118,11 +118,16 @@ def symmetric_field(cal: Calibration, y: np.ndarray) -> np.ndarray:
 MIN_ATTITUDE_SPAN_DEG = 30.0
 
 
+def _finite_rows(x: np.ndarray) -> np.ndarray:
+    """The rows of ``x`` without NaN: ``x`` itself (no copy) when every row is finite."""
+    ok = np.isfinite(x).all(axis=1)
+    return x if ok.all() else x[ok]
+
+
 def attitude_turn_deg(attitude: np.ndarray) -> float:
     """How far an attitude stream (``(K, 4)`` quaternions, NaN rows allowed) turns: the largest
     angle between its first finite row and any other, deg (0 without a finite row)."""
-    ok = np.isfinite(attitude).all(axis=1)
-    return quat_span_deg(attitude[ok])            # a block at a time: no (K, 3, 3) matrices
+    return quat_span_deg(_finite_rows(attitude))     # a block at a time: no (K, 3, 3)
 
 
 def wahba_alignment(m: np.ndarray, attitude: np.ndarray, n_iter: int = 10) -> np.ndarray:
@@ -137,7 +142,8 @@ def wahba_alignment(m: np.ndarray, attitude: np.ndarray, n_iter: int = 10) -> np
         raise CalibrationFailed(f"the attitude turned through {turned:.0f} deg (< "
                                 f"{MIN_ATTITUDE_SPAN_DEG:g}): it cannot fix the rotation")
     ok = np.isfinite(attitude).all(axis=1)
-    Q, u = MatrixView(attitude[ok]), unit_rows(m[ok])
+    every = slice(None) if ok.all() else ok                     # views when every row is
+    Q, u = MatrixView(attitude[every]), unit_rows(m[every])
     # the matrices are made a block at a time in each pass (a long log's (K, 3, 3) would
     # be three times its samples), into one (K, 3) array of world or body directions
     parts, rows = blocks(len(u)), np.empty_like(u)
@@ -491,7 +497,7 @@ def align_chosen(cal: Calibration, rec: Recording, keep: np.ndarray,
     takes hand-held noise levels and the accelerometer as calibrated (a flight controller's
     firmware calibrates it; a free bias soaks up linear accelerations)."""
     inertial = inertial_of(rec)
-    rows = np.flatnonzero(keep)
+    rows = slice(None) if np.all(keep) else np.flatnonzero(keep)     # views when all kept
     if inertial.source == "gyro+accelerometer":
         rows = most_turning_run(keep, rec.t, rec.gyro, MAX_JOINT_ROWS)
         map_options = {"sigma_acc": 0.2, "sigma_gyro": 0.05, "accel_bias": False,
@@ -510,6 +516,7 @@ def lag_corrected(rec: Recording, max_lag_s: float = 0.1) -> tuple[Recording, fl
         return rec, 0.0
     rate = attitude_rate(rec.t, inertial.attitude) if inertial.attitude is not None \
         else rec.gyro
+    del inertial                        # its normalised attitude copy, (K, 4), is done with
     lag, _ = magnetometer_lag(rec.t, rec.y - sphere_fit(rec.y)[0], rate, max_lag_s)
     if not np.isfinite(lag) or lag == 0.0:
         return rec, 0.0

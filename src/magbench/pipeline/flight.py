@@ -25,6 +25,17 @@ QUATERNION = ["qw", "qx", "qy", "qz"]
 ACCEL = ["ax", "ay", "az"]
 
 
+def _compact(x: np.ndarray, use: np.ndarray, block: int = 1 << 14) -> np.ndarray:
+    """``x[use]`` made in ``x`` itself (its first rows; ``x`` is overwritten), a block at a
+    time: the same numbers without a second array of every row."""
+    n = 0
+    for start in range(0, len(x), block):
+        rows = x[start:start + block][use[start:start + block]]   # a copy, then written
+        x[n:n + len(rows)] = rows                                 # at or before ``start``
+        n += len(rows)
+    return x[:n]
+
+
 def mounting_rotation(rec: Recording, A: np.ndarray, b: np.ndarray,
                       keep: np.ndarray | None = None,
                       corrected: np.ndarray | None = None) -> MountingResult | None:
@@ -51,10 +62,12 @@ def mounting_rotation(rec: Recording, A: np.ndarray, b: np.ndarray,
         q = rec.stack(QUATERNION)
         use = base & np.isfinite(q).all(axis=1)
         if use.sum() >= 2:
-            unit = q[use]
+            # the used rows moved to the front of the fresh arrays: no copies of a long log
+            unit = _compact(q, use)
             unit /= np.linalg.norm(unit, axis=1, keepdims=True)             # nearly unit
             # as quaternions: the detection turns them into matrices a block at a time
-            return detect_mounting(m[use], attitude=unit)
+            return detect_mounting(_compact(m, use) if corrected is None else m[use],
+                                   attitude=unit)
     if all(c in rec.extra for c in ACCEL):
         a = rec.stack(ACCEL)
         use = base & np.isfinite(a).all(axis=1)
