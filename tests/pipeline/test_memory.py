@@ -183,7 +183,7 @@ def test_an_attitude_log_aligns_in_bounded_memory(tmp_path, monkeypatch):
     # it as (K, 4) quaternions and turn it into matrices a block at a time (the (K, 3, 3)
     # matrices alone are 3 times the samples' bytes, the 41 mounting candidates' world
     # fields 82 times). Measured at this size, fixed costs included: mounting 4.4,
-    # alignment 8.3 (the normalised attitude, the corrected field, its unit rows and the
+    # alignment 6.8 (the normalised attitude, the corrected field, its unit rows and the
     # world directions).
     pytest.importorskip("pyulog")
     import magbench

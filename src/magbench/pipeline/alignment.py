@@ -43,7 +43,7 @@ from magbench.core.offsets import (
     offset_segments,
     window_offsets,
 )
-from magbench.core.quaternions import MatrixView, blocks, quat_span_deg
+from magbench.core.quaternions import MatrixView, blocks, quat_span_deg, quat_to_matrix
 from magbench.core.units import infer_units
 from magbench.methods.algorithms._alignment_common import (
     check_spread,
@@ -54,6 +54,7 @@ from magbench.methods.algorithms._alignment_common import (
     unit_rows,
 )
 from magbench.methods.api import calibrate
+from magbench.pipeline.flight import compact_rows
 from magbench.pipeline.holdout import estimate, fold_indices
 from magbench.sources.recordings import Recording
 
@@ -142,18 +143,28 @@ def wahba_alignment(m: np.ndarray, attitude: np.ndarray, n_iter: int = 10) -> np
         raise CalibrationFailed(f"the attitude turned through {turned:.0f} deg (< "
                                 f"{MIN_ATTITUDE_SPAN_DEG:g}): it cannot fix the rotation")
     ok = np.isfinite(attitude).all(axis=1)
-    every = slice(None) if ok.all() else ok                     # views when every row is
-    Q, u = MatrixView(attitude[every]), unit_rows(m[every])
-    # the matrices are made a block at a time in each pass (a long log's (K, 3, 3) would
-    # be three times its samples), into one (K, 3) array of world or body directions
-    parts, rows = blocks(len(u)), np.empty_like(u)
+    u = unit_rows(m if ok.all() else m[ok])
+    # the finite rows' matrices are made a block of the attitude at a time in each pass (a
+    # long log's (K, 3, 3) would be three times its samples, a copy of its finite rows 1.3
+    # times), into one (K, 3) array of world or body directions
+    parts, n = [], 0
+    for b in blocks(len(attitude)):
+        k = int(ok[b].sum())
+        parts.append((b, slice(n, n + k)))
+        n += k
+
+    def matrices(b: slice) -> np.ndarray:
+        q = attitude[b]
+        return quat_to_matrix(q if ok[b].all() else q[ok[b]])
+
+    rows = np.empty_like(u)
     R = np.eye(3)
     for _ in range(n_iter):
-        for b in parts:
-            rows[b] = np.einsum("kij,kj->ki", Q[b], u[b] @ R.T)
+        for b, r in parts:
+            rows[r] = np.einsum("kij,kj->ki", matrices(b), u[r] @ R.T)
         m_w = mean_direction(rows)
-        for b in parts:
-            rows[b] = np.einsum("kji,j->ki", Q[b], m_w)
+        for b, r in parts:
+            rows[r] = np.einsum("kji,j->ki", matrices(b), m_w)
         R = nearest_rotation(rows.T @ u)
     return R
 
@@ -497,12 +508,23 @@ def align_chosen(cal: Calibration, rec: Recording, keep: np.ndarray,
     takes hand-held noise levels and the accelerometer as calibrated (a flight controller's
     firmware calibrates it; a free bias soaks up linear accelerations)."""
     inertial = inertial_of(rec)
-    rows = slice(None) if np.all(keep) else np.flatnonzero(keep)     # views when all kept
+    keep = np.asarray(keep, dtype=bool)
+    rows = slice(None) if keep.all() else np.flatnonzero(keep)      # views when all kept
     if inertial.source == "gyro+accelerometer":
         rows = most_turning_run(keep, rec.t, rec.gyro, MAX_JOINT_ROWS)
         map_options = {"sigma_acc": 0.2, "sigma_gyro": 0.05, "accel_bias": False,
                        **map_options}
-    return fit_alignment(cal, rec.y[rows], inertial.rows(rows), **map_options)
+        return fit_alignment(cal, rec.y[rows], inertial.rows(rows), **map_options)
+    # the normalised attitude is inertial_of's own copy: its kept rows are moved to its front
+    # rather than copied (a long log's (K, 4) array)
+    attitude = inertial.attitude
+    if attitude is not None and not isinstance(rows, slice):
+        attitude = compact_rows(attitude, keep)
+    else:
+        attitude = None if attitude is None else attitude[rows]
+    inertial = replace(inertial.rows(rows) if inertial.attitude is None else
+                       replace(inertial, attitude=None).rows(rows), attitude=attitude)
+    return fit_alignment(cal, rec.y[rows], inertial, **map_options)
 
 
 def lag_corrected(rec: Recording, max_lag_s: float = 0.1) -> tuple[Recording, float]:

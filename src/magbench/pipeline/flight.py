@@ -17,7 +17,7 @@ from magbench.core.mounting import MountingResult, detect_mounting
 from magbench.methods.regressors import HeldOutChoice, StaticFit, held_out_choice
 from magbench.sources.recordings import Recording
 
-__all__ = ["QUATERNION", "REGRESSORS", "check_regressors", "mounting_rotation",
+__all__ = ["QUATERNION", "REGRESSORS", "check_regressors", "compact_rows", "mounting_rotation",
            "time_varying_terms",
            "unused_regressors", "usable_regressors"]
 
@@ -25,7 +25,7 @@ QUATERNION = ["qw", "qx", "qy", "qz"]
 ACCEL = ["ax", "ay", "az"]
 
 
-def _compact(x: np.ndarray, use: np.ndarray, block: int = 1 << 14) -> np.ndarray:
+def compact_rows(x: np.ndarray, use: np.ndarray, block: int = 1 << 14) -> np.ndarray:
     """``x[use]`` made in ``x`` itself (its first rows; ``x`` is overwritten), a block at a
     time: the same numbers without a second array of every row."""
     n = 0
@@ -63,10 +63,10 @@ def mounting_rotation(rec: Recording, A: np.ndarray, b: np.ndarray,
         use = base & np.isfinite(q).all(axis=1)
         if use.sum() >= 2:
             # the used rows moved to the front of the fresh arrays: no copies of a long log
-            unit = _compact(q, use)
+            unit = compact_rows(q, use)
             unit /= np.linalg.norm(unit, axis=1, keepdims=True)             # nearly unit
             # as quaternions: the detection turns them into matrices a block at a time
-            return detect_mounting(_compact(m, use) if corrected is None else m[use],
+            return detect_mounting(compact_rows(m, use) if corrected is None else m[use],
                                    attitude=unit)
     if all(c in rec.extra for c in ACCEL):
         a = rec.stack(ACCEL)
