@@ -17,7 +17,7 @@ from __future__ import annotations
 import numpy as np
 
 from magbench.core import geometry
-from magbench.core.quaternions import quat_conjugate, quat_multiply, quat_to_rotvec
+from magbench.core.quaternions import blocks, quat_conjugate, quat_multiply, quat_to_rotvec
 from magbench.core.rotations import skew
 from magbench.core.tsqr import lstsq_blocks
 
@@ -45,10 +45,16 @@ def attitude_rate(t: np.ndarray, attitude: np.ndarray) -> np.ndarray:
     """
     t = np.asarray(t, dtype=float)
     q = np.asarray(attitude, dtype=float)
-    lo = np.r_[0, np.arange(len(q) - 2), len(q) - 2]
-    hi = np.r_[1, np.arange(2, len(q)), len(q) - 1]
-    d = quat_to_rotvec(quat_multiply(quat_conjugate(q[lo]), q[hi]))
-    return d / (t[hi] - t[lo])[:, None]
+    out = np.empty((len(q), 3))
+    # a block of rows at a time: the quaternion products of a long log are several (K, 4)
+    # arrays (each row's rate depends on its two neighbours only)
+    for rows in blocks(len(q)):
+        k = np.arange(rows.start, rows.stop)
+        lo = np.where(k == 0, 0, np.where(k == len(q) - 1, len(q) - 2, k - 1))
+        hi = np.where(k == 0, 1, np.where(k == len(q) - 1, len(q) - 1, k + 1))
+        d = quat_to_rotvec(quat_multiply(quat_conjugate(q[lo]), q[hi]))
+        out[rows] = d / (t[hi] - t[lo])[:, None]
+    return out
 
 
 def _correlation(a: np.ndarray, b: np.ndarray) -> float:
@@ -57,7 +63,9 @@ def _correlation(a: np.ndarray, b: np.ndarray) -> float:
     ok = np.isfinite(a).all(axis=1) & np.isfinite(b).all(axis=1)
     if ok.sum() < 2:
         return np.nan                   # no overlap at this lag (a reference with gaps)
-    a, b = a[ok] - a[ok].mean(axis=0), b[ok] - b[ok].mean(axis=0)
+    a, b = a[ok], b[ok]                 # copies: centred in place (a long log's rows)
+    a -= a.mean(axis=0)
+    b -= b.mean(axis=0)
     denom = np.sqrt(np.sum(a * a) * np.sum(b * b))
     return float(np.sum(a * b) / denom) if denom > 0 else np.nan
 

@@ -26,6 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from magbench.core.quaternions import MatrixView, blocks, quat_span_deg
 from magbench.core.rotations import euler_zyx_to_matrix, span_deg
 
 __all__ = ["AUTO_ROTATIONS", "MIN_CONFIDENCE", "ROTATIONS", "MountingResult", "detect_mounting",
@@ -148,11 +149,26 @@ def _same(a: int, b: int) -> bool:
     return bool(np.allclose(rotation_matrix(a), rotation_matrix(b), atol=1e-6))
 
 
-def _costs_attitude(m: np.ndarray, R: np.ndarray, rotations: tuple[int, ...]) -> np.ndarray:
-    """Variance of the world-frame field ``R_k M m_k`` about its mean, per rotation."""
+#: Attitude rows turned at a time: the candidates' world fields of one block are
+#: ``(n, BLOCK_ROWS, 3)``, never ``(n, K, 3)`` (41 candidates of a long log took gigabytes).
+BLOCK_ROWS = 1 << 13
+
+
+def _costs_attitude(m: np.ndarray, R: np.ndarray | MatrixView,
+                    rotations: tuple[int, ...]) -> np.ndarray:
+    """Variance of the world-frame field ``R_k M m_k`` about its mean, per rotation (two
+    passes over blocks of rows: the mean, then the squared deviations)."""
     M = np.stack([rotation_matrix(r) for r in rotations])          # (n, 3, 3)
-    world = np.einsum("kij,njl,kl->nki", R, M, m)                   # (n, K, 3)
-    return ((world - world.mean(axis=1, keepdims=True)) ** 2).sum(axis=2).mean(axis=1)
+    K = len(m)
+    total = np.zeros((len(rotations), 3))
+    for rows in blocks(K, BLOCK_ROWS):
+        total += np.einsum("kij,njl,kl->nki", R[rows], M, m[rows]).sum(axis=1)
+    mean = (total / K)[:, None, :]
+    squares = np.zeros(len(rotations))
+    for rows in blocks(K, BLOCK_ROWS):
+        world = np.einsum("kij,njl,kl->nki", R[rows], M, m[rows])
+        squares += ((world - mean) ** 2).sum(axis=2).sum(axis=1)
+    return squares / K
 
 
 def _costs_dip(m: np.ndarray, down: np.ndarray, rotations: tuple[int, ...]) -> np.ndarray:
@@ -172,8 +188,9 @@ def detect_mounting(m: np.ndarray, *, attitude: np.ndarray | None = None,
     ----------
     m : ndarray, shape (K, 3)
         Calibrated field in the compass's own axes (``A (y - b)``; hard iron removed).
-    attitude : ndarray, shape (K, 3, 3), optional
-        Body-to-world attitude at each sample. Preferred when given.
+    attitude : ndarray, shape (K, 3, 3) or (K, 4), optional
+        Body-to-world attitude at each sample, as matrices or unit quaternions (scalar
+        first; turned into matrices a block at a time). Preferred when given.
     accel : ndarray, shape (K, 3), optional
         Accelerometer in body axes (specific force: ``-g`` at rest), used without an attitude;
         only samples whose magnitude is within 5 % of the median are used (at rest).
@@ -196,9 +213,12 @@ def detect_mounting(m: np.ndarray, *, attitude: np.ndarray | None = None,
     m = np.asarray(m, dtype=float)
     if attitude is not None:
         R = np.asarray(attitude, dtype=float)
-        if R.shape != (m.shape[0], 3, 3):
-            raise ValueError(f"attitude must have shape ({m.shape[0]}, 3, 3), got {R.shape}")
-        costs, basis, span, n = _costs_attitude(m, R, rotations), "attitude", span_deg(R), len(m)
+        if R.shape not in ((m.shape[0], 3, 3), (m.shape[0], 4)):
+            raise ValueError(f"attitude must have shape ({m.shape[0]}, 3, 3) or "
+                             f"({m.shape[0]}, 4), got {R.shape}")
+        view = MatrixView(R) if R.shape[1:] == (4,) else R
+        costs, basis, n = _costs_attitude(m, view, rotations), "attitude", len(m)
+        span = quat_span_deg(view) if isinstance(view, MatrixView) else span_deg(R)
     elif accel is not None:
         a = np.asarray(accel, dtype=float)
         if a.shape != m.shape:

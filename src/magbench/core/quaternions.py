@@ -16,10 +16,21 @@ from collections.abc import Callable
 
 import numpy as np
 
-from magbench.core.rotations import rotation_class
+from magbench.core.rotations import rotation_class, span_deg
 
-__all__ = ["matrix_to_quat", "quat_about_axis", "quat_conjugate", "quat_multiply",
-           "quat_rotate", "quat_to_matrix", "quat_to_rotvec"]
+__all__ = [
+    "BLOCK_ROWS",
+    "MatrixView",
+    "blocks",
+    "matrix_to_quat",
+    "quat_about_axis",
+    "quat_conjugate",
+    "quat_multiply",
+    "quat_rotate",
+    "quat_span_deg",
+    "quat_to_matrix",
+    "quat_to_rotvec",
+]
 
 
 def _rowwise(fn: Callable[..., np.ndarray], out_tail: tuple[int, ...],
@@ -63,6 +74,44 @@ def quat_to_matrix(q: np.ndarray) -> np.ndarray:
     """Rotation matrices ``(..., 3, 3)`` of unit quaternions: ``R v = q v q*``."""
     q = np.asarray(q, dtype=float)
     return _rowwise(lambda a: _rot(a).as_matrix(), (3, 3), (q, 1))
+
+
+#: Rows turned into matrices at a time by :class:`MatrixView`'s users: a long log's
+#: ``(K, 3, 3)`` matrices are 72 bytes a sample, three times its compass samples.
+BLOCK_ROWS = 1 << 14
+
+
+class MatrixView:
+    """The rotation matrices of ``(K, 4)`` quaternions, made only for the rows indexed:
+    ``view[rows]`` is ``quat_to_matrix(q[rows])`` (row by row the same numbers), so code
+    written for a ``(K, 3, 3)`` array can walk a long attitude a block at a time."""
+
+    def __init__(self, q: np.ndarray) -> None:
+        self.q = np.asarray(q, dtype=float)
+        self.shape = (len(self.q), 3, 3)
+
+    def __len__(self) -> int:
+        return len(self.q)
+
+    def __getitem__(self, rows: slice | np.ndarray) -> np.ndarray:
+        return quat_to_matrix(self.q[rows])
+
+
+def blocks(K: int, size: int | None = None) -> list[slice]:
+    """Consecutive slices of ``size`` rows (default :data:`BLOCK_ROWS`) covering ``K``."""
+    size = size or BLOCK_ROWS
+    return [slice(s, min(s + size, K)) for s in range(0, K, size)]
+
+
+def quat_span_deg(q: np.ndarray) -> float:
+    """:func:`magbench.core.rotations.span_deg` of the matrices of ``(K, 4)`` quaternions (or
+    of a :class:`MatrixView`), a block at a time: the largest angle from the first (0 when
+    empty)."""
+    view = q if isinstance(q, MatrixView) else MatrixView(q)
+    if not len(view):
+        return 0.0
+    first = view[:1]
+    return max(span_deg(np.concatenate([first, view[rows]])) for rows in blocks(len(view)))
 
 
 def quat_rotate(q: np.ndarray, v: np.ndarray) -> np.ndarray:

@@ -43,8 +43,7 @@ from magbench.core.offsets import (
     offset_segments,
     window_offsets,
 )
-from magbench.core.quaternions import quat_to_matrix
-from magbench.core.rotations import span_deg
+from magbench.core.quaternions import MatrixView, blocks, quat_span_deg, quat_to_matrix
 from magbench.core.units import infer_units
 from magbench.methods.algorithms._alignment_common import (
     check_spread,
@@ -55,6 +54,7 @@ from magbench.methods.algorithms._alignment_common import (
     unit_rows,
 )
 from magbench.methods.api import calibrate
+from magbench.pipeline.flight import compact_rows
 from magbench.pipeline.holdout import estimate, fold_indices
 from magbench.sources.recordings import Recording
 
@@ -119,11 +119,16 @@ def symmetric_field(cal: Calibration, y: np.ndarray) -> np.ndarray:
 MIN_ATTITUDE_SPAN_DEG = 30.0
 
 
+def _finite_rows(x: np.ndarray) -> np.ndarray:
+    """The rows of ``x`` without NaN: ``x`` itself (no copy) when every row is finite."""
+    ok = np.isfinite(x).all(axis=1)
+    return x if ok.all() else x[ok]
+
+
 def attitude_turn_deg(attitude: np.ndarray) -> float:
     """How far an attitude stream (``(K, 4)`` quaternions, NaN rows allowed) turns: the largest
     angle between its first finite row and any other, deg (0 without a finite row)."""
-    ok = np.isfinite(attitude).all(axis=1)
-    return span_deg(quat_to_matrix(attitude[ok])) if ok.any() else 0.0
+    return quat_span_deg(_finite_rows(attitude))     # a block at a time: no (K, 3, 3)
 
 
 def wahba_alignment(m: np.ndarray, attitude: np.ndarray, n_iter: int = 10) -> np.ndarray:
@@ -138,11 +143,29 @@ def wahba_alignment(m: np.ndarray, attitude: np.ndarray, n_iter: int = 10) -> np
         raise CalibrationFailed(f"the attitude turned through {turned:.0f} deg (< "
                                 f"{MIN_ATTITUDE_SPAN_DEG:g}): it cannot fix the rotation")
     ok = np.isfinite(attitude).all(axis=1)
-    Q, u = quat_to_matrix(attitude[ok]), unit_rows(m[ok])
+    u = unit_rows(m if ok.all() else m[ok])
+    # the finite rows' matrices are made a block of the attitude at a time in each pass (a
+    # long log's (K, 3, 3) would be three times its samples, a copy of its finite rows 1.3
+    # times), into one (K, 3) array of world or body directions
+    parts, n = [], 0
+    for b in blocks(len(attitude)):
+        k = int(ok[b].sum())
+        parts.append((b, slice(n, n + k)))
+        n += k
+
+    def matrices(b: slice) -> np.ndarray:
+        q = attitude[b]
+        return quat_to_matrix(q if ok[b].all() else q[ok[b]])
+
+    rows = np.empty_like(u)
     R = np.eye(3)
     for _ in range(n_iter):
-        m_w = mean_direction(np.einsum("kij,kj->ki", Q, u @ R.T))
-        R = nearest_rotation(np.einsum("kji,j->ki", Q, m_w).T @ u)
+        for b, r in parts:
+            rows[r] = np.einsum("kij,kj->ki", matrices(b), u[r] @ R.T)
+        m_w = mean_direction(rows)
+        for b, r in parts:
+            rows[r] = np.einsum("kji,j->ki", matrices(b), m_w)
+        R = nearest_rotation(rows.T @ u)
     return R
 
 
@@ -399,9 +422,9 @@ def inertial_of(rec: Recording) -> Inertial:
         return rec.stack(names)
 
     attitude = columns(ATTITUDE_COLUMNS)
-    if attitude is not None:
+    if attitude is not None:            # a fresh array: normalised in place
         norm = np.linalg.norm(attitude, axis=1, keepdims=True)
-        attitude = attitude / np.where(norm > 0, norm, np.nan)
+        attitude /= np.where(norm > 0, norm, np.nan)
     return Inertial(rec.t, rec.gyro, columns(ACCEL_COLUMNS), attitude)
 
 
@@ -485,12 +508,23 @@ def align_chosen(cal: Calibration, rec: Recording, keep: np.ndarray,
     takes hand-held noise levels and the accelerometer as calibrated (a flight controller's
     firmware calibrates it; a free bias soaks up linear accelerations)."""
     inertial = inertial_of(rec)
-    rows = np.flatnonzero(keep)
+    keep = np.asarray(keep, dtype=bool)
+    rows = slice(None) if keep.all() else np.flatnonzero(keep)      # views when all kept
     if inertial.source == "gyro+accelerometer":
         rows = most_turning_run(keep, rec.t, rec.gyro, MAX_JOINT_ROWS)
         map_options = {"sigma_acc": 0.2, "sigma_gyro": 0.05, "accel_bias": False,
                        **map_options}
-    return fit_alignment(cal, rec.y[rows], inertial.rows(rows), **map_options)
+        return fit_alignment(cal, rec.y[rows], inertial.rows(rows), **map_options)
+    # the normalised attitude is inertial_of's own copy: its kept rows are moved to its front
+    # rather than copied (a long log's (K, 4) array)
+    attitude = inertial.attitude
+    if attitude is not None and not isinstance(rows, slice):
+        attitude = compact_rows(attitude, keep)
+    else:
+        attitude = None if attitude is None else attitude[rows]
+    inertial = replace(inertial.rows(rows) if inertial.attitude is None else
+                       replace(inertial, attitude=None).rows(rows), attitude=attitude)
+    return fit_alignment(cal, rec.y[rows], inertial, **map_options)
 
 
 def lag_corrected(rec: Recording, max_lag_s: float = 0.1) -> tuple[Recording, float]:
@@ -504,12 +538,15 @@ def lag_corrected(rec: Recording, max_lag_s: float = 0.1) -> tuple[Recording, fl
         return rec, 0.0
     rate = attitude_rate(rec.t, inertial.attitude) if inertial.attitude is not None \
         else rec.gyro
+    del inertial                        # its normalised attitude copy, (K, 4), is done with
     lag, _ = magnetometer_lag(rec.t, rec.y - sphere_fit(rec.y)[0], rate, max_lag_s)
     if not np.isfinite(lag) or lag == 0.0:
         return rec, 0.0
     y = shift(rec.t, rec.y, lag)
-    keep = np.isfinite(y).all(axis=1)
-    return replace(rec, y=y).rows(np.flatnonzero(keep)), float(lag)
+    keep = np.flatnonzero(np.isfinite(y).all(axis=1))
+    if keep.size and keep[-1] - keep[0] + 1 == keep.size:
+        keep = slice(keep[0], keep[-1] + 1)         # the shift cuts the ends only: views
+    return replace(rec, y=y).rows(keep), float(lag)
 
 
 @dataclass(frozen=True)
@@ -606,7 +643,7 @@ def offset_check(rec: Recording, *, tol: float = 0.1, method: str = "magical",
         return None
     attitude = inertial.attitude
     if attitude is not None and attitude_turn_deg(attitude) >= MIN_ATTITUDE_SPAN_DEG:
-        orientation = quat_to_matrix(attitude)
+        orientation = MatrixView(attitude)         # matrices made a window at a time
     elif rec.gyro is not None:
         orientation = gyro_orientation(rec.t, rec.gyro)
     else:

@@ -14,16 +14,26 @@ from __future__ import annotations
 import numpy as np
 
 from magbench.core.mounting import MountingResult, detect_mounting
-from magbench.core.quaternions import quat_to_matrix
 from magbench.methods.regressors import HeldOutChoice, StaticFit, held_out_choice
 from magbench.sources.recordings import Recording
 
-__all__ = ["QUATERNION", "REGRESSORS", "check_regressors", "mounting_rotation",
+__all__ = ["QUATERNION", "REGRESSORS", "check_regressors", "compact_rows", "mounting_rotation",
            "time_varying_terms",
            "unused_regressors", "usable_regressors"]
 
 QUATERNION = ["qw", "qx", "qy", "qz"]
 ACCEL = ["ax", "ay", "az"]
+
+
+def compact_rows(x: np.ndarray, use: np.ndarray, block: int = 1 << 14) -> np.ndarray:
+    """``x[use]`` made in ``x`` itself (its first rows; ``x`` is overwritten), a block at a
+    time: the same numbers without a second array of every row."""
+    n = 0
+    for start in range(0, len(x), block):
+        rows = x[start:start + block][use[start:start + block]]   # a copy, then written
+        x[n:n + len(rows)] = rows                                 # at or before ``start``
+        n += len(rows)
+    return x[:n]
 
 
 def mounting_rotation(rec: Recording, A: np.ndarray, b: np.ndarray,
@@ -52,8 +62,12 @@ def mounting_rotation(rec: Recording, A: np.ndarray, b: np.ndarray,
         q = rec.stack(QUATERNION)
         use = base & np.isfinite(q).all(axis=1)
         if use.sum() >= 2:
-            unit = q[use] / np.linalg.norm(q[use], axis=1, keepdims=True)   # nearly unit
-            return detect_mounting(m[use], attitude=quat_to_matrix(unit))
+            # the used rows moved to the front of the fresh arrays: no copies of a long log
+            unit = compact_rows(q, use)
+            unit /= np.linalg.norm(unit, axis=1, keepdims=True)             # nearly unit
+            # as quaternions: the detection turns them into matrices a block at a time
+            return detect_mounting(compact_rows(m, use) if corrected is None else m[use],
+                                   attitude=unit)
     if all(c in rec.extra for c in ACCEL):
         a = rec.stack(ACCEL)
         use = base & np.isfinite(a).all(axis=1)

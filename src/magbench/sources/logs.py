@@ -106,7 +106,7 @@ class Stream:
     def clean(self) -> Stream:
         """Sorted by time, repeated times and rows with a non-finite time dropped."""
         keep = np.isfinite(self.t)
-        if keep.all() and (self.t.size < 2 or bool((np.diff(self.t) > 0).all())):
+        if keep.all() and (self.t.size < 2 or bool((self.t[1:] > self.t[:-1]).all())):
             return Stream(self.t, self.values)      # the usual log: no copies of its rows
         t, v = self.t[keep], self.values[keep]
         order = np.argsort(t, kind="stable")
@@ -409,31 +409,62 @@ DATAFLASH_FIELDS = {
 }
 
 
-class _Columns:
-    """One message type's wanted fields as growing float arrays (8 bytes a value)."""
+#: The compass field this reader returns (module notes), ``Mag - Ofs - MO`` per axis:
+#: combined as each message is read, so that a long log's nine compass fields (72 bytes a
+#: sample) are never all kept.
+RAW_FIELDS = {f"Raw{a}": (f"Mag{a}", f"Ofs{a}", f"MO{a}") for a in "XYZ"}
 
-    def __init__(self, msg: object, path: Path) -> None:
+
+class _Columns:
+    """One message type's wanted fields as growing float arrays (8 bytes a value); a
+    compass's ``Mag``, ``Ofs`` and ``MO`` fields are kept as their :data:`RAW_FIELDS`."""
+
+    def __init__(self, name: str, path: Path, columns: list[str], fmt: str) -> None:
         from array import array
 
-        self.name, self.path = msg.get_type(), path
-        self.all = list(getattr(msg, "_fieldnames", []))
+        self.name, self.path = name, path
+        self.all = list(columns)
         self.fields = [f for f in DATAFLASH_FIELDS[self.name] if f in self.all]
-        self.format = dict(zip(self.all, getattr(msg.fmt, "format", ""), strict=False))
-        self.values = {f: array("d") for f in self.fields}
+        self.format = dict(zip(self.all, fmt, strict=False))
+        self.combine = name in ("MAG", "MAG2", "MAG3") and not self.lacking(MAG_FIELDS)
+        kept = [f for f in self.fields
+                if not (self.combine and any(f in parts for parts in RAW_FIELDS.values()))]
+        self.values = {f: array("d") for f in kept + (list(RAW_FIELDS) if self.combine else [])}
+
+    @classmethod
+    def of(cls, msg: object, path: Path) -> _Columns:
+        """The columns of ``msg``'s type (a pymavlink message)."""
+        return cls(msg.get_type(), path, list(getattr(msg, "_fieldnames", [])),
+                   getattr(msg.fmt, "format", ""))
 
     def add(self, msg: object) -> None:
+        row = {}
         for name in self.fields:
             value = getattr(msg, name, math.nan)
             try:
-                self.values[name].append(float(value))
+                row[name] = float(value)
             except (TypeError, ValueError):
                 raise ValueError(
                     f"{self.path.name}: malformed DataFlash FMT: {self.name}.{name} holds "
                     f"{str(value)[:20]!r}, not a number (format character "
                     f"{self.format.get(name, '?')!r})") from None
+        self.extend({k: [v] for k, v in row.items()})
+
+    def extend(self, row: dict) -> None:
+        """Append values (``field -> sequence of floats``, every wanted field)."""
+        if self.combine:
+            row = dict(row)
+            for raw, (mag, ofs, mo) in RAW_FIELDS.items():
+                # the same float operations, in the same order, as on whole arrays before
+                value = np.asarray(row.pop(mag), dtype=float)
+                value = value - (np.asarray(row.pop(ofs), dtype=float) if ofs in row else 0.0)
+                row[raw] = value - (np.asarray(row.pop(mo), dtype=float) if mo in row
+                                    else 0.0)
+        for name, values in self.values.items():
+            values.frombytes(np.ascontiguousarray(row[name], dtype=float).tobytes())
 
     def __len__(self) -> int:
-        return len(self.values[self.fields[0]]) if self.fields else 0
+        return len(next(iter(self.values.values()))) if self.values else 0
 
     def __contains__(self, name: str) -> bool:
         return name in self.values
@@ -441,32 +472,175 @@ class _Columns:
     def __getitem__(self, name: str) -> np.ndarray:
         return np.frombuffer(self.values[name], dtype=float)
 
+    def take(self, name: str) -> np.ndarray:
+        """The field ``name``, no longer held here (freed when the caller drops it)."""
+        return np.frombuffer(self.values.pop(name), dtype=float)
+
     def lacking(self, names: tuple[str, ...]) -> list[str]:
-        return [n for n in names if n not in self.values]
+        return [n for n in names if n not in self.fields]
 
     def rows(self, keep: np.ndarray) -> _Columns:
         out = object.__new__(_Columns)
-        out.name, out.path, out.all, out.fields, out.format = (
-            self.name, self.path, self.all, self.fields, self.format)
-        out.values = {f: self[f][keep] for f in self.fields}
+        out.name, out.path, out.all, out.fields, out.format, out.combine = (
+            self.name, self.path, self.all, self.fields, self.format, self.combine)
+        out.values = {f: self[f][keep] for f in self.values}
         return out
 
 
+class _Unusual(Exception):
+    """Something in a binary log that :func:`_binary_rows` leaves to pymavlink (corrupt
+    bytes, a message type without a format, a format it does not read)."""
+
+
+#: Bytes of a binary log read at a time by :func:`_binary_rows`.
+BINARY_CHUNK = 1 << 22
+
+#: NumPy types of the DataFlash format characters read as numbers (pymavlink's
+#: ``FORMAT_TO_STRUCT``, with its multipliers); text and arrays are left to pymavlink.
+_DF_NUMBERS = {"b": ("i1", None), "B": ("u1", None), "h": ("<i2", None), "H": ("<u2", None),
+               "i": ("<i4", None), "I": ("<u4", None), "f": ("<f4", None), "d": ("<f8", None),
+               "g": ("<f2", None), "q": ("<i8", None), "Q": ("<u8", None), "M": ("i1", None),
+               "c": ("<i2", 0.01), "C": ("<u2", 0.01), "e": ("<i4", 0.01), "E": ("<u4", 0.01),
+               "L": ("<i4", 1.0e-7)}
+_DF_SIZES = {"n": 4, "N": 16, "Z": 64, "a": 64}
+
+
+def _null_term(raw: bytes) -> str:
+    return raw.decode(errors="backslashreplace").split("\0", 1)[0]
+
+
+def _binary_rows(path: Path) -> dict[str, _Columns]:
+    """The wanted messages of a binary log, read by NumPy a chunk of :data:`BINARY_CHUNK`
+    bytes at a time: the messages are walked by the lengths their ``FMT`` gives and each
+    wanted type's records are decoded together by a structured dtype, so memory is the
+    kept fields and one chunk (pymavlink indexes every message of every type first, and
+    keeps the whole file mapped). Values are pymavlink's, multipliers included.
+
+    Raises
+    ------
+    _Unusual
+        Anything but a clean log (the caller reads such a file with pymavlink, whose
+        messages and errors it keeps).
+    """
+    lengths = [0] * 256
+    lengths[0x80] = 89
+    decode: dict[int, tuple[_Columns, np.dtype, dict[str, float | None]]] = {}
+    formats: dict[int, bytes] = {}
+    rows: dict[str, _Columns] = {}
+    tail = b""
+    with open(path, "rb") as handle:
+        while True:
+            block = handle.read(BINARY_CHUNK)
+            data = tail + block
+            found: dict[int, list[int]] = {}
+            ofs, size = 0, len(data)
+            while ofs + 3 <= size:
+                if data[ofs] != 0xA3 or data[ofs + 1] != 0x95:
+                    raise _Unusual(f"no message header at byte {ofs}")
+                kind = data[ofs + 2]
+                length = lengths[kind]
+                if length < 3:
+                    raise _Unusual(f"message type {kind} has no format")
+                if ofs + length > size:
+                    break                   # continued in the next chunk
+                if kind == 0x80:
+                    body = data[ofs + 3:ofs + 89]
+                    if formats.get(body[0], body) != body:
+                        raise _Unusual("a format defined twice")
+                    formats[body[0]] = body
+                    lengths[body[0]] = body[1]
+                    name = _null_term(body[2:6])
+                    if name in DATAFLASH_TYPES:
+                        decode[body[0]] = _wanted_format(path, name, body, rows)
+                elif kind in decode:
+                    found.setdefault(kind, []).append(ofs)
+                ofs += length
+            raw = np.frombuffer(data, np.uint8)
+            for kind, offsets in found.items():
+                columns, dtype, mults = decode[kind]
+                body = np.arange(3, dtype.itemsize + 3)
+                for start in range(0, len(offsets), 1 << 12):     # small index arrays
+                    at = np.asarray(offsets[start:start + (1 << 12)])
+                    records = raw[at[:, None] + body].view(dtype)[:, 0]
+                    values = {}
+                    for name, mult in mults.items():
+                        column = records[name].astype(float)
+                        if mult is not None:        # as pymavlink: divide by 1/mult below 1
+                            column = column / (1 / mult) if 0.0 < mult < 1.0 else column * mult
+                        values[name] = column
+                    columns.extend(values)
+            del raw
+            tail = data[ofs:]
+            if not block:
+                break
+    if len(tail) >= 3 and not (tail[0] == 0xA3 and tail[1] == 0x95
+                               and len(tail) < lengths[tail[2]]):
+        raise _Unusual("bytes after the last message")      # a cut last message is dropped
+    return rows
+
+
+def _wanted_format(path: Path, name: str, body: bytes, rows: dict[str, _Columns]
+                   ) -> tuple[_Columns, np.dtype, dict[str, float | None]]:
+    """The columns, record dtype and multipliers of a wanted message type's ``FMT`` body."""
+    fmt = _null_term(body[6:22])
+    columns = _null_term(body[22:86]).split(",")
+    columns = [] if columns == [""] else columns
+    if len(columns) != len(fmt) or len(set(columns)) != len(columns):
+        raise _Unusual(f"{name}: its format and columns disagree")
+    names, offsets, types, position = [], [], [], 0
+    for column, char in zip(columns, fmt, strict=True):
+        if char in _DF_NUMBERS:
+            names.append(column)
+            offsets.append(position)
+            types.append(_DF_NUMBERS[char][0])
+            position += np.dtype(types[-1]).itemsize
+        elif char in _DF_SIZES:
+            position += _DF_SIZES[char]
+        else:
+            raise _Unusual(f"{name}: format character {char!r}")
+    if 3 + position != body[1]:
+        raise _Unusual(f"{name}: its length is not its format's")
+    if name in rows:
+        raise _Unusual(f"{name} defined twice")
+    rows[name] = _Columns(name, path, columns, fmt)
+    wanted = rows[name].fields
+    if any(fmt[columns.index(f)] not in _DF_NUMBERS for f in wanted):
+        raise _Unusual(f"{name}: a wanted field is text")
+    dtype = np.dtype({"names": names, "formats": types, "offsets": offsets,
+                      "itemsize": position})
+    return rows[name], dtype, {f: _DF_NUMBERS[fmt[columns.index(f)]][1] for f in wanted}
+
+
 def _dataflash_rows(path: Path) -> dict[str, _Columns]:
-    """Every wanted message's wanted fields, per type. pymavlink's own messages (a line per
+    """Every wanted message's wanted fields, per type: a clean binary log by
+    :func:`_binary_rows`, anything else by pymavlink, whose own messages (a line per
     unreadable byte) are held back; a file with no readable message is one error, a field
     that holds text where a number belongs another."""
+    if path.suffix.lower() == ".bin":
+        with contextlib.suppress(_Unusual):
+            rows = _binary_rows(path)
+            if rows:
+                return {k: v for k, v in rows.items() if len(v)}
+    return _pymavlink_rows(path)
+
+
+def _pymavlink_rows(path: Path) -> dict[str, _Columns]:
+    """:func:`_dataflash_rows` by pymavlink's ``DFReader``."""
     reader = _need("pymavlink.DFReader", "pymavlink")
     cls = reader.DFReader_binary if path.suffix.lower() == ".bin" else reader.DFReader_text
     rows: dict[str, _Columns] = {}
     try:
         with _held_back() as chatter:
             log = cls(str(path), zero_time_base=False)
-            while (msg := log.recv_match(type=DATAFLASH_TYPES)) is not None:
-                kind = msg.get_type()
-                if kind not in rows:
-                    rows[kind] = _Columns(msg, path)
-                rows[kind].add(msg)
+            try:
+                while (msg := log.recv_match(type=DATAFLASH_TYPES)) is not None:
+                    kind = msg.get_type()
+                    if kind not in rows:
+                        rows[kind] = _Columns.of(msg, path)
+                    rows[kind].add(msg)
+            finally:
+                with contextlib.suppress(Exception):
+                    log.close()
     except ValueError as exc:
         if "malformed DataFlash FMT" in str(exc):
             raise
@@ -531,13 +705,7 @@ def _read_dataflash(path: Path) -> FlightLog:
                       for i in numbers]
         else:
             parts.append((0 if message == "MAG" else int(message[-1]) - 1, columns))
-    while parts:            # each compass's columns freed once its stream is built
-        i, f = parts.pop(0)
-        raw = np.column_stack([f[f"Mag{a}"] - (f[f"Ofs{a}"] if f"Ofs{a}" in f else 0.0)
-                               - (f[f"MO{a}"] if f"MO{a}" in f else 0.0) for a in "XYZ"])
-        mags[i] = Stream(f["TimeUS"] / 1e6, raw).clean()
-        del f
-    if path.suffix.lower() == ".log" and mags:
+    if path.suffix.lower() == ".log" and parts:
         names = tuple(k for k in ("MAG", "MAG2", "MAG3") if k in rows)
         # pymavlink's text reader returns the message after a dropped line twice: distinct
         # (time, instance) rows are what it read.
@@ -548,8 +716,17 @@ def _read_dataflash(path: Path) -> FlightLog:
         if dropped > 0:
             notes.append(f"{path.name}: {dropped} compass line(s) dropped (fewer fields than "
                          "their format lists)")
-    for message in ("MAG", "MAG2", "MAG3"):      # read into ``mags``: the fields are freed
+    for message in ("MAG", "MAG2", "MAG3"):      # in ``parts``: freed as they are read
         rows.pop(message, None)
+    while parts:            # each compass's fields freed as its stream is built
+        i, f = parts.pop(0)
+        t = f.take("TimeUS") / 1e6
+        f.values.pop("I", None)
+        raw = np.empty((len(t), 3))                                 # Mag - Ofs - MO
+        for j, name in enumerate(RAW_FIELDS):
+            raw[:, j] = f.take(name)
+        mags[i] = Stream(t, raw).clean()
+        del f, t, raw
     log = FlightLog(path, "dataflash", mags, "milligauss", notes=notes)
     for message, group, names, fields in (
             ("IMU", "gyro", ("gx", "gy", "gz"), ("GyrX", "GyrY", "GyrZ")),
