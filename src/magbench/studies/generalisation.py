@@ -37,6 +37,8 @@ direction against the best fixed method (by more than max(1 deg, 10 %): :func:`t
 
 from __future__ import annotations
 
+import dataclasses
+import hashlib
 import time
 import warnings
 from collections.abc import Mapping, Sequence
@@ -56,7 +58,7 @@ from magbench.engine.sweep import Study, settings_hash
 from magbench.engine.trial import run_method
 from magbench.pipeline.auto import candidate_rounds
 from magbench.pipeline.bootstrap import bootstrap_check
-from magbench.pipeline.decision import decide, written_correction
+from magbench.pipeline.decision import Decision, decide, written_correction
 from magbench.pipeline.fitting import DEFAULT_MAX_SAMPLES, applicability, fit_recording, is_usable
 from magbench.pipeline.holdout import estimate
 from magbench.sources.recordings import Recording, load_recording
@@ -204,33 +206,104 @@ def scores(test: Recording, A: np.ndarray | None = None, b: np.ndarray | None = 
     m = test.y if A is None else (test.y - b) @ np.asarray(A).T
     norm = np.linalg.norm(m, axis=1)
     spread = float(100 * norm.std() / (norm.mean() if field is None else field))
+    return spread, _direction_rms(test, m)
+
+
+def _direction_rms(test: Recording, m: np.ndarray) -> float:
+    """The world-frame direction spread of :func:`scores` (deg RMS; NaN without enough
+    attitude) of ``m``, ``test``'s samples as corrected."""
     q = _attitude(test)
     known = np.zeros(test.K, dtype=bool) if q is None else np.isfinite(q).all(axis=1)
     if known.sum() < max(MIN_PART, 0.5 * test.K):
-        return spread, float("nan")
+        return float("nan")
     angles = np.degrees(direction_spread(world_field(m[known], q[known])))
-    return spread, float(np.sqrt(np.mean(angles ** 2)))
+    return float(np.sqrt(np.mean(angles ** 2)))
 
 
-def _degenerate(test: Recording, A: np.ndarray, b: np.ndarray, centre: np.ndarray) -> bool:
+def _raw_scores(test: Recording, field: float) -> tuple[float, float, float]:
+    """The raw data's scores: :func:`scores` as a share of ``field`` and its direction
+    spread, then the spread as a share of the mean norm; the norms and the direction once."""
+    norm = np.linalg.norm(test.y, axis=1)
+    std = norm.std()
+    return (float(100 * std / field), _direction_rms(test, test.y),
+            float(100 * std / norm.mean()))
+
+
+def _degenerate(test: Recording, A: np.ndarray, b: np.ndarray, sphere_cover: float) -> bool:
     """The degenerate answer (``h`` far away, every corrected sample near one point, which
     makes any spread small): corrected directions cover less than half of what the sphere
-    fit's cover (:func:`magbench.pipeline.fitting.is_usable`)."""
-    return not is_usable(coverage((test.y - b) @ np.asarray(A).T), coverage(test.y - centre))
+    fit's cover (``sphere_cover``, the coverage of ``test`` about the fitted part's sphere
+    centre; :func:`magbench.pipeline.fitting.is_usable`)."""
+    return not is_usable(coverage((test.y - b) @ np.asarray(A).T), sphere_cover)
+
+
+class _Case:
+    """What every entrant's row of one protocol shares: the scored part, the fitted part's
+    sphere centre and radius, and the scored part's coverage about that centre, computed
+    once for the case rather than once per entrant (it is the same number for all)."""
+
+    def __init__(self, test: Recording, centre: np.ndarray, radius: float) -> None:
+        self.test, self.centre, self.radius = test, centre, radius
+        self._cover: float | None = None
+
+    @property
+    def sphere_cover(self) -> float:
+        if self._cover is None:
+            self._cover = coverage(self.test.y - self.centre)
+        return self._cover
+
+
+def _recording_key(rec: Recording) -> str:
+    """A digest of every field of ``rec`` (arrays by their bytes): two parts with the same
+    key are the same input to :func:`~magbench.pipeline.decision.decide`."""
+    digest = hashlib.sha256()
+
+    def add(value: object) -> None:
+        if isinstance(value, np.ndarray):
+            digest.update(f"{value.dtype}{value.shape}".encode())
+            digest.update(np.ascontiguousarray(value).tobytes())
+        elif isinstance(value, Mapping):
+            for key in sorted(value):
+                digest.update(f"<{key}>".encode())
+                add(value[key])
+        else:
+            digest.update(repr(value).encode())
+
+    for f in dataclasses.fields(rec):
+        digest.update(f"|{f.name}=".encode())
+        add(getattr(rec, f.name))
+    return digest.hexdigest()
+
+
+def _decide(part: Recording, options: dict | None, seed: int, timeout: float | None,
+            memo: dict[str, Decision] | None = None) -> Decision:
+    """``calibrate``'s decision on ``part`` as the command makes it; with ``memo``, a part
+    decided before in the same unit (the ``half`` protocol's fitted part is the interval
+    check's first half) is not decided again: :func:`decide` is deterministic, so the
+    decision is the same."""
+    key = _recording_key(part) if memo is not None else ""
+    if memo is not None and key in memo:
+        return memo[key]
+    first, second = candidate_rounds(part.has_gyro, "auto", shipped=True)
+    decision = decide(part, first, second_round=second, options=options, seed=seed,
+                      call_timeout_s=timeout, max_samples=DEFAULT_MAX_SAMPLES)
+    if memo is not None:
+        memo[key] = decision
+    return decision
 
 
 def _row(rec: Recording, protocol: str, entrant: str, kind: str, fit: Recording,
          test: Recording, raw: tuple[float, float], *, A=None, b=None, status: str = "",
-         written: bool = False, method: str = "", radius: float = float("nan"),
-         centre: np.ndarray | None = None, error: str = "") -> dict:
+         written: bool = False, method: str = "", case: _Case | None = None,
+         error: str = "") -> dict:
     spread, direction = scores(test, A, b) if A is not None else (float("nan"),) * 2
     ratio = float("nan")
     degenerate = False
     if A is not None:
-        degenerate = _degenerate(test, A, b, centre)
+        degenerate = _degenerate(test, A, b, case.sphere_cover)
         # The fitted field strength over the data's own radius: a fit whose scale is far off
         # is a wrong unit or a collapsed fit, whatever its shape.
-        ratio = float(1.0 / np.cbrt(abs(np.linalg.det(A))) / radius)
+        ratio = float(1.0 / np.cbrt(abs(np.linalg.det(A))) / case.radius)
     return {"dataset": rec.name, "protocol": protocol, "algorithm": entrant, "kind": kind,
             "K_fit": fit.K, "K_test": test.K, "status": status,
             "ok": status not in ("failed", "ERROR"), "written": bool(written),
@@ -240,9 +313,7 @@ def _row(rec: Recording, protocol: str, entrant: str, kind: str, fit: Recording,
             "error": error}
 
 
-def _fixed_rows(rec, protocol, fit, test, raw, names, options, seed, timeout, radius,
-                centre):
-    thin = fit.thinned(DEFAULT_MAX_SAMPLES)
+def _fixed_rows(rec, protocol, fit, test, raw, names, options, seed, timeout, case, thin):
     rows, times = [], []
     for name in names:
         reason = applicability(name, thin)
@@ -263,7 +334,7 @@ def _fixed_rows(rec, protocol, fit, test, raw, names, options, seed, timeout, ra
                 error = f"{type(exc).__name__}: {exc}"
         rows.append(_row(rec, protocol, name, "fixed", fit, test, raw, A=A, b=b,
                          status="ok" if A is not None else "failed", written=A is not None,
-                         method=name, radius=radius, centre=centre, error=error or ""))
+                         method=name, case=case, error=error or ""))
         times.append(out.time_s)
     return rows, times
 
@@ -286,8 +357,7 @@ def _peer_version(name: str) -> str:
         return f"{package} (version unknown)"
 
 
-def _peer_rows(rec, protocol, fit, test, raw, radius, centre, names=None):
-    thin = fit.thinned(DEFAULT_MAX_SAMPLES)
+def _peer_rows(rec, protocol, fit, test, raw, case, thin, names=None):
     rows, times = [], []
     for name in _peers() if names is None else names:
         start = time.perf_counter()
@@ -296,8 +366,7 @@ def _peer_rows(rec, protocol, fit, test, raw, radius, centre, names=None):
                 warnings.simplefilter("ignore")
                 A, b = Calibration(*fit_peer(name, thin.y)).correction()
             rows.append(_row(rec, protocol, name, "peer", fit, test, raw, A=A, b=b,
-                             status="ok", written=True, method=name, radius=radius,
-                             centre=centre))
+                             status="ok", written=True, method=name, case=case))
         except Exception as exc:        # a peer's failure is a row, as a method's
             rows.append(_row(rec, protocol, name, "peer", fit, test, raw, status="failed",
                              error=f"{type(exc).__name__}: {exc}"[:200]))
@@ -305,12 +374,10 @@ def _peer_rows(rec, protocol, fit, test, raw, radius, centre, names=None):
     return rows, times
 
 
-def _auto_row(rec, protocol, fit, test, raw, options, seed, timeout, radius, centre):
+def _auto_row(rec, protocol, fit, test, raw, options, seed, timeout, case, memo=None):
     start = time.perf_counter()
-    first, second = candidate_rounds(fit.has_gyro, "auto", shipped=True)
     try:
-        decision = decide(fit, first, second_round=second, options=options, seed=seed,
-                          call_timeout_s=timeout, max_samples=DEFAULT_MAX_SAMPLES)
+        decision = _decide(fit, options, seed, timeout, memo)
     except Exception as exc:            # the command would exit 2 with one line
         return (_row(rec, protocol, AUTO, "auto", fit, test, raw, status="ERROR",
                      error=f"{type(exc).__name__}: {exc}"[:300]),
@@ -323,25 +390,27 @@ def _auto_row(rec, protocol, fit, test, raw, options, seed, timeout, radius, cen
     if cal is not None:
         A, b = cal.correction()
     row = _row(rec, protocol, AUTO, "auto", fit, test, raw, A=A, b=b, status=decision.status,
-               written=decision.written, method=method, radius=radius, centre=centre,
+               written=decision.written, method=method, case=case,
                error="; ".join(str(r) for r in reasons)[:300])
     if A is None and chosen is not None:
         # What the user is left with is the raw data; the ratio is still worth keeping.
         T, _ = estimate(chosen)
-        row["field_ratio"] = float(np.cbrt(abs(np.linalg.det(T))) / radius)
+        row["field_ratio"] = float(np.cbrt(abs(np.linalg.det(T))) / case.radius)
     return row, time.perf_counter() - start
 
 
 def evaluate_protocol(rec: Recording, protocol: str, *, fixed: Sequence[str],
                       peers: bool | Sequence[str] = True, options: dict | None = None,
                       seed: int = 0, call_timeout_s: float | None = None,
-                      field: float | None = None, auto: bool = True
+                      field: float | None = None, auto: bool = True,
+                      memo: dict[str, Decision] | None = None
                       ) -> tuple[list[dict], list[dict]]:
     """Rows (and their times) of every entrant on ``rec`` under ``protocol``: the automatic
     choice (``auto``), each of ``fixed``, each installed peer (``peers``: True, or the peers
     to run); one skipped row when the protocol does not apply. ``field``: the recording's
     field strength, the raw spread's scale (its robust radius by default; a caller running
-    every protocol passes it once)."""
+    every protocol passes it once). ``memo``: decisions already made on a part of ``rec``
+    (:func:`_decide`), and where this one's goes."""
     options = options or {}
     parts = split(rec, protocol, seed)
     if isinstance(parts, str):
@@ -353,22 +422,22 @@ def evaluate_protocol(rec: Recording, protocol: str, *, fixed: Sequence[str],
         return [row], [{"dataset": rec.name, "protocol": protocol, "algorithm": AUTO,
                         "time_s": 0.0}]
     fit, test = parts
-    mean_spread, direction = scores(test)
     field = screen(rec.y).radius if field is None else field
-    raw = (scores(test, field=field)[0], direction, mean_spread)
-    centre, radius = sphere_fit(fit.y)
+    raw = _raw_scores(test, field)
+    case = _Case(test, *sphere_fit(fit.y))
+    thin = fit.thinned(DEFAULT_MAX_SAMPLES)
     rows, times = [], []
     if auto:
         row, t = _auto_row(rec, protocol, fit, test, raw, options, seed, call_timeout_s,
-                           radius, centre)
+                           case, memo)
         rows.append(row)
         times.append(t)
     r, t = _fixed_rows(rec, protocol, fit, test, raw, fixed, options, seed, call_timeout_s,
-                       radius, centre)
+                       case, thin)
     rows += r
     times += t
     if peers:
-        r, t = _peer_rows(rec, protocol, fit, test, raw, radius, centre,
+        r, t = _peer_rows(rec, protocol, fit, test, raw, case, thin,
                           None if peers is True else list(peers))
         rows += r
         times += t
@@ -379,19 +448,19 @@ def evaluate_protocol(rec: Recording, protocol: str, *, fixed: Sequence[str],
 # --- honest intervals ----------------------------------------------------------------------
 
 def interval_rows(rec: Recording, *, options: dict | None = None, seed: int = 0,
-                  bootstrap: int = 50, call_timeout_s: float | None = None) -> list[dict]:
+                  bootstrap: int = 50, call_timeout_s: float | None = None,
+                  memo: dict[str, Decision] | None = None) -> list[dict]:
     """The offsets ``calibrate`` writes from the first and from the second half of ``rec``,
     with their printed 95 % half-widths (the wider of model-based and block bootstrap), per
     axis; ``agree`` when the difference is within the two half-widths combined in quadrature
     (the 95 % interval of the difference of two independent estimates). Empty for recordings
-    shorter than :data:`INTERVAL_MIN_S` or when a half writes nothing."""
+    shorter than :data:`INTERVAL_MIN_S` or when a half writes nothing. ``memo``: as
+    :func:`evaluate_protocol`'s (the first half is the ``half`` protocol's fitted part)."""
     if rec.t is None or rec.t[-1] - rec.t[0] < INTERVAL_MIN_S:
         return []
     halves = []
     for part in (rec.rows(np.arange(rec.K // 2)), rec.rows(np.arange(rec.K // 2, rec.K))):
-        first, second = candidate_rounds(part.has_gyro, "auto", shipped=True)
-        d = decide(part, first, second_round=second, options=options, seed=seed,
-                   call_timeout_s=call_timeout_s, max_samples=DEFAULT_MAX_SAMPLES)
+        d = _decide(part, options, seed, call_timeout_s, memo)
         if not d.written:
             return []
         d.result.bootstrap = bootstrap_check(d.result, bootstrap, options=options or {},
@@ -481,13 +550,15 @@ class GeneralisationStudy(Study):
         entrants = self.entrants()
         per: dict[str, tuple[list, list]] = {e: ([], []) for e in entrants}
         field = screen(rec.y).radius
+        # calibrate's decisions on parts of this recording, made once each (:func:`_decide`).
+        memo: dict[str, Decision] = {}
         for protocol in self.protocols:
             r, t = evaluate_protocol(rec, protocol,
                                      fixed=[a for a in self.algorithms if a in per],
                                      peers=[p for p in entrants if p in PEER_FITS],
                                      options=self.options, seed=self.seed,
                                      call_timeout_s=self.call_timeout_s, field=field,
-                                     auto=AUTO in per)
+                                     auto=AUTO in per, memo=memo)
             for row, time_row in zip(r, t, strict=True):
                 per[row["algorithm"]][0].append(row)
                 per[row["algorithm"]][1].append(time_row)
@@ -496,7 +567,7 @@ class GeneralisationStudy(Study):
         times = [row for e in entrants for row in per[e][1]]
         intervals = interval_rows(rec, options=self.options, seed=self.seed,
                                   bootstrap=self.bootstrap,
-                                  call_timeout_s=self.call_timeout_s) \
+                                  call_timeout_s=self.call_timeout_s, memo=memo) \
             if self.bootstrap and AUTO in per else []
         return {"trials": rows, "times": times, "intervals": intervals}
 
