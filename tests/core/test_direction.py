@@ -158,3 +158,19 @@ def test_heading_bound_is_met_by_least_squares_with_the_attitude_known():
     alone, _ = heading_bound(np.eye(3), q, m0, sigma)
     assert alone == pytest.approx(sigma / np.cos(INC) * np.sqrt(1 + 4 / K), rel=0.02)
     assert 0 < share < 0.3 * total
+
+
+def test_attitude_field_recovers_the_world_field_past_disturbed_rows():
+    from magbench.core.direction import attitude_field
+    from magbench.core.quaternions import quat_conjugate, quat_rotate
+
+    gen = np.random.default_rng(3)
+    q = gen.normal(size=(600, 4))
+    q /= np.linalg.norm(q, axis=1, keepdims=True)
+    h, b = np.array([0.5, 20.0, -35.0]), np.array([300.0, -100.0, 50.0])
+    y = quat_rotate(quat_conjugate(q), np.broadcast_to(h, (600, 3))) + b
+    y += gen.normal(0.0, 0.2, y.shape)
+    y[:150] += gen.normal(0.0, 60.0, (150, 3))       # a quarter of the rows disturbed
+    q[:5] = np.nan                                    # rows without attitude are left out
+    assert np.allclose(attitude_field(y, q), h, atol=0.1)
+    assert attitude_field(y[:9], q[5:14]) is None     # too few rows to say

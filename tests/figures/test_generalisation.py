@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pandas as pd
 
-from magbench.figures.generalisation import generalisation_figure, losses_by_protocol
+from magbench.figures.generalisation import ORACLE, generalisation_figure, losses_by_protocol
 
 
 def cases() -> pd.DataFrame:
@@ -22,6 +22,13 @@ def test_losses_use_the_study_tolerance():
     # always the sphere fit: 5 vs 1 loses, 10.6 vs 10 loses (> 0.5), 2.0 and 2.2 tie
     assert table.loc["half", "sphere"] == 2 and table.loc["blocks", "sphere"] == 0
     assert list(table.columns) == ["calibrate", "sphere"]
+
+
+def test_the_oracle_bar_counts_the_best_eligible_fit():
+    c = cases().assign(oracle_pct=[1.0, 10.0, 2.3, 3.0])
+    table = losses_by_protocol(c)
+    assert list(table.columns) == ["calibrate", ORACLE, "sphere"]
+    assert table.loc["half", ORACLE] == 0 and table.loc["blocks", ORACLE] == 2
 
 
 def test_the_figure_has_both_panels():

@@ -90,8 +90,8 @@ def test_a_protocol_that_leaves_too_few_samples_is_skipped_with_the_reason():
 def test_scores_know_the_answer():
     u = fibonacci_sphere(400)
     rec = Recording("r", 2.0 * u + [5.0, 0.0, 0.0], n_rows=400)
-    spread, direction = scores(rec, np.eye(3) / 2.0, np.array([5.0, 0.0, 0.0]))
-    assert spread == pytest.approx(0.0, abs=1e-9) and np.isnan(direction)
+    spread, direction, heading = scores(rec, np.eye(3) / 2.0, np.array([5.0, 0.0, 0.0]))
+    assert spread == pytest.approx(0.0, abs=1e-9) and np.isnan(direction) and np.isnan(heading)
     norm = np.linalg.norm(rec.y, axis=1)
     assert scores(rec)[0] == pytest.approx(100 * norm.std() / norm.mean())
     # raw data as a share of the field (radius 2), not of their mean norm (about 5)
@@ -103,6 +103,15 @@ def test_scores_know_the_answer():
                     extra={"qw": q[:, 0], "qx": q[:, 1], "qy": q[:, 2], "qz": q[:, 3]})
     assert scores(att, np.eye(3) / 2.0, np.array([5.0, 0.0, 0.0]))[1] == \
         pytest.approx(0.0, abs=1e-6)
+    # the heading against the world field: none on +x, 30 deg against a field 30 deg away
+    # in azimuth (and dipping: the inclination is not the heading); NaN without a reference
+    A, b = np.eye(3) / 2.0, np.array([5.0, 0.0, 0.0])
+    assert np.isnan(scores(att, A, b)[2])
+    assert scores(att, A, b, reference=np.array([1.0, 0.0, 0.0]))[2] == \
+        pytest.approx(0.0, abs=1e-6)
+    a = np.radians(30.0)
+    assert scores(att, A, b, reference=np.array([np.cos(a), np.sin(a), -1.0]))[2] == \
+        pytest.approx(30.0, abs=1e-6)
 
 
 def _quat_to_x(v: np.ndarray) -> np.ndarray:
@@ -120,7 +129,8 @@ def _rows(dataset, protocol, auto, fixed, raw=10.0, peers=(), raw_mean=None):
     """A case's rows: ``auto`` (spread or None for nothing written), fixed name -> spread."""
     base = {"dataset": dataset, "protocol": protocol, "raw_spread_pct": raw,
             "raw_mean_spread_pct": raw if raw_mean is None else raw_mean,
-            "raw_direction_deg": np.nan, "direction_deg": np.nan, "degenerate": False,
+            "raw_direction_deg": np.nan, "direction_deg": np.nan, "raw_heading_deg": np.nan,
+            "heading_deg": np.nan, "degenerate": False,
             "method": ""}
     rows = [{**base, "algorithm": AUTO, "kind": "auto", "status": "PASS" if auto else "FAIL",
              "written": auto is not None, "spread_pct": auto if auto else np.nan}]
@@ -168,6 +178,7 @@ def test_direction_losses_use_their_own_tolerance():
         rows = _rows("p", "half", 6.0 if written else None, {"sphere": 6.0, "fang": 6.0})
         for r, d in zip(rows, (auto_deg, 10.0, 20.0), strict=True):
             r["raw_direction_deg"], r["direction_deg"] = 60.0, d
+            r["raw_heading_deg"], r["heading_deg"] = 60.0, d
         return case_table(pd.DataFrame(rows)).loc[0]
 
     assert not case(11.0)["loss_direction"]                # within 10 % of the best, 10 deg
@@ -175,7 +186,8 @@ def test_direction_losses_use_their_own_tolerance():
     assert case(np.nan, written=False)["loss_direction"]    # raw 60 deg is what is left
     table = protocol_table(pd.DataFrame([case(11.5), case(5.0)]))
     assert table.loc[0, "losses_direction"] == 1 and table.loc[0, "direction_cases"] == 2
-    # with an attitude the compass score is the direction's, without one the magnitude's
+    assert case(11.5)["loss_heading"] and not case(11.0)["loss_heading"]
+    # with an attitude the compass score is the heading's, without one the magnitude's
     assert case(11.5)["loss_compass"] and not case(11.0)["loss_compass"]
     assert table.loc[0, "losses_compass"] == 1
     plain = case_table(pd.DataFrame(_rows("q", "half", 2.0, {"sphere": 1.0}))).loc[0]
@@ -187,9 +199,10 @@ def test_compass_harm_and_needless_fails_and_the_peers_comparison():
         rows = _rows("p", "half", auto, {"sphere": 6.0, "fang": 6.0}, raw=40.0, peers=peers)
         for r, d in zip(rows, (auto_deg, *fixed_deg, *[np.nan] * len(peers)), strict=True):
             r["raw_direction_deg"], r["direction_deg"] = 20.0, d
+            r["raw_heading_deg"], r["heading_deg"] = 20.0, d
         return case_table(pd.DataFrame(rows)).loc[0]
 
-    # nothing written; by magnitude a fit would have helped (40 % raw), but by direction
+    # nothing written; by magnitude a fit would have helped (40 % raw), but by heading
     # every fixed fit is worse than the raw data's 20 deg: no needless FAIL by the compass
     worse = case(None, np.nan, (30.0, 25.0))
     assert worse["needless_fail"] and not worse["needless_fail_compass"]
@@ -205,6 +218,34 @@ def test_compass_harm_and_needless_fails_and_the_peers_comparison():
     table = protocol_table(pd.DataFrame([worse, better, astray, lost]))
     assert table.loc[0, ["needless_fail", "needless_fail_compass", "harmful_compass",
                          "losses_peers"]].tolist() == [2, 1, 1, 1]
+
+
+def test_the_compass_scores_the_heading_not_the_spread_about_its_own_mean():
+    # raw data that barely turn: 20 deg of spread about their own mean, but 95 deg from the
+    # world field; a fit spreads 30 deg and points within 25 deg of the field
+    rows = _rows("p", "half", None, {"sphere": 6.0}, raw=40.0)
+    for r, (d, h) in zip(rows, ((np.nan, np.nan), (30.0, 25.0)), strict=True):
+        r["raw_direction_deg"], r["direction_deg"] = 20.0, d
+        r["raw_heading_deg"], r["heading_deg"] = 95.0, h
+    row = case_table(pd.DataFrame(rows)).loc[0]
+    assert not row["loss_direction"] and row["loss_heading"]
+    assert row["loss_compass"] and row["needless_fail_compass"]
+    assert row["auto_heading_deg"] == 95.0          # the user keeps the raw data
+
+
+def test_the_oracle_counts_what_a_ranking_in_hindsight_would_lose():
+    # calibrate wrote 2.0 against the best fixed fit's 1.0 (a loss); its best eligible
+    # candidate scored 1.02 held out (no loss): the ranking lost this case
+    rows = _rows("a", "half", 2.0, {"sphere": 1.0})
+    rows[0].update(oracle_pct=1.02, oracle_heading_deg=np.nan, oracle_method="sphere")
+    # nothing eligible: the oracle keeps the raw data (10 %) and loses too
+    none = _rows("b", "half", None, {"sphere": 1.0})
+    none[0].update(oracle_pct=np.nan, oracle_heading_deg=np.nan, oracle_method="")
+    cases = case_table(pd.DataFrame(rows + none))
+    assert cases["loss"].tolist() == [True, True]
+    assert cases["loss_oracle"].tolist() == [False, True]
+    assert cases["oracle_pct"].tolist() == [1.02, 10.0]
+    assert protocol_table(cases).loc[0, "losses_oracle"] == 1
 
 
 def test_a_degenerate_fit_never_is_the_best_in_hindsight():
@@ -253,19 +294,6 @@ def test_peers_that_need_the_field_given_are_not_entrants():
 
     assert set(_peers()) == set(available_peers()) - set(PEER_NEEDS_FIELD)
     assert "navlib.cal_mag_twostep_hi" in PEER_NEEDS_FIELD
-
-
-def test_raw_scores_once_equal_the_two_scores_calls_they_replace():
-    from magbench.studies.generalisation import _raw_scores
-
-    rec = rotating(K=800)
-    q = np.tile([1.0, 0.0, 0.0, 0.0], (rec.K, 1))
-    rec = Recording("spiral", rec.y, t=rec.t, n_rows=rec.K,
-                    extra={n: q[:, i] for i, n in enumerate(("qw", "qx", "qy", "qz"))})
-    _, test = split(rec, "blocks")
-    mean_spread, direction = scores(test)
-    assert _raw_scores(test, 55.0) == (scores(test, field=55.0)[0], direction, mean_spread)
-    assert np.isfinite(direction)
 
 
 def test_the_interval_checks_first_half_is_the_half_protocols_decision(monkeypatch):

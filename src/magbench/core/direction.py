@@ -35,6 +35,7 @@ from magbench.core.rotations import cumulative_product, rotation_exp
 
 __all__ = [
     "angles_between",
+    "attitude_field",
     "broad_errors",
     "dip_angles",
     "direction_score",
@@ -141,6 +142,51 @@ def rms(values: np.ndarray, mask: np.ndarray | None = None) -> float:
         v = v[np.asarray(mask, dtype=bool)]
     v = v[np.isfinite(v)]
     return float(np.sqrt(np.mean(v * v))) if v.size else np.nan
+
+
+def attitude_field(y: np.ndarray, attitude: np.ndarray, *, keep: float = 0.5,
+                   passes: int = 5) -> np.ndarray | None:
+    """The world-frame field a recording's reference attitude implies: ``h`` of
+    ``y_k = R_k^T h + b`` fitted by least squares on the rows that fit best.
+
+    The raw samples are modelled with an offset and no soft iron, which is enough to find
+    where the field points in the world (a few uT of shape error do not turn it). Each pass
+    refits on the ``keep`` share of rows with the smallest residual, so a disturbed stretch
+    does not move the answer. It uses the attitude, which no magnetometer-only fit sees: it
+    is the truth a fit's heading is scored against, not a calibration.
+
+    Parameters
+    ----------
+    y : ndarray, shape (K, 3)
+        Raw samples in sensor axes.
+    attitude : ndarray, shape (K, 4)
+        Reference attitude, sensor -> world (NaN rows are left out).
+    keep : float
+        Share of rows each refit keeps.
+    passes : int
+        Number of refits.
+
+    Returns
+    -------
+    ndarray, shape (3,), or None
+        The field in world axes, or None when fewer than 10 rows have an attitude.
+    """
+    y, q = np.asarray(y, dtype=float), np.asarray(attitude, dtype=float)
+    ok = np.isfinite(q).all(axis=1) & np.isfinite(y).all(axis=1)
+    if ok.sum() < 10:
+        return None
+    y, qc = y[ok], quat_conjugate(q[ok])
+    K = len(y)
+    # Row k of the design: [R_k^T | I]; R_k^T e_j is e_j turned by the conjugate.
+    cols = [quat_rotate(qc, np.broadcast_to(e, (K, 3))) for e in np.eye(3)]
+    X = np.concatenate([np.stack(cols, axis=2), np.broadcast_to(np.eye(3), (K, 3, 3))],
+                       axis=2)
+    use = np.ones(K, dtype=bool)
+    for _ in range(passes):
+        p, *_ = np.linalg.lstsq(X[use].reshape(-1, 6), y[use].reshape(-1), rcond=None)
+        residual = np.linalg.norm(X @ p - y, axis=1)
+        use = residual <= np.quantile(residual, keep)
+    return p[:3]
 
 
 def direction_spread(f_world: np.ndarray) -> np.ndarray:

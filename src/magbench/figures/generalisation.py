@@ -2,8 +2,9 @@
 
 (a) the regret of ``calibrate``'s choice per case (its held-out spread, raw when it wrote
 nothing, minus the best fixed method's), by protocol; (b) losses per protocol (worse than the
-best fixed method in hindsight by more than max(0.25 points, 5 %)) of ``calibrate`` beside
-always using one fixed method or one peer.
+best fixed method in hindsight by more than max(0.25 points, 5 %)) of ``calibrate``, of the
+best of its eligible candidates in hindsight (what a perfect ranking would lose, when the
+cases carry ``oracle_pct``), beside always using one fixed method or one peer.
 """
 
 from __future__ import annotations
@@ -14,13 +15,15 @@ from matplotlib.figure import Figure
 
 from magbench.figures.style import method_style, new_figure
 
-__all__ = ["POLICIES", "generalisation_figure", "losses_by_protocol"]
+__all__ = ["ORACLE", "POLICIES", "generalisation_figure", "losses_by_protocol"]
 
 #: The fixed methods and peers drawn beside ``calibrate`` in panel (b), when present.
 POLICIES = ("sphere", "ellipsoid", "fang", "wu_shi_nm", "navlib.cal_mag_sphere_fit",
             "navlib.cal_mag_ellipsoid_fit_fang", "magcal.ellipsoid_fit")
 #: calibrate's colour: not a method's, the same in every figure of this study.
 AUTO_COLOUR = "#BB5566"
+#: The bar of calibrate's best eligible candidate in hindsight.
+ORACLE = "calibrate's best eligible fit in hindsight"
 
 
 def _tolerance(best: np.ndarray) -> np.ndarray:
@@ -33,6 +36,8 @@ def losses_by_protocol(cases: pd.DataFrame) -> pd.DataFrame:
     out = {}
     best = cases["best_fixed_pct"].to_numpy(float)
     entrants = {"calibrate": cases["auto_pct"].to_numpy(float)}
+    if "oracle_pct" in cases:
+        entrants[ORACLE] = cases["oracle_pct"].to_numpy(float)
     entrants |= {p: cases[f"pct:{p}"].to_numpy(float) for p in POLICIES
                  if f"pct:{p}" in cases}
     protocols = list(dict.fromkeys(cases["protocol"]))
@@ -43,12 +48,15 @@ def losses_by_protocol(cases: pd.DataFrame) -> pd.DataFrame:
 
 
 def _label(name: str) -> str:
-    return name if "." in name or name == "calibrate" else str(method_style(name)["label"])
+    return name if "." in name or name in ("calibrate", ORACLE) \
+        else str(method_style(name)["label"])
 
 
 def _style(name: str) -> tuple[str, str]:
     if name == "calibrate":
         return AUTO_COLOUR, ""
+    if name == ORACLE:                  # hollow: not an entrant, a bound on the ranking
+        return AUTO_COLOUR, ".."
     if "." in name:                     # a peer: its paired method's colour, hollow bars
         base = {"navlib.cal_mag_sphere_fit": "sphere", "navlib.cal_mag_ellipsoid_fit_fang":
                 "fang", "magcal.ellipsoid_fit": "ellipsoid"}.get(name, "sphere")

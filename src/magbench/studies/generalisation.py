@@ -21,10 +21,13 @@ Protocols (:func:`split`):
 
 Scores on the held-out part (:func:`scores`): the field-magnitude spread ``100 std|m| /
 mean|m|`` (%) of the corrected samples, and, where the recording carries a reference attitude,
-the world-frame direction spread (RMS angle, deg, of the corrected field turned to world axes,
-about its mean direction). The raw data's scores are the "no correction" line; their magnitude
-spread is a share of the *field*, ``100 std|y| / r`` with ``r`` the robust radius of the whole
-recording (:func:`magbench.core.robust.screen`), not of their mean norm: raw samples whose
+the heading error (RMS, deg, BROAD's definition) against the recording's world field
+(:func:`world_reference`: the field the attitude and the raw samples of the whole recording
+imply), and beside it the world-frame direction spread about its own mean direction, which a
+sensor that barely turns keeps small whatever it points at. The raw data's scores are the "no
+correction" line; their magnitude spread is a share of the *field*, ``100 std|y| / r`` with
+``r`` the robust radius of the whole recording (:func:`magbench.core.robust.screen`), not of
+their mean norm: raw samples whose
 offset exceeds the field have a mean norm of about the offset, so any spread looks small beside
 it (a phone with a 409 uT hard iron in a 41 uT field: 5 % "raw" while the raw field points
 60-96 deg astray). ``raw_mean_spread_pct`` keeps the mean-norm figure. :func:`case_table` and
@@ -32,7 +35,7 @@ it (a phone with a 409 uT hard iron in a 41 uT field: 5 % "raw" while the raw fi
 against the best fixed method in hindsight, wins, ties and losses against every fixed method
 and peer, corrections written worse than raw (and, beside, worse than raw by its mean-norm
 spread), FAILs where a fixed method would have helped, and, with an attitude, losses by
-direction against the best fixed method (by more than max(1 deg, 10 %): :func:`tolerance_deg`).
+heading against the best fixed method (by more than max(1 deg, 10 %): :func:`tolerance_deg`).
 """
 
 from __future__ import annotations
@@ -48,7 +51,7 @@ from typing import TYPE_CHECKING, ClassVar
 
 import numpy as np
 
-from magbench.core.direction import direction_spread, world_field
+from magbench.core.direction import attitude_field, direction_spread, field_errors, rms, world_field
 from magbench.core.files import write_csv_atomic
 from magbench.core.geometry import coverage, sphere_fit, unit_rows
 from magbench.core.model import Calibration
@@ -87,7 +90,9 @@ INTERVAL_MIN_S = 120.0
 
 ROW_COLUMNS = ["dataset", "protocol", "algorithm", "kind", "K_fit", "K_test", "status", "ok",
                "written", "degenerate", "method", "spread_pct", "raw_spread_pct",
-               "raw_mean_spread_pct", "direction_deg", "raw_direction_deg", "field_ratio", "error"]
+               "raw_mean_spread_pct", "direction_deg", "raw_direction_deg", "heading_deg",
+               "raw_heading_deg", "field_ratio", "oracle_method", "oracle_pct",
+               "oracle_heading_deg", "error"]
 INTERVAL_COLUMNS = ["dataset", "axis", "method_first", "method_second", "b_first", "b_second",
                     "half_width_first", "half_width_second", "source_first",
                     "source_second", "agree"]
@@ -198,59 +203,132 @@ def _attitude(rec: Recording) -> np.ndarray | None:
 
 
 def scores(test: Recording, A: np.ndarray | None = None, b: np.ndarray | None = None,
-           field: float | None = None) -> tuple[float, float]:
-    """Held-out field-magnitude spread (%) and world-frame direction spread (deg RMS over the
-    rows with an attitude; NaN without one, or when fewer than half the rows have it) of
-    ``test`` corrected by ``m = A (y - b)`` (raw without ``A``). The spread is a share of the
-    mean norm, or of ``field`` when given (raw data: the field's strength in their units)."""
+           field: float | None = None, reference: np.ndarray | None = None
+           ) -> tuple[float, float, float]:
+    """Held-out field-magnitude spread (%), world-frame direction spread (deg RMS about the
+    mean direction) and heading error (deg RMS, BROAD's definition, against ``reference``,
+    the recording's world field: :func:`~magbench.core.direction.attitude_field`) of
+    ``test`` corrected by ``m = A (y - b)`` (raw without ``A``). The angles use the rows with
+    an attitude: NaN without one, or when fewer than half the rows have it; the heading is
+    NaN without ``reference``. The spread is a share of the mean norm, or of ``field`` when
+    given (raw data: the field's strength in their units)."""
     m = test.y if A is None else (test.y - b) @ np.asarray(A).T
     norm = np.linalg.norm(m, axis=1)
     spread = float(100 * norm.std() / (norm.mean() if field is None else field))
-    return spread, _direction_rms(test, m)
-
-
-def _direction_rms(test: Recording, m: np.ndarray) -> float:
-    """The world-frame direction spread of :func:`scores` (deg RMS; NaN without enough
-    attitude) of ``m``, ``test``'s samples as corrected."""
     q = _attitude(test)
     known = np.zeros(test.K, dtype=bool) if q is None else np.isfinite(q).all(axis=1)
     if known.sum() < max(MIN_PART, 0.5 * test.K):
-        return float("nan")
+        return spread, float("nan"), float("nan")
     angles = np.degrees(direction_spread(world_field(m[known], q[known])))
-    return float(np.sqrt(np.mean(angles ** 2)))
+    heading = float("nan")
+    if reference is not None:
+        heading = rms(np.degrees(field_errors(m[known], q[known], reference)[0]))
+    return spread, float(np.sqrt(np.mean(angles ** 2))), heading
 
 
-def _raw_scores(test: Recording, field: float) -> tuple[float, float, float]:
-    """The raw data's scores: :func:`scores` as a share of ``field`` and its direction
-    spread, then the spread as a share of the mean norm; the norms and the direction once."""
-    norm = np.linalg.norm(test.y, axis=1)
-    std = norm.std()
-    return (float(100 * std / field), _direction_rms(test, test.y),
-            float(100 * std / norm.mean()))
+def world_reference(rec: Recording) -> np.ndarray | None:
+    """The recording's world field (:func:`~magbench.core.direction.attitude_field` of every
+    row), against which every entrant's heading is scored; None without an attitude."""
+    q = _attitude(rec)
+    return None if q is None else attitude_field(rec.y, q)
 
 
-def _degenerate(test: Recording, A: np.ndarray, b: np.ndarray, sphere_cover: float) -> bool:
+def _degenerate(test: Recording, A: np.ndarray, b: np.ndarray, centre: np.ndarray) -> bool:
     """The degenerate answer (``h`` far away, every corrected sample near one point, which
     makes any spread small): corrected directions cover less than half of what the sphere
-    fit's cover (``sphere_cover``, the coverage of ``test`` about the fitted part's sphere
-    centre; :func:`magbench.pipeline.fitting.is_usable`)."""
-    return not is_usable(coverage((test.y - b) @ np.asarray(A).T), sphere_cover)
+    fit's cover (:func:`magbench.pipeline.fitting.is_usable`)."""
+    return not is_usable(coverage((test.y - b) @ np.asarray(A).T), coverage(test.y - centre))
 
 
-class _Case:
-    """What every entrant's row of one protocol shares: the scored part, the fitted part's
-    sphere centre and radius, and the scored part's coverage about that centre, computed
-    once for the case rather than once per entrant (it is the same number for all)."""
+def _row(rec: Recording, protocol: str, entrant: str, kind: str, fit: Recording,
+         test: Recording, raw: tuple[float, ...], *, A=None, b=None, status: str = "",
+         written: bool = False, method: str = "", radius: float = float("nan"),
+         centre: np.ndarray | None = None, error: str = "",
+         reference: np.ndarray | None = None) -> dict:
+    spread, direction, heading = (scores(test, A, b, reference=reference) if A is not None
+                                  else (float("nan"),) * 3)
+    ratio = float("nan")
+    degenerate = False
+    if A is not None:
+        degenerate = _degenerate(test, A, b, centre)
+        # The fitted field strength over the data's own radius: a fit whose scale is far off
+        # is a wrong unit or a collapsed fit, whatever its shape.
+        ratio = float(1.0 / np.cbrt(abs(np.linalg.det(A))) / radius)
+    return {"dataset": rec.name, "protocol": protocol, "algorithm": entrant, "kind": kind,
+            "K_fit": fit.K, "K_test": test.K, "status": status,
+            "ok": status not in ("failed", "ERROR"), "written": bool(written),
+            "degenerate": degenerate, "method": method, "spread_pct": spread,
+            "raw_spread_pct": raw[0], "raw_mean_spread_pct": raw[2],
+            "direction_deg": direction, "raw_direction_deg": raw[1],
+            "heading_deg": heading, "raw_heading_deg": raw[3], "field_ratio": ratio,
+            "oracle_method": "", "oracle_pct": float("nan"),
+            "oracle_heading_deg": float("nan"), "error": error}
 
-    def __init__(self, test: Recording, centre: np.ndarray, radius: float) -> None:
-        self.test, self.centre, self.radius = test, centre, radius
-        self._cover: float | None = None
 
-    @property
-    def sphere_cover(self) -> float:
-        if self._cover is None:
-            self._cover = coverage(self.test.y - self.centre)
-        return self._cover
+def _fixed_rows(rec, protocol, fit, test, raw, names, options, seed, timeout, radius,
+                centre, reference=None):
+    thin = fit.thinned(DEFAULT_MAX_SAMPLES)
+    rows, times = [], []
+    for name in names:
+        reason = applicability(name, thin)
+        if reason:
+            rows.append(_row(rec, protocol, name, "fixed", fit, test, raw, error=reason))
+            times.append(float("nan"))
+            continue
+        out = run_method(name, lambda o, n=name: fit_recording(thin, n, "centre", o),
+                         options=dict(options.get(name) or {}), seed=seed,
+                         stream=("generalisation", rec.name, protocol),
+                         call_timeout_s=timeout)
+        A = b = None
+        error = out.error
+        if out.T is not None and not error:
+            try:
+                A, b = Calibration(out.T, out.h).correction()
+            except Exception as exc:    # a singular fit is a row with its reason
+                error = f"{type(exc).__name__}: {exc}"
+        rows.append(_row(rec, protocol, name, "fixed", fit, test, raw, A=A, b=b,
+                         status="ok" if A is not None else "failed", written=A is not None,
+                         method=name, radius=radius, centre=centre, error=error or "",
+                         reference=reference))
+        times.append(out.time_s)
+    return rows, times
+
+
+def _peers() -> list[str]:
+    """The installed magnetometer-only peers a user runs on a recording as it is (not those
+    that need the field's strength given, :data:`~magbench.studies.peers.PEER_NEEDS_FIELD`)."""
+    return [n for n in available_peers() if n not in PEER_NEEDS_FIELD]
+
+
+def _peer_version(name: str) -> str:
+    """The installed version of the package peer ``name`` comes from (what its rows depend
+    on besides its adapter, whose code is the study's)."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    package = PEER_FITS[name][0].split(".")[0]
+    try:
+        return f"{package} {version(package)}"
+    except PackageNotFoundError:
+        return f"{package} (version unknown)"
+
+
+def _peer_rows(rec, protocol, fit, test, raw, radius, centre, names=None, reference=None):
+    thin = fit.thinned(DEFAULT_MAX_SAMPLES)
+    rows, times = [], []
+    for name in _peers() if names is None else names:
+        start = time.perf_counter()
+        try:
+            with warnings.catch_warnings():     # a peer's own warnings are not the user's
+                warnings.simplefilter("ignore")
+                A, b = Calibration(*fit_peer(name, thin.y)).correction()
+            rows.append(_row(rec, protocol, name, "peer", fit, test, raw, A=A, b=b,
+                             status="ok", written=True, method=name, radius=radius,
+                             centre=centre, reference=reference))
+        except Exception as exc:        # a peer's failure is a row, as a method's
+            rows.append(_row(rec, protocol, name, "peer", fit, test, raw, status="failed",
+                             error=f"{type(exc).__name__}: {exc}"[:200]))
+        times.append(time.perf_counter() - start)
+    return rows, times
 
 
 def _recording_key(rec: Recording) -> str:
@@ -292,89 +370,8 @@ def _decide(part: Recording, options: dict | None, seed: int, timeout: float | N
     return decision
 
 
-def _row(rec: Recording, protocol: str, entrant: str, kind: str, fit: Recording,
-         test: Recording, raw: tuple[float, float], *, A=None, b=None, status: str = "",
-         written: bool = False, method: str = "", case: _Case | None = None,
-         error: str = "") -> dict:
-    spread, direction = scores(test, A, b) if A is not None else (float("nan"),) * 2
-    ratio = float("nan")
-    degenerate = False
-    if A is not None:
-        degenerate = _degenerate(test, A, b, case.sphere_cover)
-        # The fitted field strength over the data's own radius: a fit whose scale is far off
-        # is a wrong unit or a collapsed fit, whatever its shape.
-        ratio = float(1.0 / np.cbrt(abs(np.linalg.det(A))) / case.radius)
-    return {"dataset": rec.name, "protocol": protocol, "algorithm": entrant, "kind": kind,
-            "K_fit": fit.K, "K_test": test.K, "status": status,
-            "ok": status not in ("failed", "ERROR"), "written": bool(written),
-            "degenerate": degenerate, "method": method, "spread_pct": spread,
-            "raw_spread_pct": raw[0], "raw_mean_spread_pct": raw[2],
-            "direction_deg": direction, "raw_direction_deg": raw[1], "field_ratio": ratio,
-            "error": error}
-
-
-def _fixed_rows(rec, protocol, fit, test, raw, names, options, seed, timeout, case, thin):
-    rows, times = [], []
-    for name in names:
-        reason = applicability(name, thin)
-        if reason:
-            rows.append(_row(rec, protocol, name, "fixed", fit, test, raw, error=reason))
-            times.append(float("nan"))
-            continue
-        out = run_method(name, lambda o, n=name: fit_recording(thin, n, "centre", o),
-                         options=dict(options.get(name) or {}), seed=seed,
-                         stream=("generalisation", rec.name, protocol),
-                         call_timeout_s=timeout)
-        A = b = None
-        error = out.error
-        if out.T is not None and not error:
-            try:
-                A, b = Calibration(out.T, out.h).correction()
-            except Exception as exc:    # a singular fit is a row with its reason
-                error = f"{type(exc).__name__}: {exc}"
-        rows.append(_row(rec, protocol, name, "fixed", fit, test, raw, A=A, b=b,
-                         status="ok" if A is not None else "failed", written=A is not None,
-                         method=name, case=case, error=error or ""))
-        times.append(out.time_s)
-    return rows, times
-
-
-def _peers() -> list[str]:
-    """The installed magnetometer-only peers a user runs on a recording as it is (not those
-    that need the field's strength given, :data:`~magbench.studies.peers.PEER_NEEDS_FIELD`)."""
-    return [n for n in available_peers() if n not in PEER_NEEDS_FIELD]
-
-
-def _peer_version(name: str) -> str:
-    """The installed version of the package peer ``name`` comes from (what its rows depend
-    on besides its adapter, whose code is the study's)."""
-    from importlib.metadata import PackageNotFoundError, version
-
-    package = PEER_FITS[name][0].split(".")[0]
-    try:
-        return f"{package} {version(package)}"
-    except PackageNotFoundError:
-        return f"{package} (version unknown)"
-
-
-def _peer_rows(rec, protocol, fit, test, raw, case, thin, names=None):
-    rows, times = [], []
-    for name in _peers() if names is None else names:
-        start = time.perf_counter()
-        try:
-            with warnings.catch_warnings():     # a peer's own warnings are not the user's
-                warnings.simplefilter("ignore")
-                A, b = Calibration(*fit_peer(name, thin.y)).correction()
-            rows.append(_row(rec, protocol, name, "peer", fit, test, raw, A=A, b=b,
-                             status="ok", written=True, method=name, case=case))
-        except Exception as exc:        # a peer's failure is a row, as a method's
-            rows.append(_row(rec, protocol, name, "peer", fit, test, raw, status="failed",
-                             error=f"{type(exc).__name__}: {exc}"[:200]))
-        times.append(time.perf_counter() - start)
-    return rows, times
-
-
-def _auto_row(rec, protocol, fit, test, raw, options, seed, timeout, case, memo=None):
+def _auto_row(rec, protocol, fit, test, raw, options, seed, timeout, radius, centre,
+              reference=None, memo=None):
     start = time.perf_counter()
     try:
         decision = _decide(fit, options, seed, timeout, memo)
@@ -390,55 +387,85 @@ def _auto_row(rec, protocol, fit, test, raw, options, seed, timeout, case, memo=
     if cal is not None:
         A, b = cal.correction()
     row = _row(rec, protocol, AUTO, "auto", fit, test, raw, A=A, b=b, status=decision.status,
-               written=decision.written, method=method, case=case,
-               error="; ".join(str(r) for r in reasons)[:300])
+               written=decision.written, method=method, radius=radius, centre=centre,
+               error="; ".join(str(r) for r in reasons)[:300], reference=reference)
     if A is None and chosen is not None:
         # What the user is left with is the raw data; the ratio is still worth keeping.
         T, _ = estimate(chosen)
-        row["field_ratio"] = float(np.cbrt(abs(np.linalg.det(T))) / case.radius)
+        row["field_ratio"] = float(np.cbrt(abs(np.linalg.det(T))) / radius)
+    row.update(_oracle(decision.result.ranked, test, centre, reference))
     return row, time.perf_counter() - start
+
+
+def _oracle(ranked: Sequence[Mapping], test: Recording, centre: np.ndarray,
+            reference: np.ndarray | None) -> dict:
+    """The best held-out scores among the candidates calibrate judged eligible, as if it had
+    chosen in hindsight and written whatever the gate said: the headroom of its ranking.
+    ``oracle_method`` is the best by magnitude; the heading's best may be another
+    candidate. A degenerate answer is never the best."""
+    best = {"oracle_method": "", "oracle_pct": float("nan"),
+            "oracle_heading_deg": float("nan")}
+    for r in ranked:
+        if not r.get("eligible"):
+            continue
+        try:
+            A, b = Calibration(*estimate(r)).correction()
+        except Exception:               # a singular fit has no score
+            continue
+        if _degenerate(test, A, b, centre):
+            continue
+        spread, _, heading = scores(test, A, b, reference=reference)
+        if not spread >= best["oracle_pct"]:
+            best["oracle_method"], best["oracle_pct"] = str(r["algorithm"]), spread
+        if not heading >= best["oracle_heading_deg"]:
+            best["oracle_heading_deg"] = heading
+    return best
 
 
 def evaluate_protocol(rec: Recording, protocol: str, *, fixed: Sequence[str],
                       peers: bool | Sequence[str] = True, options: dict | None = None,
                       seed: int = 0, call_timeout_s: float | None = None,
                       field: float | None = None, auto: bool = True,
+                      reference: np.ndarray | None = None,
                       memo: dict[str, Decision] | None = None
                       ) -> tuple[list[dict], list[dict]]:
     """Rows (and their times) of every entrant on ``rec`` under ``protocol``: the automatic
     choice (``auto``), each of ``fixed``, each installed peer (``peers``: True, or the peers
     to run); one skipped row when the protocol does not apply. ``field``: the recording's
-    field strength, the raw spread's scale (its robust radius by default; a caller running
-    every protocol passes it once). ``memo``: decisions already made on a part of ``rec``
-    (:func:`_decide`), and where this one's goes."""
+    field strength, the raw spread's scale (its robust radius by default); ``reference``:
+    its world field, the headings' truth (:func:`~magbench.core.direction.attitude_field`
+    of the whole recording by default). A caller running every protocol passes both once.
+    ``memo``: decisions already made on a part of ``rec`` (:func:`_decide`), and where this
+    one's goes."""
     options = options or {}
     parts = split(rec, protocol, seed)
     if isinstance(parts, str):
         if not auto:
             return [], []
         empty = replace(rec, y=np.zeros((0, 3)), t=None, gyro=None, extra=None)
-        row = _row(rec, protocol, AUTO, "auto", empty, empty, (np.nan,) * 3,
+        row = _row(rec, protocol, AUTO, "auto", empty, empty, (np.nan,) * 4,
                    status="SKIPPED", error=parts)
         return [row], [{"dataset": rec.name, "protocol": protocol, "algorithm": AUTO,
                         "time_s": 0.0}]
     fit, test = parts
     field = screen(rec.y).radius if field is None else field
-    raw = _raw_scores(test, field)
-    case = _Case(test, *sphere_fit(fit.y))
-    thin = fit.thinned(DEFAULT_MAX_SAMPLES)
+    reference = world_reference(rec) if reference is None else reference
+    mean_spread, direction, heading = scores(test, reference=reference)
+    raw = (scores(test, field=field)[0], direction, mean_spread, heading)
+    centre, radius = sphere_fit(fit.y)
     rows, times = [], []
     if auto:
         row, t = _auto_row(rec, protocol, fit, test, raw, options, seed, call_timeout_s,
-                           case, memo)
+                           radius, centre, reference, memo)
         rows.append(row)
         times.append(t)
     r, t = _fixed_rows(rec, protocol, fit, test, raw, fixed, options, seed, call_timeout_s,
-                       case, thin)
+                       radius, centre, reference)
     rows += r
     times += t
     if peers:
-        r, t = _peer_rows(rec, protocol, fit, test, raw, case, thin,
-                          None if peers is True else list(peers))
+        r, t = _peer_rows(rec, protocol, fit, test, raw, radius, centre,
+                          None if peers is True else list(peers), reference)
         rows += r
         times += t
     return rows, [{"dataset": rec.name, "protocol": protocol, "algorithm": r["algorithm"],
@@ -549,7 +576,7 @@ class GeneralisationStudy(Study):
         rec = load_recording(self.root, name, check=False)
         entrants = self.entrants()
         per: dict[str, tuple[list, list]] = {e: ([], []) for e in entrants}
-        field = screen(rec.y).radius
+        field, reference = screen(rec.y).radius, world_reference(rec)
         # calibrate's decisions on parts of this recording, made once each (:func:`_decide`).
         memo: dict[str, Decision] = {}
         for protocol in self.protocols:
@@ -558,7 +585,7 @@ class GeneralisationStudy(Study):
                                      peers=[p for p in entrants if p in PEER_FITS],
                                      options=self.options, seed=self.seed,
                                      call_timeout_s=self.call_timeout_s, field=field,
-                                     auto=AUTO in per, memo=memo)
+                                     auto=AUTO in per, reference=reference, memo=memo)
             for row, time_row in zip(r, t, strict=True):
                 per[row["algorithm"]][0].append(row)
                 per[row["algorithm"]][1].append(time_row)
@@ -594,10 +621,12 @@ def _user_score(row: Mapping, raw: str = "raw_spread_pct") -> float:
     return np.nan if bool(row["degenerate"]) else float(row["spread_pct"])
 
 
-def _beyond_best_direction(value: float, fixed: pd.DataFrame) -> bool:
-    """Whether a world-frame direction spread ``value`` is worse than the best fixed fit's by
-    more than :func:`tolerance_deg` (NaN is worse; False when no fixed fit has one)."""
-    best = fixed["direction_deg"].to_numpy(float)
+def _beyond_best_direction(value: float, fixed: pd.DataFrame,
+                           column: str = "direction_deg") -> bool:
+    """Whether an angle ``value`` (a world-frame direction spread, or a heading error with
+    ``column="heading_deg"``) is worse than the best fixed fit's by more than
+    :func:`tolerance_deg` (NaN is worse; False when no fixed fit has one)."""
+    best = fixed[column].to_numpy(float)
     best = best[np.isfinite(best)]
     return bool(best.size and not value <= best.min() + tolerance_deg(best.min()))
 
@@ -609,12 +638,17 @@ def case_table(trials: pd.DataFrame) -> pd.DataFrame:
     worse than raw) or a needless FAIL (nothing written where the best fixed fit beats raw by
     more than the tolerance). ``harmful_mean_norm`` judges the raw data by their mean-norm
     spread instead (the issue's first definition, which a large offset deflates);
-    ``loss_direction`` compares world-frame direction spreads where an attitude exists;
-    ``loss_compass`` is the score the choice serves: by direction where the recording has
-    an attitude (its direction veto decides there), by magnitude elsewhere, and so are
-    ``harmful_compass`` and ``needless_fail_compass``. ``loss_peers``: worse by magnitude
+    ``loss_direction`` compares world-frame direction spreads where an attitude exists, and
+    ``loss_heading`` heading errors against the recording's world field (the compass's own
+    error: a spread about its own mean rewards raw data that barely turn, whatever they
+    point at); ``loss_compass`` is the score the choice serves: by heading where the
+    recording has an attitude, by magnitude elsewhere, and so are ``harmful_compass`` and
+    ``needless_fail_compass``. ``loss_peers``: worse by magnitude
     than the best installed peer (navlib, magcal) by more than the tolerance, the comparison
-    a user of those libraries makes (False without peers)."""
+    a user of those libraries makes (False without peers). ``loss_oracle`` and
+    ``loss_compass_oracle``: the same losses for the best of calibrate's eligible
+    candidates in hindsight (:func:`_oracle`), so that what a better ranking could win is
+    told apart from what the candidates and the gate leave."""
     import pandas as pd
 
     out = []
@@ -643,20 +677,39 @@ def case_table(trials: pd.DataFrame) -> pd.DataFrame:
                                      and raw > best_score + tol),
                "auto_direction_deg": float(auto["direction_deg"]) if written else
                float(auto["raw_direction_deg"]),
-               "raw_direction_deg": float(auto["raw_direction_deg"])}
-        attitude, user_dir = row["has_attitude"], row["auto_direction_deg"]
-        row["loss_direction"] = attitude and _beyond_best_direction(user_dir, fixed)
-        row["loss_compass"] = row["loss_direction"] if attitude else row["loss"]
-        row["harmful_compass"] = (bool(written and not user_dir <= row["raw_direction_deg"])
-                                  if attitude else row["harmful"])
+               "raw_direction_deg": float(auto["raw_direction_deg"]),
+               "auto_heading_deg": float(auto["heading_deg"]) if written else
+               float(auto["raw_heading_deg"]),
+               "raw_heading_deg": float(auto["raw_heading_deg"]),
+               "best_fixed_heading_deg": float(np.nanmin(fixed["heading_deg"].to_numpy(float)))
+               if np.isfinite(fixed["heading_deg"].to_numpy(float)).any() else np.nan}
+        attitude = row["has_attitude"]
+        row["loss_direction"] = attitude and _beyond_best_direction(
+            row["auto_direction_deg"], fixed)
+        heading = bool(np.isfinite(row["raw_heading_deg"]))
+        user, raw_heading = row["auto_heading_deg"], row["raw_heading_deg"]
+        row["loss_heading"] = heading and _beyond_best_direction(user, fixed, "heading_deg")
+        row["loss_compass"] = row["loss_heading"] if heading else row["loss"]
+        row["harmful_compass"] = (bool(written and not user <= raw_heading)
+                                  if heading else row["harmful"])
         row["needless_fail_compass"] = (
-            not written and _beyond_best_direction(row["raw_direction_deg"], fixed)
-            if attitude else row["needless_fail"])
+            not written and _beyond_best_direction(raw_heading, fixed, "heading_deg")
+            if heading else row["needless_fail"])
         peers = g[(g["kind"] == "peer") & g["written"].astype(bool)
                   & ~g["degenerate"].astype(bool)]["spread_pct"].to_numpy(float)
         peers = peers[np.isfinite(peers)]
         row["loss_peers"] = bool(peers.size and not score <= peers.min() +
                                  tolerance(peers.min()))
+        # The oracle leaves the raw data only where no candidate was eligible.
+        oracle = float(auto.get("oracle_pct", np.nan))
+        oracle = raw if np.isnan(oracle) else oracle
+        oracle_heading = float(auto.get("oracle_heading_deg", np.nan))
+        oracle_heading = raw_heading if np.isnan(oracle_heading) else oracle_heading
+        row["oracle_pct"] = oracle
+        row["loss_oracle"] = bool(best is not None and not oracle <= best_score + tol)
+        row["loss_compass_oracle"] = (
+            _beyond_best_direction(oracle_heading, fixed, "heading_deg") if heading
+            else row["loss_oracle"])
         for _, r in g[g["kind"] != "auto"].iterrows():
             row[f"pct:{r['algorithm']}"] = _user_score(r) if r["status"] == "ok" else raw
         out.append(row)
@@ -696,7 +749,11 @@ def protocol_table(cases: pd.DataFrame) -> pd.DataFrame:
                "needless_fail_compass": int(g["needless_fail_compass"].sum()),
                "direction_cases": int(np.isfinite(g["raw_direction_deg"].to_numpy(float)).sum()),
                "losses_direction": int(g["loss_direction"].sum()),
+               "heading_cases": int(np.isfinite(g["raw_heading_deg"].to_numpy(float)).sum()),
+               "losses_heading": int(g["loss_heading"].sum()),
                "losses_compass": int(g["loss_compass"].sum()),
+               "losses_oracle": int(g["loss_oracle"].sum()),
+               "losses_compass_oracle": int(g["loss_compass_oracle"].sum()),
                "not_written": int((~g["written"].astype(bool)).sum())}
         for e in entrants:
             w, t, l_ = _wtl(g["auto_pct"].to_numpy(float), g[f"pct:{e}"].to_numpy(float))
