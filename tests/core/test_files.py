@@ -144,3 +144,21 @@ def test_a_held_lock_refuses_a_second_block_and_names_its_holder(tmp_path):
             pass
         assert refused.value.holder == "pid 1 since noon"
     assert not (tmp_path / ".lock").exists()
+
+
+@pytest.mark.parametrize("chunk", [3, 100])
+def test_each_block_is_formatted_once_with_to_csvs_bytes(tmp_path, monkeypatch, chunk):
+    """The first block's cells, formatted to see whether the column writer applies, are
+    the ones written: one formatting per block, the bytes still ``to_csv``'s."""
+    import magbench.core.files as files
+
+    frame = pd.DataFrame({"a": np.arange(10) / 7.0, "b": list("abcdefghij"),
+                          "c": np.arange(10) % 2 == 0})
+    calls = []
+    real = files._csv_columns
+    monkeypatch.setattr(files, "CHUNK_ROWS", chunk)
+    monkeypatch.setattr(files, "_csv_columns", lambda f: calls.append(len(f)) or real(f))
+    write_csv_atomic(frame, tmp_path / "ours.csv")
+    frame.to_csv(tmp_path / "pandas.csv", index=False)
+    assert (tmp_path / "ours.csv").read_bytes() == (tmp_path / "pandas.csv").read_bytes()
+    assert calls == ([3, 3, 3, 1] if chunk == 3 else [10])

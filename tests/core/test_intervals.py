@@ -138,3 +138,42 @@ def test_the_median_interval_is_the_order_statistics_the_binomial_gives():
     hits = [lo <= np.log(2) <= hi for lo, hi in
             (median_interval(gen.exponential(size=30)) for _ in range(2000))]
     assert 0.93 <= np.mean(hits) <= 0.99
+
+
+def test_resampled_means_asked_again_are_the_same_draws_and_leave_the_stream_alike(
+        monkeypatch):
+    """A repeat (same values, same generator state) is served from the memo: the same
+    means, and the generator left where drawing them again leaves it; other values or
+    another state are drawn anew."""
+    import magbench.core.intervals as iv
+
+    monkeypatch.setattr(iv, "_MEMO", type(iv._MEMO)())
+    monkeypatch.setattr(iv, "_MEMO_SIZE", [0])
+    x = np.random.default_rng(1).standard_normal((40, 2))
+    first_gen, again_gen = np.random.default_rng(7), np.random.default_rng(7)
+    first = iv.resampled_means(x, first_gen, 300)
+    assert len(iv._MEMO) == 1
+    again = iv.resampled_means(x.copy(), again_gen, 300)
+    assert np.array_equal(first, again) and again is not first and len(iv._MEMO) == 1
+    assert first_gen.random() == again_gen.random()         # the stream continues alike
+    next(iter(iv._MEMO.values()))[0][0] = 99.0              # served from the memo, a copy
+    served = iv.resampled_means(x, np.random.default_rng(7), 300)
+    assert served[0, 0] == 99.0 and next(iter(iv._MEMO.values()))[0][0, 0] == 99.0
+    served[0, 0] = -1.0
+    assert next(iter(iv._MEMO.values()))[0][0, 0] == 99.0
+    other = iv.resampled_means(x + 1.0, np.random.default_rng(7), 300)
+    assert np.allclose(other, first + 1.0) and len(iv._MEMO) == 2
+    plain = np.random.default_rng(8).integers(0, 40, size=(300, 40))
+    assert np.array_equal(iv.resampled_means(x, np.random.default_rng(8), 300),
+                          x[plain].mean(axis=1))
+
+
+def test_the_memo_keeps_at_most_its_bytes(monkeypatch):
+    import magbench.core.intervals as iv
+
+    monkeypatch.setattr(iv, "_MEMO", type(iv._MEMO)())
+    monkeypatch.setattr(iv, "_MEMO_SIZE", [0])
+    monkeypatch.setattr(iv, "MEMO_BYTES", 3 * 100 * 8)
+    for seed in range(5):
+        iv.resampled_means(np.arange(10.0), np.random.default_rng(seed), 100)
+    assert len(iv._MEMO) == 3 and iv._MEMO_SIZE[0] == 3 * 100 * 8

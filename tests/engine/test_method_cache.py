@@ -486,3 +486,20 @@ def test_a_method_added_keeps_the_others_efficiency_rows(tmp_path, calls):
     sweep("counting_a,sphere,counting_b", tmp_path / "edited")
     table = pd.read_csv(out / "efficiency.csv").set_index("algorithm")
     assert table.loc["counting_a", "eff_hi"] == 123.0 and "counting_b" in table.index
+
+
+def test_a_records_field_is_the_csv_readers():
+    """The split on commas of a record without quotes, the reader for the others: the same
+    field in every column, line ends, empty fields and quoted commas alike."""
+    import csv
+    import io
+
+    from magbench.engine.sweep import _field
+
+    records = ["a,bb,,d\n", "a,bb,,d\r\n", "x,y,z", ',"p,q",r\n', '"say ""hi""",b,\n',
+               ",,\n", "one\n", 'a,"multi\nline",c\r\n']
+    for record in records:
+        fields = next(csv.reader(io.StringIO(record)))
+        assert [_field(record, i) for i in range(len(fields))] == fields
+    with pytest.raises(IndexError):
+        _field("a,b\n", 2)

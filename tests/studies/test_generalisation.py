@@ -294,3 +294,27 @@ def test_peers_that_need_the_field_given_are_not_entrants():
 
     assert set(_peers()) == set(available_peers()) - set(PEER_NEEDS_FIELD)
     assert "navlib.cal_mag_twostep_hi" in PEER_NEEDS_FIELD
+
+
+def test_the_interval_checks_first_half_is_the_half_protocols_decision(monkeypatch):
+    """The ``half`` protocol fits the first half, as the interval check does: decided once,
+    with the interval rows those of a check that decides it again."""
+    import magbench.studies.generalisation as gen
+
+    rec = rotating(K=1200)
+    rec = Recording("spiral", rec.y, t=np.arange(rec.K) * 0.11, n_rows=rec.K)   # 132 s
+    calls = []
+    real = gen.decide
+
+    def counted(part, *args, **kwargs):
+        calls.append(part.K)
+        return real(part, *args, **kwargs)
+
+    monkeypatch.setattr(gen, "decide", counted)
+    memo: dict = {}
+    rows, _ = gen.evaluate_protocol(rec, "half", fixed=[], peers=False, memo=memo)
+    shared = gen.interval_rows(rec, bootstrap=3, memo=memo)
+    assert calls == [600, 600]          # the half protocol, then only the second half
+    alone = gen.interval_rows(rec, bootstrap=3)
+    assert len(calls) == 4 and shared == alone and len(shared) == 3
+    assert rows[0]["algorithm"] == AUTO and rows[0]["K_fit"] == 600

@@ -19,6 +19,9 @@ calls a difference inside the intervals "not significant" and says so.
 
 from __future__ import annotations
 
+import hashlib
+import json
+from collections import OrderedDict
 from collections.abc import Sequence
 
 import numpy as np
@@ -156,6 +159,29 @@ def _percentile_interval(statistic: np.ndarray, level: float) -> tuple[float, fl
     return (float(low), float(high))
 
 
+#: Bootstrap means drawn before in this process, by everything that determines them (the
+#: values, the generator's type and state, the resamples): the report asks for the same
+#: interval in several sections. Oldest first; at most :data:`MEMO_BYTES` of means kept.
+_MEMO: OrderedDict[bytes, tuple[np.ndarray, dict]] = OrderedDict()
+#: Largest size (bytes) of the means :func:`resampled_means` keeps for reuse.
+MEMO_BYTES = 32 << 20
+_MEMO_SIZE = [0]                # bytes of the means in _MEMO
+
+
+def _memo_key(x: np.ndarray, generator: np.random.Generator, resamples: int,
+              chunk_values: int) -> bytes | None:
+    """The digest of :func:`resampled_means`' inputs (None for values that are not plain
+    numbers, whose bytes would not say what they are)."""
+    if x.dtype.kind not in "fiub":
+        return None
+    digest = hashlib.sha256(repr((x.dtype.str, x.shape, resamples, chunk_values,
+                                  type(generator.bit_generator).__name__)).encode())
+    digest.update(json.dumps(generator.bit_generator.state, sort_keys=True,
+                             default=str).encode())
+    digest.update(np.ascontiguousarray(x).tobytes())
+    return digest.digest()
+
+
 def resampled_means(x: np.ndarray, generator: np.random.Generator, resamples: int,
                     chunk_values: int = CHUNK_VALUES) -> np.ndarray:
     """Means of ``resamples`` bootstrap resamples of the rows of ``x``, drawn in chunks.
@@ -181,8 +207,17 @@ def resampled_means(x: np.ndarray, generator: np.random.Generator, resamples: in
     Returns
     -------
     ndarray, shape (resamples,) or (resamples, m)
-        The mean of each resample.
+        The mean of each resample. The same inputs (values and generator state) asked again
+        in this process give the means drawn the first time, and leave the generator where
+        drawing them again would (:data:`MEMO_BYTES`).
     """
+    x = np.asarray(x)
+    key = _memo_key(x, generator, resamples, chunk_values)
+    if key is not None and key in _MEMO:
+        _MEMO.move_to_end(key)
+        out, state = _MEMO[key]
+        generator.bit_generator.state = state
+        return out.copy()
     n = x.shape[0]
     rows = max(1, chunk_values // max(n, 1))
     out = np.empty((resamples, *x.shape[1:]))
@@ -190,6 +225,11 @@ def resampled_means(x: np.ndarray, generator: np.random.Generator, resamples: in
         stop = min(start + rows, resamples)
         picks = generator.integers(0, n, size=(stop - start, n))
         out[start:stop] = x[picks].mean(axis=1)
+    if key is not None and out.nbytes <= MEMO_BYTES:
+        _MEMO[key] = (out.copy(), generator.bit_generator.state)
+        _MEMO_SIZE[0] += out.nbytes
+        while _MEMO_SIZE[0] > MEMO_BYTES:
+            _MEMO_SIZE[0] -= _MEMO.popitem(last=False)[1][0].nbytes
     return out
 
 

@@ -40,6 +40,8 @@ heading against the best fixed method (by more than max(1 deg, 10 %): :func:`tol
 
 from __future__ import annotations
 
+import dataclasses
+import hashlib
 import time
 import warnings
 from collections.abc import Mapping, Sequence
@@ -59,7 +61,7 @@ from magbench.engine.sweep import Study, settings_hash
 from magbench.engine.trial import run_method
 from magbench.pipeline.auto import candidate_rounds
 from magbench.pipeline.bootstrap import bootstrap_check
-from magbench.pipeline.decision import decide, written_correction
+from magbench.pipeline.decision import Decision, decide, written_correction
 from magbench.pipeline.fitting import DEFAULT_MAX_SAMPLES, applicability, fit_recording, is_usable
 from magbench.pipeline.holdout import estimate
 from magbench.sources.recordings import Recording, load_recording
@@ -329,13 +331,50 @@ def _peer_rows(rec, protocol, fit, test, raw, radius, centre, names=None, refere
     return rows, times
 
 
+def _recording_key(rec: Recording) -> str:
+    """A digest of every field of ``rec`` (arrays by their bytes): two parts with the same
+    key are the same input to :func:`~magbench.pipeline.decision.decide`."""
+    digest = hashlib.sha256()
+
+    def add(value: object) -> None:
+        if isinstance(value, np.ndarray):
+            digest.update(f"{value.dtype}{value.shape}".encode())
+            digest.update(np.ascontiguousarray(value).tobytes())
+        elif isinstance(value, Mapping):
+            for key in sorted(value):
+                digest.update(f"<{key}>".encode())
+                add(value[key])
+        else:
+            digest.update(repr(value).encode())
+
+    for f in dataclasses.fields(rec):
+        digest.update(f"|{f.name}=".encode())
+        add(getattr(rec, f.name))
+    return digest.hexdigest()
+
+
+def _decide(part: Recording, options: dict | None, seed: int, timeout: float | None,
+            memo: dict[str, Decision] | None = None) -> Decision:
+    """``calibrate``'s decision on ``part`` as the command makes it; with ``memo``, a part
+    decided before in the same unit (the ``half`` protocol's fitted part is the interval
+    check's first half) is not decided again: :func:`decide` is deterministic, so the
+    decision is the same."""
+    key = _recording_key(part) if memo is not None else ""
+    if memo is not None and key in memo:
+        return memo[key]
+    first, second = candidate_rounds(part.has_gyro, "auto", shipped=True)
+    decision = decide(part, first, second_round=second, options=options, seed=seed,
+                      call_timeout_s=timeout, max_samples=DEFAULT_MAX_SAMPLES)
+    if memo is not None:
+        memo[key] = decision
+    return decision
+
+
 def _auto_row(rec, protocol, fit, test, raw, options, seed, timeout, radius, centre,
-              reference=None):
+              reference=None, memo=None):
     start = time.perf_counter()
-    first, second = candidate_rounds(fit.has_gyro, "auto", shipped=True)
     try:
-        decision = decide(fit, first, second_round=second, options=options, seed=seed,
-                          call_timeout_s=timeout, max_samples=DEFAULT_MAX_SAMPLES)
+        decision = _decide(fit, options, seed, timeout, memo)
     except Exception as exc:            # the command would exit 2 with one line
         return (_row(rec, protocol, AUTO, "auto", fit, test, raw, status="ERROR",
                      error=f"{type(exc).__name__}: {exc}"[:300]),
@@ -387,13 +426,17 @@ def evaluate_protocol(rec: Recording, protocol: str, *, fixed: Sequence[str],
                       peers: bool | Sequence[str] = True, options: dict | None = None,
                       seed: int = 0, call_timeout_s: float | None = None,
                       field: float | None = None, auto: bool = True,
-                      reference: np.ndarray | None = None) -> tuple[list[dict], list[dict]]:
+                      reference: np.ndarray | None = None,
+                      memo: dict[str, Decision] | None = None
+                      ) -> tuple[list[dict], list[dict]]:
     """Rows (and their times) of every entrant on ``rec`` under ``protocol``: the automatic
     choice (``auto``), each of ``fixed``, each installed peer (``peers``: True, or the peers
     to run); one skipped row when the protocol does not apply. ``field``: the recording's
     field strength, the raw spread's scale (its robust radius by default); ``reference``:
     its world field, the headings' truth (:func:`~magbench.core.direction.attitude_field`
-    of the whole recording by default). A caller running every protocol passes both once."""
+    of the whole recording by default). A caller running every protocol passes both once.
+    ``memo``: decisions already made on a part of ``rec`` (:func:`_decide`), and where this
+    one's goes."""
     options = options or {}
     parts = split(rec, protocol, seed)
     if isinstance(parts, str):
@@ -413,7 +456,7 @@ def evaluate_protocol(rec: Recording, protocol: str, *, fixed: Sequence[str],
     rows, times = [], []
     if auto:
         row, t = _auto_row(rec, protocol, fit, test, raw, options, seed, call_timeout_s,
-                           radius, centre, reference)
+                           radius, centre, reference, memo)
         rows.append(row)
         times.append(t)
     r, t = _fixed_rows(rec, protocol, fit, test, raw, fixed, options, seed, call_timeout_s,
@@ -432,19 +475,19 @@ def evaluate_protocol(rec: Recording, protocol: str, *, fixed: Sequence[str],
 # --- honest intervals ----------------------------------------------------------------------
 
 def interval_rows(rec: Recording, *, options: dict | None = None, seed: int = 0,
-                  bootstrap: int = 50, call_timeout_s: float | None = None) -> list[dict]:
+                  bootstrap: int = 50, call_timeout_s: float | None = None,
+                  memo: dict[str, Decision] | None = None) -> list[dict]:
     """The offsets ``calibrate`` writes from the first and from the second half of ``rec``,
     with their printed 95 % half-widths (the wider of model-based and block bootstrap), per
     axis; ``agree`` when the difference is within the two half-widths combined in quadrature
     (the 95 % interval of the difference of two independent estimates). Empty for recordings
-    shorter than :data:`INTERVAL_MIN_S` or when a half writes nothing."""
+    shorter than :data:`INTERVAL_MIN_S` or when a half writes nothing. ``memo``: as
+    :func:`evaluate_protocol`'s (the first half is the ``half`` protocol's fitted part)."""
     if rec.t is None or rec.t[-1] - rec.t[0] < INTERVAL_MIN_S:
         return []
     halves = []
     for part in (rec.rows(np.arange(rec.K // 2)), rec.rows(np.arange(rec.K // 2, rec.K))):
-        first, second = candidate_rounds(part.has_gyro, "auto", shipped=True)
-        d = decide(part, first, second_round=second, options=options, seed=seed,
-                   call_timeout_s=call_timeout_s, max_samples=DEFAULT_MAX_SAMPLES)
+        d = _decide(part, options, seed, call_timeout_s, memo)
         if not d.written:
             return []
         d.result.bootstrap = bootstrap_check(d.result, bootstrap, options=options or {},
@@ -534,13 +577,15 @@ class GeneralisationStudy(Study):
         entrants = self.entrants()
         per: dict[str, tuple[list, list]] = {e: ([], []) for e in entrants}
         field, reference = screen(rec.y).radius, world_reference(rec)
+        # calibrate's decisions on parts of this recording, made once each (:func:`_decide`).
+        memo: dict[str, Decision] = {}
         for protocol in self.protocols:
             r, t = evaluate_protocol(rec, protocol,
                                      fixed=[a for a in self.algorithms if a in per],
                                      peers=[p for p in entrants if p in PEER_FITS],
                                      options=self.options, seed=self.seed,
                                      call_timeout_s=self.call_timeout_s, field=field,
-                                     auto=AUTO in per, reference=reference)
+                                     auto=AUTO in per, reference=reference, memo=memo)
             for row, time_row in zip(r, t, strict=True):
                 per[row["algorithm"]][0].append(row)
                 per[row["algorithm"]][1].append(time_row)
@@ -549,7 +594,7 @@ class GeneralisationStudy(Study):
         times = [row for e in entrants for row in per[e][1]]
         intervals = interval_rows(rec, options=self.options, seed=self.seed,
                                   bootstrap=self.bootstrap,
-                                  call_timeout_s=self.call_timeout_s) \
+                                  call_timeout_s=self.call_timeout_s, memo=memo) \
             if self.bootstrap and AUTO in per else []
         return {"trials": rows, "times": times, "intervals": intervals}
 
