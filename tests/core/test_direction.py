@@ -174,3 +174,18 @@ def test_attitude_field_recovers_the_world_field_past_disturbed_rows():
     q[:5] = np.nan                                    # rows without attitude are left out
     assert np.allclose(attitude_field(y, q), h, atol=0.1)
     assert attitude_field(y[:9], q[5:14]) is None     # too few rows to say
+
+
+def test_heading_errors_are_the_error_quaternions_heading():
+    from magbench.core.direction import heading_errors, world_field
+
+    gen = np.random.default_rng(5)
+    q = gen.normal(size=(500, 4))
+    q /= np.linalg.norm(q, axis=1, keepdims=True)
+    m, ref = gen.normal(size=(500, 3)), np.array([0.3, 20.0, -35.0])
+    heading, _ = field_errors(m, q, ref)
+    assert np.allclose(heading_errors(world_field(m, q), ref), heading, atol=1e-12)
+    # a field turned 40 deg about the vertical from the reference: 40 deg, whatever its dip
+    a = np.radians(40.0)
+    f = np.array([[20 * -np.sin(a), 20 * np.cos(a), -80.0]])
+    assert heading_errors(f, np.array([0.0, 1.0, -0.2]))[0] == pytest.approx(a)

@@ -44,6 +44,7 @@ __all__ = [
     "field_errors",
     "gyro_consistency",
     "heading_bound",
+    "heading_errors",
     "mean_direction",
     "rest_mask",
     "rms",
@@ -75,6 +76,19 @@ def mean_direction(vectors: np.ndarray) -> np.ndarray:
     return _unit(np.nanmean(u, axis=0))
 
 
+def _azimuth_difference(f: np.ndarray, r: np.ndarray) -> np.ndarray:
+    """Signed angle (radians) about the world vertical from ``r``'s azimuth to each ``f``'s."""
+    return np.arctan2(r[0] * f[..., 1] - r[1] * f[..., 0], r[0] * f[..., 0] + r[1] * f[..., 1])
+
+
+def heading_errors(f_world: np.ndarray, reference: np.ndarray) -> np.ndarray:
+    """BROAD's heading errors (radians) of world-frame field directions against a reference:
+    the azimuth differences, which :func:`field_errors` gives through the error quaternion
+    (the same angle, without building it)."""
+    f = np.asarray(f_world, dtype=float)
+    return np.abs(_azimuth_difference(f, np.asarray(reference, dtype=float)))
+
+
 def field_error_quaternion(f_world: np.ndarray, reference: np.ndarray) -> np.ndarray:
     """Error quaternions (world axes) of measured field directions against a reference one.
 
@@ -96,7 +110,7 @@ def field_error_quaternion(f_world: np.ndarray, reference: np.ndarray) -> np.nda
     ndarray, shape (K, 4)
     """
     f, r = _unit(f_world), _unit(reference)
-    psi = np.arctan2(r[0] * f[..., 1] - r[1] * f[..., 0], r[0] * f[..., 0] + r[1] * f[..., 1])
+    psi = _azimuth_difference(f, r)
     elev_f = np.arctan2(f[..., 2], np.hypot(f[..., 0], f[..., 1]))
     elev_r = np.arctan2(r[2], np.hypot(r[0], r[1]))
     q_z = quat_about_axis(np.broadcast_to(_Z, f.shape), psi)

@@ -51,7 +51,13 @@ from typing import TYPE_CHECKING, ClassVar
 
 import numpy as np
 
-from magbench.core.direction import attitude_field, direction_spread, field_errors, rms, world_field
+from magbench.core.direction import (
+    attitude_field,
+    direction_spread,
+    heading_errors,
+    rms,
+    world_field,
+)
 from magbench.core.files import write_csv_atomic
 from magbench.core.geometry import coverage, sphere_fit, unit_rows
 from magbench.core.model import Calibration
@@ -219,10 +225,11 @@ def scores(test: Recording, A: np.ndarray | None = None, b: np.ndarray | None = 
     known = np.zeros(test.K, dtype=bool) if q is None else np.isfinite(q).all(axis=1)
     if known.sum() < max(MIN_PART, 0.5 * test.K):
         return spread, float("nan"), float("nan")
-    angles = np.degrees(direction_spread(world_field(m[known], q[known])))
+    world = world_field(m[known], q[known])
+    angles = np.degrees(direction_spread(world))
     heading = float("nan")
     if reference is not None:
-        heading = rms(np.degrees(field_errors(m[known], q[known], reference)[0]))
+        heading = rms(np.degrees(heading_errors(world, reference)))
     return spread, float(np.sqrt(np.mean(angles ** 2))), heading
 
 
@@ -233,24 +240,24 @@ def world_reference(rec: Recording) -> np.ndarray | None:
     return None if q is None else attitude_field(rec.y, q)
 
 
-def _degenerate(test: Recording, A: np.ndarray, b: np.ndarray, centre: np.ndarray) -> bool:
+def _degenerate(test: Recording, A: np.ndarray, b: np.ndarray, sphere_coverage: float) -> bool:
     """The degenerate answer (``h`` far away, every corrected sample near one point, which
     makes any spread small): corrected directions cover less than half of what the sphere
     fit's cover (:func:`magbench.pipeline.fitting.is_usable`)."""
-    return not is_usable(coverage((test.y - b) @ np.asarray(A).T), coverage(test.y - centre))
+    return not is_usable(coverage((test.y - b) @ np.asarray(A).T), sphere_coverage)
 
 
 def _row(rec: Recording, protocol: str, entrant: str, kind: str, fit: Recording,
          test: Recording, raw: tuple[float, ...], *, A=None, b=None, status: str = "",
          written: bool = False, method: str = "", radius: float = float("nan"),
-         centre: np.ndarray | None = None, error: str = "",
+         sphere_coverage: float = float("nan"), error: str = "",
          reference: np.ndarray | None = None) -> dict:
     spread, direction, heading = (scores(test, A, b, reference=reference) if A is not None
                                   else (float("nan"),) * 3)
     ratio = float("nan")
     degenerate = False
     if A is not None:
-        degenerate = _degenerate(test, A, b, centre)
+        degenerate = _degenerate(test, A, b, sphere_coverage)
         # The fitted field strength over the data's own radius: a fit whose scale is far off
         # is a wrong unit or a collapsed fit, whatever its shape.
         ratio = float(1.0 / np.cbrt(abs(np.linalg.det(A))) / radius)
@@ -266,7 +273,7 @@ def _row(rec: Recording, protocol: str, entrant: str, kind: str, fit: Recording,
 
 
 def _fixed_rows(rec, protocol, fit, test, raw, names, options, seed, timeout, radius,
-                centre, reference=None):
+                sphere_coverage, reference=None):
     thin = fit.thinned(DEFAULT_MAX_SAMPLES)
     rows, times = [], []
     for name in names:
@@ -288,8 +295,8 @@ def _fixed_rows(rec, protocol, fit, test, raw, names, options, seed, timeout, ra
                 error = f"{type(exc).__name__}: {exc}"
         rows.append(_row(rec, protocol, name, "fixed", fit, test, raw, A=A, b=b,
                          status="ok" if A is not None else "failed", written=A is not None,
-                         method=name, radius=radius, centre=centre, error=error or "",
-                         reference=reference))
+                         method=name, radius=radius, sphere_coverage=sphere_coverage,
+                         error=error or "", reference=reference))
         times.append(out.time_s)
     return rows, times
 
@@ -312,7 +319,7 @@ def _peer_version(name: str) -> str:
         return f"{package} (version unknown)"
 
 
-def _peer_rows(rec, protocol, fit, test, raw, radius, centre, names=None, reference=None):
+def _peer_rows(rec, protocol, fit, test, raw, radius, sphere_coverage, names=None, reference=None):
     thin = fit.thinned(DEFAULT_MAX_SAMPLES)
     rows, times = [], []
     for name in _peers() if names is None else names:
@@ -323,7 +330,7 @@ def _peer_rows(rec, protocol, fit, test, raw, radius, centre, names=None, refere
                 A, b = Calibration(*fit_peer(name, thin.y)).correction()
             rows.append(_row(rec, protocol, name, "peer", fit, test, raw, A=A, b=b,
                              status="ok", written=True, method=name, radius=radius,
-                             centre=centre, reference=reference))
+                             sphere_coverage=sphere_coverage, reference=reference))
         except Exception as exc:        # a peer's failure is a row, as a method's
             rows.append(_row(rec, protocol, name, "peer", fit, test, raw, status="failed",
                              error=f"{type(exc).__name__}: {exc}"[:200]))
@@ -370,7 +377,7 @@ def _decide(part: Recording, options: dict | None, seed: int, timeout: float | N
     return decision
 
 
-def _auto_row(rec, protocol, fit, test, raw, options, seed, timeout, radius, centre,
+def _auto_row(rec, protocol, fit, test, raw, options, seed, timeout, radius, sphere_coverage,
               reference=None, memo=None):
     start = time.perf_counter()
     try:
@@ -387,17 +394,18 @@ def _auto_row(rec, protocol, fit, test, raw, options, seed, timeout, radius, cen
     if cal is not None:
         A, b = cal.correction()
     row = _row(rec, protocol, AUTO, "auto", fit, test, raw, A=A, b=b, status=decision.status,
-               written=decision.written, method=method, radius=radius, centre=centre,
+               written=decision.written, method=method, radius=radius,
+               sphere_coverage=sphere_coverage,
                error="; ".join(str(r) for r in reasons)[:300], reference=reference)
     if A is None and chosen is not None:
         # What the user is left with is the raw data; the ratio is still worth keeping.
         T, _ = estimate(chosen)
         row["field_ratio"] = float(np.cbrt(abs(np.linalg.det(T))) / radius)
-    row.update(_oracle(decision.result.ranked, test, centre, reference))
+    row.update(_oracle(decision.result.ranked, test, sphere_coverage, reference))
     return row, time.perf_counter() - start
 
 
-def _oracle(ranked: Sequence[Mapping], test: Recording, centre: np.ndarray,
+def _oracle(ranked: Sequence[Mapping], test: Recording, sphere_coverage: float,
             reference: np.ndarray | None) -> dict:
     """The best held-out scores among the candidates calibrate judged eligible, as if it had
     chosen in hindsight and written whatever the gate said: the headroom of its ranking.
@@ -412,7 +420,7 @@ def _oracle(ranked: Sequence[Mapping], test: Recording, centre: np.ndarray,
             A, b = Calibration(*estimate(r)).correction()
         except Exception:               # a singular fit has no score
             continue
-        if _degenerate(test, A, b, centre):
+        if _degenerate(test, A, b, sphere_coverage):
             continue
         spread, _, heading = scores(test, A, b, reference=reference)
         if not spread >= best["oracle_pct"]:
@@ -453,18 +461,20 @@ def evaluate_protocol(rec: Recording, protocol: str, *, fixed: Sequence[str],
     mean_spread, direction, heading = scores(test, reference=reference)
     raw = (scores(test, field=field)[0], direction, mean_spread, heading)
     centre, radius = sphere_fit(fit.y)
+    # What the fit part's sphere fit makes of the scored samples, every entrant's yardstick.
+    sphere_coverage = coverage(test.y - centre)
     rows, times = [], []
     if auto:
         row, t = _auto_row(rec, protocol, fit, test, raw, options, seed, call_timeout_s,
-                           radius, centre, reference, memo)
+                           radius, sphere_coverage, reference, memo)
         rows.append(row)
         times.append(t)
     r, t = _fixed_rows(rec, protocol, fit, test, raw, fixed, options, seed, call_timeout_s,
-                       radius, centre, reference)
+                       radius, sphere_coverage, reference)
     rows += r
     times += t
     if peers:
-        r, t = _peer_rows(rec, protocol, fit, test, raw, radius, centre,
+        r, t = _peer_rows(rec, protocol, fit, test, raw, radius, sphere_coverage,
                           None if peers is True else list(peers), reference)
         rows += r
         times += t
