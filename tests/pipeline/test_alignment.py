@@ -324,3 +324,39 @@ def test_a_frozen_attitude_does_not_cut_the_recording():
     assert check is not None and not check.changed and check.keep.all()
     without = Recording("frozen", traj.y, traj.t, None, n_rows=len(traj.t), extra=frozen)
     assert offset_check(without) is None
+
+
+def test_the_veto_scores_a_candidate_once_for_the_same_folds(monkeypatch):
+    """A second round ranks the first round's candidates again on the same fold fits: the
+    veto scores each of them once, and afresh for other samples."""
+    from dataclasses import replace
+
+    from magbench.pipeline import alignment
+    from magbench.pipeline.holdout import fold_indices
+
+    traj = tumbling(noise=1.0)
+    rec = as_recording(traj, traj.y, attitude=True)
+
+    def row(name, fit_on, rows):
+        cal = magbench.calibrate(rec.y[rows], name)
+        return {"algorithm": name, "fit_on": fit_on, "usable": True,
+                **{f"T_{i}{j}": cal.T[i, j] for i in range(3) for j in range(3)},
+                **{f"h_{i}": cal.h[i] for i in range(3)}}
+
+    trials = []
+    for name in ("sphere", "ellipsoid"):
+        trials.append(row(name, "all", np.arange(rec.K)))
+        for f, test in enumerate(fold_indices(rec.K)):
+            trials.append(row(name, f"fold{f}", np.setdiff1d(np.arange(rec.K), test)))
+    calls = []
+    real = alignment.fold_direction
+    monkeypatch.setattr(alignment, "fold_direction",
+                        lambda *a: calls.append(a[2]) or real(*a))
+    veto = alignment.DirectionVeto()
+    summary = [{"algorithm": "sphere"}, {"algorithm": "ellipsoid"}]
+    first = veto(summary, trials, rec)
+    scores = dict(veto.scores)
+    assert veto(summary, trials, rec) == first and veto.scores == scores
+    assert calls == ["sphere", "ellipsoid"] and np.isfinite(list(scores.values())).all()
+    veto(summary, trials, replace(rec, y=rec.y + 1e-9))
+    assert calls == ["sphere", "ellipsoid"] * 2

@@ -24,6 +24,7 @@ beside the geomagnetic model at the user's site.
 from __future__ import annotations
 
 import datetime as dt
+import hashlib
 import math
 from collections.abc import Collection, Mapping, Sequence
 from dataclasses import dataclass, replace
@@ -465,6 +466,18 @@ class DirectionVeto:
         self.tol_deg = tol_deg
         self.scores: dict[str, float] = {}
         self.vetoes: dict[str, str] = {}
+        # A second round ranks the first round's candidates again on the same folds: their
+        # scores are kept, keyed by the samples and the fold fits they come from.
+        self._known: dict[tuple, float] = {}
+
+    def _score(self, trials: Sequence[Mapping], work: Recording, name: str,
+               inertial: Inertial, samples: bytes) -> float:
+        folds = tuple((r["fit_on"], *(a.tobytes() for a in estimate(r)))
+                      for r in trials if r["algorithm"] == name and r["fit_on"] != "all")
+        key = (samples, name, folds)
+        if key not in self._known:
+            self._known[key] = fold_direction(trials, work, name, inertial)
+        return self._known[key]
 
     def __call__(self, summary: Sequence[Mapping], trials: Sequence[Mapping],
                  work: Recording) -> tuple[str, list[float]]:
@@ -473,7 +486,9 @@ class DirectionVeto:
         if inertial.source != "attitude":
             return self.column, [1.0] * len(names)
         attitude_only = Inertial(attitude=inertial.attitude)
-        self.scores = {n: fold_direction(trials, work, n, attitude_only) for n in names}
+        samples = hashlib.sha256(np.ascontiguousarray(work.y).tobytes()
+                                 + np.ascontiguousarray(inertial.attitude).tobytes()).digest()
+        self.scores = {n: self._score(trials, work, n, attitude_only, samples) for n in names}
         among = {n for n, r in zip(names, summary, strict=True) if r.get("choosable", True)}
         self.vetoes = direction_vetoes(self.scores, self.tol_deg, among=among)
         return self.column, [math.nan if n in self.vetoes else 1.0 for n in names]
