@@ -109,6 +109,20 @@ def _dataflash_bin(path: Path, n: int, seed: int = 40) -> Path:
     return path
 
 
+def _dataflash_log(path: Path, n: int, seed: int = 40) -> Path:
+    """A text DataFlash log of ``n`` MAG lines (ArduPilot's fields), written by NumPy."""
+    rng = np.random.default_rng(seed)
+    u = rng.normal(size=(n, 3))
+    y = 50.0 * u / np.linalg.norm(u, axis=1)[:, None] + [12.0, -7.0, 3.5]
+    rows = np.column_stack([1_000_000 + 10_000 * np.arange(n), np.zeros(n), y + 6.0,
+                            np.full((n, 3), 5.0), np.ones((n, 3))])
+    head = ("FMT, 128, 89, FMT, BBnNZ, Type,Length,Name,Format,Columns\n"
+            "FMT, 129, 48, MAG, QBfffffffff, TimeUS,I,MagX,MagY,MagZ,OfsX,OfsY,OfsZ,MOX,MOY,MOZ")
+    np.savetxt(path, rows, fmt=["MAG, %d", "%d"] + ["%.4f"] * 9, delimiter=", ", header=head,
+               comments="")
+    return path
+
+
 def _peak(call):
     """``call()`` and its tracemalloc peak, bytes."""
     tracemalloc.start()
