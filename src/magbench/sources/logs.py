@@ -727,16 +727,17 @@ def _text_format(path: Path, line: str, formats: dict, rows: dict[str, _Columns]
     formats[name] = (len(fmt), wanted)
 
 
-def _dataflash_rows(path: Path) -> dict[str, _Columns]:
-    """Every wanted message's wanted fields, per type: a clean binary log by
-    :func:`_binary_rows`, anything else by pymavlink, whose own messages (a line per
+def _dataflash_rows(path: Path) -> tuple[dict[str, _Columns], bool]:
+    """Every wanted message's wanted fields, per type, and whether every wanted line was
+    read as it stands: a clean binary log by :func:`_binary_rows`, a clean text log by
+    :func:`_text_rows`, anything else by pymavlink, whose own messages (a line per
     unreadable byte) are held back; a file with no readable message is one error, a field
     that holds text where a number belongs another."""
     with contextlib.suppress(_Unusual):
         rows = (_binary_rows if path.suffix.lower() == ".bin" else _text_rows)(path)
         if rows:
-            return {k: v for k, v in rows.items() if len(v)}
-    return _pymavlink_rows(path)
+            return {k: v for k, v in rows.items() if len(v)}, True
+    return _pymavlink_rows(path), False
 
 
 def _pymavlink_rows(path: Path) -> dict[str, _Columns]:
@@ -800,7 +801,7 @@ MAG_FIELDS = ("TimeUS", "MagX", "MagY", "MagZ")
 
 
 def _read_dataflash(path: Path) -> FlightLog:
-    rows = _dataflash_rows(path)
+    rows, clean = _dataflash_rows(path)
     mags: dict[int, Stream] = {}
     notes: list[str] = []
     parts: list[tuple[int, _Columns]] = []
@@ -820,7 +821,7 @@ def _read_dataflash(path: Path) -> FlightLog:
                       for i in numbers]
         else:
             parts.append((0 if message == "MAG" else int(message[-1]) - 1, columns))
-    if path.suffix.lower() == ".log" and parts:
+    if path.suffix.lower() == ".log" and parts and not clean:     # clean: no line dropped
         names = tuple(k for k in ("MAG", "MAG2", "MAG3") if k in rows)
         # pymavlink's text reader returns the message after a dropped line twice: distinct
         # (time, instance) rows are what it read.
