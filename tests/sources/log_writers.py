@@ -61,7 +61,7 @@ def _flat(row: tuple) -> list:
 #: DataFlash format characters used here and their struct codes.
 _DF_CODES = {"Q": "Q", "B": "B", "f": "f", "I": "I", "h": "h", "n": "4s", "N": "16s",
              "Z": "64s", "b": "b", "H": "H", "i": "i", "d": "d", "q": "q", "M": "b", "c": "h",
-             "C": "H", "e": "i", "E": "I", "L": "i", "a": "64s"}
+             "C": "H", "e": "i", "E": "I", "L": "i", "a": "64s", "g": "e"}
 _FMT = (128, "FMT", "BBnNZ", "Type,Length,Name,Format,Columns")
 
 

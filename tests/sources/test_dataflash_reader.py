@@ -21,8 +21,10 @@ SHARED_BINS = sorted(Path("/work/shared/data/logs").glob("*.bin")) or sorted(
 
 
 def same_rows(path: Path) -> dict:
-    """The NumPy reader's rows, checked equal (every value, bit for bit) to pymavlink's."""
-    ours, theirs = logs._binary_rows(path), logs._pymavlink_rows(path)
+    """The chunked reader's rows (binary or text by the suffix), checked equal (every value,
+    bit for bit) to pymavlink's."""
+    reader = logs._binary_rows if path.suffix == ".bin" else logs._text_rows
+    ours, theirs = reader(path), logs._pymavlink_rows(path)
     ours = {k: v for k, v in ours.items() if len(v)}
     assert sorted(ours) == sorted(theirs)
     for kind, columns in theirs.items():
@@ -37,6 +39,7 @@ def same_tables(path: Path) -> None:
     ours = read_log(path)
     with pytest.MonkeyPatch.context() as patch:
         patch.setattr(logs, "_binary_rows", lambda p: {})       # {} -> pymavlink
+        patch.setattr(logs, "_text_rows", lambda p: {})
         theirs = read_log(path)
     assert sorted(ours.mags) == sorted(theirs.mags) and ours.notes == theirs.notes
     for i in theirs.mags:

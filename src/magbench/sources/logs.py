@@ -611,17 +611,133 @@ def _wanted_format(path: Path, name: str, body: bytes, rows: dict[str, _Columns]
     return rows[name], dtype, {f: _DF_NUMBERS[fmt[columns.index(f)]][1] for f in wanted}
 
 
-def _dataflash_rows(path: Path) -> dict[str, _Columns]:
-    """Every wanted message's wanted fields, per type: a clean binary log by
-    :func:`_binary_rows`, anything else by pymavlink, whose own messages (a line per
+#: Bytes of a text log read at a time by :func:`_text_rows` (its lines split into fields
+#: take some ten times the bytes while a chunk is parsed).
+TEXT_CHUNK = 1 << 20
+
+#: Message types pymavlink's text reader parses besides the wanted ones (``recv_match``
+#: adds them): a short line of any of them makes it return the next line instead.
+_TEXT_VISITED = frozenset(DATAFLASH_TYPES) | {"MODE", "MSG", "PARM", "STAT", "ORGN", "VER"}
+
+#: Format characters pymavlink's text reader converts by ``int`` (``M`` stays text, read by
+#: ``float``); the others by ``float``, with no multiplier in a text log.
+_TEXT_INTS = frozenset("bBhHiIqQ")
+
+
+def _text_rows(path: Path) -> dict[str, _Columns]:
+    """The wanted messages of a text log (``NAME, v1, v2, ...`` lines after their ``FMT``
+    lines), a chunk of :data:`TEXT_CHUNK` bytes at a time: each wanted type's lines are
+    split and converted together, so memory is the kept fields and one chunk (pymavlink
+    maps the file and indexes every line of every type first). Values are pymavlink's:
+    ``int`` or ``float`` of the field's text by its format character, then ``float``.
+
+    Raises
+    ------
+    _Unusual
+        Anything but a clean log: a first line other than ``FMT, ``, bytes that are not
+        ASCII, a malformed or repeated ``FMT`` (or one with characters pymavlink lacks), a
+        line of a type pymavlink visits that has no format yet or fewer fields than its
+        format (it then returns the next line, at times twice), a wanted field that is
+        text or does not convert, a line in the last 16 bytes (pymavlink never indexes
+        those). The caller reads such a file with pymavlink, whose messages and errors it
+        keeps.
+    """
+    size = path.stat().st_size
+    formats: dict[str, tuple[int, list[tuple[str, int, Callable]]]] = {"FMT": (5, [])}
+    rows: dict[str, _Columns] = {}
+    with open(path, "rb") as handle:
+        if handle.read(5) != b"FMT, " or size <= 16:
+            raise _Unusual("not a plain text log")
+        handle.seek(max(0, size - 17))
+        end = handle.read()
+        if any(end[i] == 0x0A and end[i + 1:].split(b"\n", 1)[0].strip()
+               for i in range(len(end) - 1)):
+            raise _Unusual("a line in the last 16 bytes")
+        handle.seek(0)
+        tail = b""
+        while True:
+            block = handle.read(TEXT_CHUNK)
+            if not block:
+                break           # pymavlink reads no message from a last line without its end
+            data = tail + block
+            cut = data.rfind(b"\n") + 1
+            if not cut:
+                tail = data
+                continue
+            try:
+                text = data[:cut].decode("ascii")
+            except UnicodeDecodeError:
+                raise _Unusual("bytes that are not ASCII") from None
+            tail = data[cut:]
+            found: dict[str, list[list[str]]] = {}
+            for line in text.split("\n"):
+                key = line[:4].split(",")[0] if len(line) >= 4 else ""
+                if key == "FMT":
+                    _text_format(path, line, formats, rows)
+                elif key in _TEXT_VISITED:
+                    fields = line.rstrip().split(", ")
+                    if fields[0] != key or key not in formats \
+                            or len(fields) < formats[key][0] + 1:
+                        raise _Unusual(f"a {key} line pymavlink does not read as it stands")
+                    if key in rows:
+                        found.setdefault(key, []).append(fields)
+            for kind, lines in found.items():
+                columns = {}
+                for name, index, convert in formats[kind][1]:
+                    try:
+                        columns[name] = np.fromiter(
+                            (convert(fields[index]) for fields in lines), float, len(lines))
+                    except (ValueError, OverflowError):
+                        raise _Unusual(f"{kind}.{name} does not convert") from None
+                rows[kind].extend(columns)
+            del text, found
+    return rows
+
+
+def _as_int(value: str) -> float:
+    return float(int(value))
+
+
+def _text_format(path: Path, line: str, formats: dict, rows: dict[str, _Columns]) -> None:
+    """Read one ``FMT`` line of a text log into ``formats`` (name -> number of fields and
+    the wanted ones' ``(name, index, converter)``) and ``rows``."""
+    fields = line.rstrip().split(", ")
+    if fields[0] != "FMT" or len(fields) != 6:
+        raise _Unusual("a malformed FMT line")
+    name, fmt, columns = fields[3], fields[4], fields[5].split(",")
+    columns = [] if columns == [""] else columns
+    if (not fields[1].strip().isdigit() or not fields[2].strip().isdigit()
+            or len(columns) != len(fmt) or len(set(columns)) != len(columns)
+            or any(c not in _DF_NUMBERS and c not in _DF_SIZES for c in fmt)):
+        raise _Unusual(f"{name}: a format pymavlink may not read as it stands")
+    if name == "FMT":
+        if fmt != "BBnNZ":
+            raise _Unusual("FMT redefined")
+        return
+    if name in formats:
+        raise _Unusual(f"{name} defined twice")
+    wanted: list[tuple[str, int, Callable]] = []
+    if name in DATAFLASH_TYPES:
+        rows[name] = _Columns(name, path, columns, fmt)
+        for f in rows[name].fields:
+            char = fmt[columns.index(f)]
+            if char not in _DF_NUMBERS:
+                raise _Unusual(f"{name}.{f} is text")
+            wanted.append((f, columns.index(f) + 1, _as_int if char in _TEXT_INTS else float))
+    formats[name] = (len(fmt), wanted)
+
+
+def _dataflash_rows(path: Path) -> tuple[dict[str, _Columns], bool]:
+    """Every wanted message's wanted fields, per type, and whether every wanted line was
+    read as it stands: a clean binary log by :func:`_binary_rows`, a clean text log by
+    :func:`_text_rows`, anything else by pymavlink, whose own messages (a line per
     unreadable byte) are held back; a file with no readable message is one error, a field
     that holds text where a number belongs another."""
-    if path.suffix.lower() == ".bin":
-        with contextlib.suppress(_Unusual):
-            rows = _binary_rows(path)
-            if rows:
-                return {k: v for k, v in rows.items() if len(v)}
-    return _pymavlink_rows(path)
+    with contextlib.suppress(_Unusual):
+        rows = (_binary_rows if path.suffix.lower() == ".bin" else _text_rows)(path)
+        if rows:
+            return {k: v for k, v in rows.items() if len(v)}, True
+    return _pymavlink_rows(path), False
 
 
 def _pymavlink_rows(path: Path) -> dict[str, _Columns]:
@@ -685,7 +801,7 @@ MAG_FIELDS = ("TimeUS", "MagX", "MagY", "MagZ")
 
 
 def _read_dataflash(path: Path) -> FlightLog:
-    rows = _dataflash_rows(path)
+    rows, clean = _dataflash_rows(path)
     mags: dict[int, Stream] = {}
     notes: list[str] = []
     parts: list[tuple[int, _Columns]] = []
@@ -705,7 +821,7 @@ def _read_dataflash(path: Path) -> FlightLog:
                       for i in numbers]
         else:
             parts.append((0 if message == "MAG" else int(message[-1]) - 1, columns))
-    if path.suffix.lower() == ".log" and parts:
+    if path.suffix.lower() == ".log" and parts and not clean:     # clean: no line dropped
         names = tuple(k for k in ("MAG", "MAG2", "MAG3") if k in rows)
         # pymavlink's text reader returns the message after a dropped line twice: distinct
         # (time, instance) rows are what it read.
