@@ -133,27 +133,35 @@ def _peak(call):
         tracemalloc.stop()
 
 
+def _log_costs(write, path: Path, n: int, warm: int):
+    """A log of ``n`` samples written by ``write`` and one of ``n // 4``, read and the long
+    one calibrated, after a ``warm`` one (imports and caches): the recordings, the read's
+    peak growth per sample byte between the two (the fixed costs cancel), calibrate's peak
+    and result."""
+    short = write(path.with_stem("short"), n // 4)
+    long = write(path.with_stem("long"), n)
+    read_samples(write(path.with_stem("warm"), warm))
+    few, few_peak = _peak(lambda: read_samples(short))
+    rec, read_peak = _peak(lambda: read_samples(long))
+    result, peak = _peak(lambda: calibrate_recording(rec, ["sphere"], bootstrap=0,
+                                                     max_samples=200))
+    per_byte = (read_peak - few_peak) / (rec.y.nbytes - few.y.nbytes)
+    print(f"read {per_byte:.2f} a byte, calibrate {peak / rec.y.nbytes:.2f}")
+    return rec, few, per_byte, peak, result
+
+
 def test_a_binary_dataflash_log_reads_and_calibrates_in_under_four_times(
         tmp_path, monkeypatch, long_recording_regime):
     # The reader walks the messages in Python, slow under tracemalloc, so the logs are short
     # and the read is held by its cost per sample (the peak's growth from a quarter of the
-    # log to all of it), which the fixed costs do not blur. Measured: 2.73 bytes per byte
-    # (the kept fields, then the stream and the samples); calibrate 2.8 times in all.
-    # pymavlink's index and eleven float fields a sample took 6 times in RSS.
+    # log to all of it), which the fixed costs do not blur (docs/reliability.md has the
+    # measured figures).
     pytest.importorskip("pymavlink")
     from magbench.sources import logs
 
     monkeypatch.setattr(logs, "BINARY_CHUNK", 1 << 16)     # one chunk: not the samples' cost
     n = ROWS // 4
-    short = _dataflash_bin(tmp_path / "short.bin", n // 4)
-    path = _dataflash_bin(tmp_path / "long.bin", n)
-    read_samples(_dataflash_bin(tmp_path / "warm.bin", 5000))          # imports and caches
-    few, few_peak = _peak(lambda: read_samples(short))
-    rec, read_peak = _peak(lambda: read_samples(path))
-    result, peak = _peak(lambda: calibrate_recording(rec, ["sphere"], bootstrap=0,
-                                                     max_samples=200))
-    per_byte = (read_peak - few_peak) / (rec.y.nbytes - few.y.nbytes)
-    print(f"read {per_byte:.2f} a byte, calibrate {peak / rec.y.nbytes:.2f}")
+    rec, few, per_byte, peak, result = _log_costs(_dataflash_bin, tmp_path / "x.bin", n, 5000)
     assert rec.K == n and few.K == n // 4 and result.chosen is not None
     assert per_byte < 3.0
     assert peak < PER_SAMPLE_BYTE * rec.y.nbytes
@@ -162,22 +170,13 @@ def test_a_binary_dataflash_log_reads_and_calibrates_in_under_four_times(
 def test_a_text_dataflash_log_reads_and_calibrates_in_under_four_times(
         tmp_path, monkeypatch, long_recording_regime):
     # As the binary log's test: the read held by its cost per sample, one small chunk (its
-    # split lines are a fixed cost). Measured: 2.33 bytes per byte, calibrate 3.5 times at
-    # this size; pymavlink's map and index of every line took 11.2 bytes per byte.
+    # split lines are a fixed cost); pymavlink's map and index of every line fail it.
     pytest.importorskip("pymavlink")
     from magbench.sources import logs
 
     monkeypatch.setattr(logs, "TEXT_CHUNK", 1 << 16)
     n = ROWS // 5
-    short = _dataflash_log(tmp_path / "short.log", n // 4)
-    path = _dataflash_log(tmp_path / "long.log", n)
-    read_samples(_dataflash_log(tmp_path / "warm.log", 2000))          # imports and caches
-    few, few_peak = _peak(lambda: read_samples(short))
-    rec, read_peak = _peak(lambda: read_samples(path))
-    result, peak = _peak(lambda: calibrate_recording(rec, ["sphere"], bootstrap=0,
-                                                     max_samples=200))
-    per_byte = (read_peak - few_peak) / (rec.y.nbytes - few.y.nbytes)
-    print(f"read {per_byte:.2f} a byte, calibrate {peak / rec.y.nbytes:.2f}")
+    rec, few, per_byte, peak, result = _log_costs(_dataflash_log, tmp_path / "x.log", n, 2000)
     assert rec.K == n and few.K == n // 4 and result.chosen is not None
     assert per_byte < 3.0
     assert peak < PER_SAMPLE_BYTE * rec.y.nbytes
@@ -220,9 +219,8 @@ def test_an_attitude_log_aligns_in_bounded_memory(tmp_path, monkeypatch):
     # The mounting detection and the alignment see every sample with its attitude: they hold
     # it as (K, 4) quaternions and turn it into matrices a block at a time (the (K, 3, 3)
     # matrices alone are 3 times the samples' bytes, the 41 mounting candidates' world
-    # fields 82 times). Measured at this size, fixed costs included: mounting 4.4,
-    # alignment 6.8 (the normalised attitude, the corrected field, its unit rows and the
-    # world directions).
+    # fields 82 times); the bounds include this size's fixed costs (the normalised attitude,
+    # the corrected field, its unit rows and the world directions).
     pytest.importorskip("pyulog")
     import magbench
     from magbench.core import mounting, quaternions

@@ -1,6 +1,6 @@
-"""The NumPy reader of binary DataFlash logs (issue 40): the values pymavlink gives, on the
-fixture logs, on formats with multipliers, across chunk boundaries and on the shared sample
-logs; what it does not read (corrupt bytes) is left to pymavlink."""
+"""The NumPy reader of binary DataFlash logs: the values pymavlink gives, on the
+fixture logs (the text reader's too), on formats with multipliers, across chunk boundaries and
+on the shared sample logs; what it does not read (corrupt bytes) is left to pymavlink."""
 
 from __future__ import annotations
 
@@ -49,8 +49,9 @@ def same_tables(path: Path) -> None:
             np.testing.assert_array_equal(a[name], b[name], err_msg=name)
 
 
-def test_the_fixture_log_reads_as_pymavlink_reads_it(tmp_path):
-    path = ardupilot_log(tmp_path / "flight.bin", binary=True)
+@pytest.mark.parametrize("name", ["flight.bin", "flight.log"])
+def test_the_fixture_log_reads_as_pymavlink_reads_it(tmp_path, name):
+    path = ardupilot_log(tmp_path / name, binary=name.endswith(".bin"))
     rows = same_rows(path)
     assert {k: len(v) for k, v in rows.items()} == {"MAG": 166, "IMU": 650, "ATT": 138,
                                                     "BAT": 70, "CTUN": 35}

@@ -1,7 +1,7 @@
-"""The chunked reader of text DataFlash logs (issue 40): the values pymavlink gives, on the
-fixture log, on integer and multiplied formats, across chunk boundaries; what it does not
-read as it stands (a short line, text in a number, a line before its format) is left to
-pymavlink, whose results and errors are kept."""
+"""The chunked reader of text DataFlash logs: the values pymavlink gives on integer
+and multiplied formats and across chunk boundaries (the fixture log beside the binary one's in
+``test_dataflash_reader``); what it does not read as it stands (a short line, text in a number,
+a line before its format) is left to pymavlink, whose results and errors are kept."""
 
 from __future__ import annotations
 
@@ -15,15 +15,6 @@ from tests.sources.test_dataflash_reader import same_rows, same_tables
 from tests.sources.test_logs import ardupilot_log
 
 pytest.importorskip("pymavlink")
-
-
-def test_the_fixture_text_log_reads_as_pymavlink_reads_it(tmp_path):
-    path = ardupilot_log(tmp_path / "flight.log", binary=False)
-    rows = same_rows(path)
-    assert {k: len(v) for k, v in rows.items()} == {"MAG": 166, "IMU": 650, "ATT": 138,
-                                                    "BAT": 70, "CTUN": 35}
-    assert "RawX" in rows["MAG"] and "MagX" not in rows["MAG"]     # combined as read
-    same_tables(path)
 
 
 def test_integer_and_multiplied_formats_read_as_pymavlink_reads_them(tmp_path):
