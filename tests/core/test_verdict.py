@@ -176,6 +176,17 @@ def test_with_reason_demotes_a_quality_failure_only_when_better_than_raw():
     assert with_reason(_fit(), "moved", fail=True, quality=True)["status"] == "FAIL"
 
 
+def test_a_failed_fit_never_says_it_was_written_nonetheless():
+    from magbench.core.verdict import with_reason
+
+    unsafe = _fit(field=2.0, radius=1.0, spread_pct=(1.0, 60.0))
+    assert unsafe["status"] == "FAIL" and unsafe["better_than_raw"]
+    out = with_reason(unsafe, "moved", fail=True, quality=True)
+    assert out["status"] == "FAIL"
+    assert out["reasons"][0] == "moved"
+    assert not any(r.startswith("written nonetheless") for r in out["reasons"])
+
+
 def test_central_spread_as_a_share_of_a_given_scale():
     from magbench.core.geometry import fibonacci_sphere
     from magbench.core.verdict import central_spread_pct

@@ -413,8 +413,9 @@ def with_reason(fit: dict, reason: str, *, fail: bool = False, quality: bool = F
                 ) -> dict:
     """:func:`fitness`'s result with one more reason: a failing one goes first and makes it
     FAIL; a warning goes last and makes a PASS a WARN. A ``quality`` failure (not a safety
-    one) only warns when the correction is clearly better than none (``better_than_raw``)."""
-    if fail and quality and fit.get("better_than_raw"):
+    one) only warns when the correction is clearly better than none (``better_than_raw``) and
+    nothing else failed: a FAIL writes nothing, so it never says "written nonetheless"."""
+    if fail and quality and fit.get("better_than_raw") and fit["status"] != "FAIL":
         note = [] if any(r.startswith(_BETTER) for r in fit["reasons"]) else \
             [_better_text(fit["spread_pct"])]
         status = "WARN" if fit["status"] == "PASS" else fit["status"]
