@@ -92,7 +92,14 @@ def generalisation_figure(cases: pd.DataFrame) -> Figure:
     ax_a.set_ylabel("regret, points of held-out spread\n(calibrate - best fixed in hindsight)")
     ax_a.set_title("(a) calibrate against the best fixed method in hindsight, per case",
                    loc="left")
-    ax_a.legend(fontsize=8, loc="upper left")
+    # a decade and more of headroom above the largest regret holds the legend, which hid
+    # the first protocol's points inside the data's own range
+    finite = cases["regret"].to_numpy(float)
+    finite = finite[np.isfinite(finite)]
+    top = max(10.0, float(finite.max()) if finite.size else 10.0)
+    bottom = min(-10.0, float(finite.min()) if finite.size else -10.0)
+    ax_a.set_ylim(1.5 * bottom, 30 * top)
+    ax_a.legend(fontsize=8, ncol=3, loc="upper left")
     losses = losses_by_protocol(cases)
     width = 0.8 / max(1, losses.shape[1])
     for j, name in enumerate(losses.columns):
