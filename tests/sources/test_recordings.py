@@ -309,3 +309,58 @@ def test_numpy_reads_a_plain_file_as_pandas_does(tmp_path, monkeypatch, text, by
         (slow.columns, slow.n_rows, list(slow.extra or {}))
     for name, values in (slow.extra or {}).items():
         np.testing.assert_array_equal(fast.extra[name], values)
+
+
+# --- the axes as phones' apps and loggers name them ---------------------------------------
+
+def _write_named(path, header, sep, y, t=None, extra=None):
+    rows = [([] if t is None else [t[k]]) + list(y[k]) + ([] if extra is None else [extra[k]])
+            for k in range(len(y))]
+    path.write_text(sep.join(header) + "\n" + "\n".join(sep.join(f"{v:.9e}" for v in r)
+                                                         for r in rows) + "\n",
+                    encoding="utf-8")
+    return path
+
+
+@pytest.mark.parametrize("header, sep", [
+    (['"Time (s)"', '"Magnetic field x (µT)"', '"Magnetic field y (µT)"',
+      '"Magnetic field z (µT)"', '"Absolute field (µT)"'], ","),
+    (["Time (s)", "MAGNETIC FIELD X (\u03bcT)", "MAGNETIC FIELD Y (\u03bcT)",
+      "MAGNETIC FIELD Z (\u03bcT)", "B (\u03bcT)"], ";"),
+    (["t [s]", "mag_x [mG]", "mag_y [mG]", "mag_z [mG]", "temperature"], "\t"),
+])
+def test_axes_named_with_units_and_words_are_found(tmp_path, header, sep):
+    y = frame()[["mx", "my", "mz"]].to_numpy()
+    t = np.arange(len(y)) * 0.02
+    path = _write_named(tmp_path / "phone.csv", header, sep, y, t, np.linalg.norm(y, axis=1))
+    rec = read_samples(path)
+    np.testing.assert_allclose(rec.y, y, rtol=1e-9)
+    np.testing.assert_allclose(rec.t, t, atol=1e-12)
+    assert [c.strip('"') for c in rec.columns] == [h.strip('"') for h in header[1:4]]
+
+
+def test_axis_names_in_another_order_are_put_in_axis_order(tmp_path):
+    y = frame()[["mx", "my", "mz"]].to_numpy()
+    path = _write_named(tmp_path / "logger.csv", ["z", "y", "x"], ",", y[:, ::-1])
+    np.testing.assert_allclose(read_samples(path).y, y, rtol=1e-9)
+
+
+@pytest.mark.parametrize("header, why", [
+    (["t", "x (m)", "y (m)", "z (m)"], "positions in metres are not a field"),
+    (["gyro x", "gyro y", "gyro z", "t"], "no magnetic word"),
+])
+def test_columns_that_are_not_one_magnetometer_are_not_guessed(tmp_path, header, why):
+    y = frame()[["mx", "my", "mz"]].to_numpy()
+    path = _write_named(tmp_path / "other.csv", header, ",", y, extra=y[:, 0])
+    with pytest.raises(ValueError, match="cannot tell which columns hold the magnetometer"):
+        read_samples(path)
+
+
+def test_two_magnetometers_in_one_file_are_not_guessed(tmp_path):
+    y = frame()[["mx", "my", "mz"]].to_numpy()
+    header = ["mag_x_cal", "mag_y_cal", "mag_z_cal", "mag_x_raw", "mag_y_raw", "mag_z_raw"]
+    path = tmp_path / "two.csv"
+    path.write_text(",".join(header) + "\n" + "\n".join(
+        ",".join(f"{v:.6f}" for v in [*r, *(r + 1.0)]) for r in y) + "\n")
+    with pytest.raises(ValueError, match="cannot tell which columns"):
+        read_samples(path)

@@ -37,6 +37,7 @@ import numpy as np
 from magbench.core.files import not_a_file
 from magbench.core.geometry import MIN_COVERAGE, MIN_THICKNESS, check_geometry
 from magbench.core.model import check_magnitude
+from magbench.core.units import parse_units
 from magbench.sources.logs import EXTRA_COLUMNS, MIN_LOG_SAMPLES, is_log, read_log
 
 if TYPE_CHECKING:     # pandas reads the files NumPy cannot (:func:`_plain_table`), on demand
@@ -737,7 +738,7 @@ def read_samples(path: Path | str, columns: Sequence[object] | None = None, *,
         raise ValueError(problem)
     layout, where, header, n_cols = _open_csv(path)
     mag, names = _magnetometer_columns(columns, header, n_cols)
-    t_pos = header.index("t") if header is not None and "t" in header else None
+    t_pos = _time_column(header)
     gyro_pos = _select(None, header, n_cols, "gyro columns", GYRO_COLUMNS)
     wanted = {**dict(zip(mag, names, strict=True)),
               **({} if t_pos is None else {t_pos: "t"}),
@@ -823,13 +824,78 @@ MAG_ALIASES = (("x", "y", "z"), ("magx", "magy", "magz"), ("mag_x", "mag_y", "ma
                ("mag.x", "mag.y", "mag.z"), ("bx", "by", "bz"))
 
 
+#: A unit after a column's name, ``(uT)`` or ``[nT]``: not part of the name.
+_UNIT_SUFFIX = re.compile(r"\s*[(\[][^()\[\]]*[)\]]\s*$")
+#: Words of which a magnetometer column's name holds one (beside its axis letter).
+MAGNETIC_WORDS = ("mag", "field", "compass")
+
+
+def _magnetic_unit(name: str) -> bool:
+    """Whether ``name`` carries no unit suffix, or one of a magnetic field or of counts (a
+    column ``x (m)`` holds a position, not a field)."""
+    found = _UNIT_SUFFIX.search(name.strip().strip('"'))
+    if found is None:
+        return True
+    unit = found.group(0).strip()[1:-1].strip().replace("\u03bc", "u").replace("\u00b5", "u")
+    if unit.lower() in ("counts", "count", "lsb", "raw", "adc"):
+        return True
+    try:
+        return parse_units(unit).known
+    except ValueError:
+        return False
+
+
+def _bare_name(name: str) -> str:
+    """``name`` lower case without its unit suffix, quotes, spaces or punctuation
+    (``"Magnetic field x (µT)"`` -> ``magneticfieldx``); ``""`` when its unit is not a
+    magnetic one (:func:`_magnetic_unit`), so that it matches no magnetometer name."""
+    if not _magnetic_unit(name):
+        return ""
+    return re.sub(r"[^0-9a-z]", "", _UNIT_SUFFIX.sub("", name.strip().strip('"')).lower())
+
+
+def _axis_triple(names: list[str]) -> list[int] | None:
+    """The x, y, z columns of the one family of names that differ only in their axis letter
+    and name a magnetic quantity (:data:`MAGNETIC_WORDS`), or None (none, or several)."""
+    families: dict[str, dict[str, list[int]]] = {}
+    for i, name in enumerate(names):
+        for j, letter in enumerate(name):
+            if letter in "xyz":
+                family = families.setdefault(name[:j] + "?" + name[j + 1:], {})
+                family.setdefault(letter, []).append(i)
+    found = {tuple(f[a][0] for a in "xyz") for key, f in families.items()
+             if all(len(f.get(a, ())) == 1 for a in "xyz")
+             and any(word in key for word in MAGNETIC_WORDS)}
+    return list(found.pop()) if len(found) == 1 else None
+
+
 def _named_axes(header: list[str]) -> list[int] | None:
-    """The positions of one spelling of :data:`MAG_ALIASES` in ``header``, or None."""
+    """The positions of the magnetometer axes named in ``header``, or None: one spelling of
+    :data:`MAG_ALIASES` (matched as written, then without units, spaces and punctuation),
+    else the one family of names that differ only in their axis letter and name a magnetic
+    quantity (phones' apps: ``Magnetic field x (µT)``, ``MAGNETIC FIELD X (μT)``)."""
     lower = [h.strip().lower() for h in header]
-    for names in MAG_ALIASES:
-        if all(lower.count(n) == 1 for n in names):
-            return [lower.index(n) for n in names]
-    return None
+    bare = [_bare_name(h) for h in header]
+    for spelt, alias in [(lower, a) for a in MAG_ALIASES] + \
+            [(bare, tuple(_bare_name(n) for n in a)) for a in MAG_ALIASES]:
+        if all(spelt.count(n) == 1 for n in alias):
+            return [spelt.index(n) for n in alias]
+    return _axis_triple(bare)
+
+
+#: A column of seconds named with its unit: ``Time (s)``, ``t [s]``.
+_SECONDS = re.compile(r"(?i)\s*\"?(t|time)\s*[(\[]\s*s\s*[)\]]\"?\s*")
+
+
+def _time_column(header: list[str] | None) -> int | None:
+    """The position of the ``t`` column, else of the one column named as seconds
+    (:data:`_SECONDS`), or None."""
+    if header is None:
+        return None
+    if "t" in header:
+        return header.index("t")
+    seconds = [i for i, h in enumerate(header) if _SECONDS.fullmatch(h)]
+    return seconds[0] if len(seconds) == 1 else None
 
 
 def _clip(text: str, limit: int = 60, quote: bool = True) -> str:
