@@ -317,6 +317,9 @@ def shift(t: np.ndarray, values: np.ndarray, lag_s: float) -> np.ndarray:
     t = np.asarray(t, dtype=float)
     v = np.asarray(values, dtype=float)
     flat = v.reshape(len(v), -1)
-    out = np.column_stack([np.interp(t + lag_s, t, col, left=np.nan, right=np.nan)
-                           for col in flat.T])
+    # one column at a time into the result (column_stack held every column twice)
+    out = np.empty(flat.shape)
+    at = t + lag_s
+    for j, col in enumerate(flat.T):
+        out[:, j] = np.interp(at, t, col, left=np.nan, right=np.nan)
     return out.reshape(v.shape)

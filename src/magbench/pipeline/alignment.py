@@ -134,9 +134,13 @@ def attitude_turn_deg(attitude: np.ndarray) -> float:
     return quat_span_deg(_finite_rows(attitude))     # a block at a time: no (K, 3, 3)
 
 
-def wahba_alignment(m: np.ndarray, attitude: np.ndarray, n_iter: int = 10) -> np.ndarray:
+def wahba_alignment(m: np.ndarray, attitude: np.ndarray, n_iter: int = 10, *,
+                    overwrite: bool = False) -> np.ndarray:
     """The rotation ``R`` with ``R m_k`` nearest ``Q_k^T m_w`` for the best world direction
     ``m_w``: alternate the mean world direction and Wahba's solution (SVD).
+
+    ``overwrite``: ``m`` (a fresh array) may be made its own unit rows in place, the same
+    numbers without a second ``(K, 3)`` array.
 
     Raises :class:`CalibrationFailed` when the attitude turns through less than
     :data:`MIN_ATTITUDE_SPAN_DEG`: the reference directions are then nearly one, which fixes
@@ -146,8 +150,11 @@ def wahba_alignment(m: np.ndarray, attitude: np.ndarray, n_iter: int = 10) -> np
         raise CalibrationFailed(f"the attitude turned through {turned:.0f} deg (< "
                                 f"{MIN_ATTITUDE_SPAN_DEG:g}): it cannot fix the rotation")
     ok = np.isfinite(attitude).all(axis=1)
-    u = unit_rows(m if ok.all() else m[ok])
-    del m                               # the caller's field: freed when it passed a temporary
+    if overwrite and ok.all():          # unit_rows(m), its division made in place
+        u = np.divide(m, np.sqrt(np.einsum("ij,ij->i", m, m))[:, None], out=m)
+    else:
+        u = unit_rows(m if ok.all() else m[ok])
+    del m
     # the finite rows' matrices are made a block of the attitude at a time in each pass (a
     # long log's (K, 3, 3) would be three times its samples, a copy of its finite rows 1.3
     # times); the world directions are only summed (their mean), the body directions kept
@@ -201,8 +208,8 @@ def fit_alignment(cal: Calibration, y: np.ndarray, inertial: Inertial,
     """
     safe = cal.safe()
     source = inertial.source
-    if source == "attitude":            # the field passed as a temporary: freed as used
-        R = wahba_alignment(symmetric_field(safe, y), inertial.attitude)
+    if source == "attitude":            # a fresh field: its unit rows made in place
+        R = wahba_alignment(symmetric_field(safe, y), inertial.attitude, overwrite=True)
     elif source == "gyro+accelerometer":
         m = symmetric_field(safe, y)
         joint = calibrate(y, "mag_imu_map", angular_rate=inertial.gyro, time=inertial.t,
