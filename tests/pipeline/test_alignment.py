@@ -387,6 +387,10 @@ def test_the_block_wise_attitude_steps_give_the_whole_arrays_numbers(monkeypatch
     assert np.array_equal(alignment.wahba_alignment(m, tr.attitude), whole_R)
     assert np.array_equal(alignment.wahba_alignment(m.copy(), tr.attitude, overwrite=True),
                           whole_R)
+    gaps = tr.attitude.copy()
+    gaps[::50] = np.nan                                     # rows without attitude left out
+    assert np.array_equal(alignment.wahba_alignment(m.copy(), gaps, overwrite=True),
+                          alignment.wahba_alignment(m, gaps))
     assert np.array_equal(align(tr.t, coarse, quaternion=True), whole_q, equal_nan=True)
     assert alignment.inertial_source(rec) == "attitude"
     assert alignment.inertial_source(Recording(name="x", y=tr.y, t=tr.t)) == "none"

@@ -150,8 +150,9 @@ def wahba_alignment(m: np.ndarray, attitude: np.ndarray, n_iter: int = 10, *,
         raise CalibrationFailed(f"the attitude turned through {turned:.0f} deg (< "
                                 f"{MIN_ATTITUDE_SPAN_DEG:g}): it cannot fix the rotation")
     ok = np.isfinite(attitude).all(axis=1)
-    if overwrite and ok.all():          # unit_rows(m), its division made in place
-        u = np.divide(m, np.sqrt(np.einsum("ij,ij->i", m, m))[:, None], out=m)
+    if overwrite:                       # unit_rows(m[ok]): the rows moved up, divided in place
+        u = m if ok.all() else compact_rows(m, ok)
+        u = np.divide(u, np.sqrt(np.einsum("ij,ij->i", u, u))[:, None], out=u)
     else:
         u = unit_rows(m if ok.all() else m[ok])
     del m
