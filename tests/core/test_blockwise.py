@@ -101,3 +101,61 @@ def test_screen_and_noise_take_bounded_memory():
     y = _samples(200_000)
     assert _peak(lambda: screen(y)) < 3.0 * y.nbytes
     assert _peak(lambda: noise_p95_pct(y, 51.0)) < 1.5 * y.nbytes
+
+
+# --- core.blockwise: rows of whole-array NumPy results from a few rows (issue 40, attitude logs)
+
+
+def _times(n: int, uniform: bool) -> np.ndarray:
+    t = 0.125 * np.arange(n)                  # exact steps: numpy's uniform formula
+    if not uniform:
+        t = t + 0.02 * np.random.default_rng(5).random(n)       # jittered, still increasing
+    return t
+
+
+@pytest.mark.parametrize("uniform", [True, False], ids=["uniform", "jittered"])
+@pytest.mark.parametrize("size", [1, 2, 7, 1000])
+def test_gradient_rows_are_numpy_gradient_to_the_last_bit(uniform, size):
+    from magbench.core.blockwise import gradient_rows, gradient_spacing, halo
+    from magbench.core.quaternions import blocks as slices
+
+    t = _times(1000, uniform)
+    f = _samples(1000, seed=3)
+    spacing = gradient_spacing(t)
+    assert (spacing is not None) == uniform
+    rows = np.concatenate([gradient_rows(t, f[halo(b, len(t))], b, spacing)
+                           for b in slices(len(t), size)])
+    assert np.array_equal(rows, np.gradient(f, t, axis=0))
+
+
+def test_interp_rows_are_numpy_interp_to_the_last_bit():
+    from magbench.core.blockwise import interp_rows
+    from magbench.core.lag import shift
+    from magbench.core.quaternions import blocks as slices
+
+    t = _times(3000, uniform=False)
+    f = _samples(3000, seed=4)
+    f[100:103] = np.nan                                  # gaps stay gaps
+    for lag in (-0.0731, 0.0, 0.05, 0.125 * 2999.5, 0.125 * 4000):
+        whole = shift(t, f, -lag)
+        parts = [interp_rows(t, f, t[b] + -lag) for b in slices(len(t), 257)]
+        assert np.array_equal(np.concatenate(parts), whole, equal_nan=True)
+    assert np.isnan(interp_rows(t, f, t[:10] - 10.0)).all()       # before the stream: NaN
+
+
+def test_column_sums_and_mean_direction_rows_are_the_whole_arrays():
+    from magbench.core.blockwise import column_sums, mean_direction_rows
+    from magbench.core.direction import mean_direction
+
+    x = _samples(5000, seed=6)
+    parts = [x[i:i + 333] for i in range(0, len(x), 333)]
+    assert np.array_equal(column_sums(parts), x.sum(axis=0))
+    x[17] = np.nan
+    x[40, 1] = np.nan
+    parts = [x[i:i + 333] for i in range(0, len(x), 333)]
+    assert np.array_equal(mean_direction_rows(iter(parts)), mean_direction(x))
+    # known answer of the whole-array mean direction of these samples
+    assert mean_direction_rows(iter(parts)).tolist() == pytest.approx(
+        [0.83531816338546, -0.49375724123584125, 0.24175887294060763], abs=1e-15)
+    with pytest.raises(ValueError, match="no rows"):
+        column_sums([])

@@ -71,3 +71,21 @@ def test_streams_that_never_overlap_have_no_correlation_and_no_warning():
     with warnings.catch_warnings():
         warnings.simplefilter("error")                  # "Mean of empty slice" would raise
         assert np.isnan(_correlation(a, b))
+
+
+def test_a_long_recordings_lag_is_the_whole_fits_to_round_off(monkeypatch):
+    # Beyond geometry.BLOCK_ROWS samples the lag fit works a block at a time (issue 40): the
+    # same A by TSQR, the correlation summed over blocks, so the lag agrees to round-off;
+    # centre= centres the field a block at a time.
+    from magbench.core import geometry
+
+    lag = 0.37 / RATE_HZ
+    tr = manoeuvre(lag, noise=0.005)
+    whole, peak = magnetometer_lag(tr.t, tr.y, tr.angular_rate)
+    monkeypatch.setattr(geometry, "BLOCK_ROWS", 600)             # 1500 rows: three blocks
+    long, long_peak = magnetometer_lag(tr.t, tr.y, tr.angular_rate)
+    assert long == pytest.approx(whole, rel=1e-9) and long_peak == pytest.approx(peak, rel=1e-9)
+    assert abs(long - lag) * RATE_HZ < 0.15
+    centre = np.array([0.3, -0.2, 0.1])
+    assert magnetometer_lag(tr.t, tr.y + centre, tr.angular_rate, centre=centre)[0] == \
+        pytest.approx(long, rel=1e-9)

@@ -360,3 +360,37 @@ def test_the_veto_scores_a_candidate_once_for_the_same_folds(monkeypatch):
     assert calls == ["sphere", "ellipsoid"] and np.isfinite(list(scores.values())).all()
     veto(summary, trials, replace(rec, y=rec.y + 1e-9))
     assert calls == ["sphere", "ellipsoid"] * 2
+
+
+def test_the_block_wise_attitude_steps_give_the_whole_arrays_numbers(monkeypatch):
+    # Issue 40: the attitude rate from the recording's columns, Wahba's alignment and the
+    # log's attitude interpolation work a block of rows at a time; with blocks of 257 rows
+    # (boundaries everywhere) every number is the one-block computation's, to the last bit.
+    from magbench.core import quaternions
+    from magbench.core.lag import attitude_rate
+    from magbench.pipeline import alignment
+    from magbench.sources.logs import Stream, align
+    from magbench.sources.recordings import Recording
+
+    tr = simulate(np.random.default_rng(8), rate_hz=50.0, duration_s=40.0)
+    q = tr.attitude * 1.5                                   # not unit: normalised per row
+    q[100:104] = np.nan
+    rec = Recording(name="x", y=tr.y, t=tr.t,
+                    extra=dict(zip(("qw", "qx", "qy", "qz"), q.T, strict=True)))
+    m = tr.y - tr.y.mean(axis=0)
+    coarse = Stream(tr.t[::7], tr.attitude[::7])
+    whole_rate = attitude_rate(rec.t, alignment.inertial_of(rec).attitude)
+    whole_R = alignment.wahba_alignment(m, tr.attitude)
+    whole_q = align(tr.t, coarse, quaternion=True)
+    monkeypatch.setattr(quaternions, "BLOCK_ROWS", 257)
+    assert np.array_equal(alignment._attitude_rate(rec), whole_rate, equal_nan=True)
+    assert np.array_equal(alignment.wahba_alignment(m, tr.attitude), whole_R)
+    assert np.array_equal(alignment.wahba_alignment(m.copy(), tr.attitude, overwrite=True),
+                          whole_R)
+    gaps = tr.attitude.copy()
+    gaps[::50] = np.nan                                     # rows without attitude left out
+    assert np.array_equal(alignment.wahba_alignment(m.copy(), gaps, overwrite=True),
+                          alignment.wahba_alignment(m, gaps))
+    assert np.array_equal(align(tr.t, coarse, quaternion=True), whole_q, equal_nan=True)
+    assert alignment.inertial_source(rec) == "attitude"
+    assert alignment.inertial_source(Recording(name="x", y=tr.y, t=tr.t)) == "none"

@@ -13,7 +13,13 @@ from magbench.core.exports import to_json_dict
 from magbench.core.geomagnetic import Site
 from magbench.core.model import Calibration, CalibrationFailed
 from magbench.core.units import Units
-from magbench.pipeline.alignment import DirectionVeto, align_chosen, field_check, inertial_of
+from magbench.pipeline.alignment import (
+    DirectionVeto,
+    align_chosen,
+    field_check,
+    inertial_of,
+    inertial_source,
+)
 from magbench.pipeline.result import CalibrationResult
 
 __all__ = ["direction_lines", "mark_vetoes", "measured_inclination"]
@@ -67,7 +73,7 @@ def direction_lines(result: CalibrationResult, cal: Calibration, payload: dict,
                      "inertial streams; removed before fitting")
         payload["magnetometer_lag_s"] = lag_s
     name = payload["method"]
-    source = inertial_of(result.rec).source
+    source = inertial_source(result.rec)
     if source != "none":
         try:
             cal, source = align_chosen(cal, result.rec, result.inliers)

@@ -14,9 +14,12 @@ the corrected times.
 
 from __future__ import annotations
 
+from collections.abc import Callable, Iterator
+
 import numpy as np
 
 from magbench.core import geometry
+from magbench.core.blockwise import gradient_rows, gradient_spacing, halo, interp_rows
 from magbench.core.quaternions import blocks, quat_conjugate, quat_multiply, quat_to_rotvec
 from magbench.core.rotations import skew
 from magbench.core.tsqr import lstsq_blocks
@@ -112,6 +115,12 @@ def best_lag(observed: np.ndarray, expected_at, dt: float,
     def corr(lag: float) -> float:
         return _correlation(np.asarray(expected_at(lag)).reshape(len(observed), -1), observed)
 
+    return _peak_lag(corr, dt, max_lag_s)
+
+
+def _peak_lag(corr: Callable[[float], float], dt: float, max_lag_s: float
+              ) -> tuple[float, float]:
+    """:func:`best_lag`'s search on a correlation function of the lag."""
     n = max(1, round(max_lag_s / dt))
     grid = np.arange(-n, n + 1) * dt
     c = np.array([corr(L) for L in grid])
@@ -184,7 +193,8 @@ def _rate_fit(u: np.ndarray, rate: np.ndarray, observed: np.ndarray) -> np.ndarr
 
 
 def magnetometer_lag(t: np.ndarray, field: np.ndarray, angular_rate: np.ndarray,
-                     max_lag_s: float = 0.1) -> tuple[float, float]:
+                     max_lag_s: float = 0.1, *, centre: np.ndarray | None = None
+                     ) -> tuple[float, float]:
     """Lag (s) of the magnetometer behind a rate stream (gyro or :func:`attitude_rate`).
 
     A field read ``L`` late obeys ``dm/dt (t) = m(t) x A w(t - L)``, with ``A`` the rotation
@@ -194,15 +204,102 @@ def magnetometer_lag(t: np.ndarray, field: np.ndarray, angular_rate: np.ndarray,
     rate is resampled at ``t - L`` and ``A`` fitted by linear least squares; the lag whose fit
     correlates best with the direction's rate (central differences) wins (:func:`best_lag`).
     Only the rate stream is shifted: ``m`` stays at its own times, so the match does not
-    depend on how fast the field turns. ``field`` should be centred (a sphere fit will do). A
+    depend on how fast the field turns. ``field`` should be centred (a sphere fit will do, or
+    pass its centre as ``centre``: ``field - centre`` is then used, a block at a time). A
     positive lag means the magnetometer sample at ``t`` shows the field of ``t - L``.
+
+    More than :data:`~magbench.core.geometry.BLOCK_ROWS` samples with increasing times are
+    worked a block at a time (:func:`_long_lag`): no ``(K, 3)`` array beside the inputs.
     """
     t = np.asarray(t, dtype=float)
-    u = field / np.linalg.norm(field, axis=1, keepdims=True)
     rate = np.asarray(angular_rate, dtype=float)
+    if len(t) > geometry.BLOCK_ROWS and _increasing(t):
+        return _long_lag(t, field, centre, rate, max_lag_s)
+    field = np.asarray(field, dtype=float) if centre is None else field - centre
+    u = field / np.linalg.norm(field, axis=1, keepdims=True)
     observed = direction_rate(t, field)
     return best_lag(observed, lambda L: _rate_fit(u, shift(t, rate, -L), observed),
                     float(np.median(np.diff(t))), max_lag_s)
+
+
+def _increasing(t: np.ndarray) -> bool:
+    """Whether ``t`` is strictly increasing (checked a block at a time)."""
+    return all((t[b.start + 1:b.stop + 1] > t[b]).all() for b in blocks(len(t) - 1))
+
+
+def _lag_blocks(t: np.ndarray, field: np.ndarray, centre: np.ndarray | None,
+                rate: np.ndarray, lag: float
+                ) -> Iterator[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """Per block of :data:`~magbench.core.geometry.BLOCK_ROWS` rows: the unit field, the rate
+    resampled at ``t - lag`` and the direction's rate, each row the number the whole arrays
+    of :func:`magnetometer_lag`'s short path hold (:mod:`magbench.core.blockwise`)."""
+    K = len(t)
+    spacing = gradient_spacing(t)
+    for rows in blocks(K, geometry.BLOCK_ROWS):
+        near = halo(rows, K)
+        f = field[near] if centre is None else field[near] - centre
+        u = f / np.linalg.norm(f, axis=1, keepdims=True)
+        inner = slice(rows.start - near.start, rows.stop - near.start)
+        yield (u[inner], interp_rows(t, rate, t[rows] + -lag),
+               gradient_rows(t, u, rows, spacing))
+
+
+def _long_lag(t: np.ndarray, field: np.ndarray, centre: np.ndarray | None, rate: np.ndarray,
+              max_lag_s: float) -> tuple[float, float]:
+    """:func:`magnetometer_lag` a block at a time: for each candidate lag, ``A`` by TSQR over
+    the blocks (as :func:`_rate_fit` fits a long recording: the same ``A``), then the
+    correlation of its fit with the direction's rate from sums over the blocks (the whole
+    arrays' correlation to round-off: the sums run in another order)."""
+    dt = float(np.median(t[1:] - t[:-1]))
+
+    def corr(lag: float) -> float:
+        count = 0
+
+        def design_rows() -> Iterator[tuple[np.ndarray, np.ndarray]]:
+            nonlocal count
+            for u, w, observed in _lag_blocks(t, field, centre, rate, lag):
+                design, ok = _rate_design(u, w, observed)
+                count += int(ok.sum())
+                yield design[ok].reshape(-1, 9), observed[ok].reshape(-1)
+
+        try:
+            a = lstsq_blocks(design_rows())[0]
+        except ValueError:              # no finite row
+            return np.nan
+        if count < 4:
+            return np.nan
+        # one pass of sums about a provisional mean (the first block's): the centred sums
+        # are then exact in exact arithmetic and stable in floating point
+        n, shift_a, shift_b = 0, None, None
+        s_a, s_b = np.zeros(3), np.zeros(3)
+        s_aa = s_bb = s_ab = 0.0
+        for u, w, observed in _lag_blocks(t, field, centre, rate, lag):
+            design, ok = _rate_design(u, w, observed)
+            fitted = design[ok] @ a
+            both = np.isfinite(fitted).all(axis=1)
+            fa, fb = fitted[both], observed[ok][both]
+            if not len(fa):
+                continue
+            if shift_a is None:
+                shift_a, shift_b = fa.mean(axis=0), fb.mean(axis=0)
+            fa -= shift_a
+            fb -= shift_b
+            n += len(fa)
+            s_a += fa.sum(axis=0)
+            s_b += fb.sum(axis=0)
+            s_aa += float(np.sum(fa * fa))
+            s_bb += float(np.sum(fb * fb))
+            s_ab += float(np.sum(fa * fb))
+        if n < 2:
+            return np.nan               # no overlap at this lag (a reference with gaps)
+        m_a, m_b = s_a / n, s_b / n
+        var_a = s_aa - n * float(m_a @ m_a)
+        var_b = s_bb - n * float(m_b @ m_b)
+        cov = s_ab - n * float(m_a @ m_b)
+        denom = np.sqrt(var_a * var_b) if var_a > 0 and var_b > 0 else 0.0
+        return float(cov / denom) if denom > 0 else np.nan
+
+    return _peak_lag(corr, dt, max_lag_s)
 
 
 def gyro_lag(t: np.ndarray, angular_rate: np.ndarray, attitude: np.ndarray,
@@ -220,6 +317,9 @@ def shift(t: np.ndarray, values: np.ndarray, lag_s: float) -> np.ndarray:
     t = np.asarray(t, dtype=float)
     v = np.asarray(values, dtype=float)
     flat = v.reshape(len(v), -1)
-    out = np.column_stack([np.interp(t + lag_s, t, col, left=np.nan, right=np.nan)
-                           for col in flat.T])
+    # one column at a time into the result (column_stack held every column twice)
+    out = np.empty(flat.shape)
+    at = t + lag_s
+    for j, col in enumerate(flat.T):
+        out[:, j] = np.interp(at, t, col, left=np.nan, right=np.nan)
     return out.reshape(v.shape)

@@ -31,6 +31,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from magbench.core.blockwise import halo, mean_direction_rows
 from magbench.core.direction import direction_score, mean_direction, world_field
 from magbench.core.gauge import safe_gauge
 from magbench.core.geomagnetic import ExpectedField, Site, expected_field
@@ -74,6 +75,7 @@ __all__ = [
     "fit_alignment",
     "fold_direction",
     "inertial_of",
+    "inertial_source",
     "lag_corrected",
     "most_turning_run",
     "offset_check",
@@ -132,9 +134,13 @@ def attitude_turn_deg(attitude: np.ndarray) -> float:
     return quat_span_deg(_finite_rows(attitude))     # a block at a time: no (K, 3, 3)
 
 
-def wahba_alignment(m: np.ndarray, attitude: np.ndarray, n_iter: int = 10) -> np.ndarray:
+def wahba_alignment(m: np.ndarray, attitude: np.ndarray, n_iter: int = 10, *,
+                    overwrite: bool = False) -> np.ndarray:
     """The rotation ``R`` with ``R m_k`` nearest ``Q_k^T m_w`` for the best world direction
     ``m_w``: alternate the mean world direction and Wahba's solution (SVD).
+
+    ``overwrite``: ``m`` (a fresh array) may be made its own unit rows in place, the same
+    numbers without a second ``(K, 3)`` array.
 
     Raises :class:`CalibrationFailed` when the attitude turns through less than
     :data:`MIN_ATTITUDE_SPAN_DEG`: the reference directions are then nearly one, which fixes
@@ -144,10 +150,15 @@ def wahba_alignment(m: np.ndarray, attitude: np.ndarray, n_iter: int = 10) -> np
         raise CalibrationFailed(f"the attitude turned through {turned:.0f} deg (< "
                                 f"{MIN_ATTITUDE_SPAN_DEG:g}): it cannot fix the rotation")
     ok = np.isfinite(attitude).all(axis=1)
-    u = unit_rows(m if ok.all() else m[ok])
+    if overwrite:                       # unit_rows(m[ok]): the rows moved up, divided in place
+        u = m if ok.all() else compact_rows(m, ok)
+        u = np.divide(u, np.sqrt(np.einsum("ij,ij->i", u, u))[:, None], out=u)
+    else:
+        u = unit_rows(m if ok.all() else m[ok])
+    del m
     # the finite rows' matrices are made a block of the attitude at a time in each pass (a
     # long log's (K, 3, 3) would be three times its samples, a copy of its finite rows 1.3
-    # times), into one (K, 3) array of world or body directions
+    # times); the world directions are only summed (their mean), the body directions kept
     parts, n = [], 0
     for b in blocks(len(attitude)):
         k = int(ok[b].sum())
@@ -161,9 +172,8 @@ def wahba_alignment(m: np.ndarray, attitude: np.ndarray, n_iter: int = 10) -> np
     rows = np.empty_like(u)
     R = np.eye(3)
     for _ in range(n_iter):
-        for b, r in parts:
-            rows[r] = np.einsum("kij,kj->ki", matrices(b), u[r] @ R.T)
-        m_w = mean_direction(rows)
+        m_w = mean_direction_rows(np.einsum("kij,kj->ki", matrices(b), u[r] @ R.T)
+                                  for b, r in parts)
         for b, r in parts:
             rows[r] = np.einsum("kji,j->ki", matrices(b), m_w)
         R = nearest_rotation(rows.T @ u)
@@ -198,11 +208,11 @@ def fit_alignment(cal: Calibration, y: np.ndarray, inertial: Inertial,
         No inertial stream, or one that cannot fix the rotation (rests too alike).
     """
     safe = cal.safe()
-    m = symmetric_field(safe, y)
     source = inertial.source
-    if source == "attitude":
-        R = wahba_alignment(m, inertial.attitude)
+    if source == "attitude":            # a fresh field: its unit rows made in place
+        R = wahba_alignment(symmetric_field(safe, y), inertial.attitude, overwrite=True)
     elif source == "gyro+accelerometer":
+        m = symmetric_field(safe, y)
         joint = calibrate(y, "mag_imu_map", angular_rate=inertial.gyro, time=inertial.t,
                           acceleration=inertial.acceleration, **map_options)
         if not joint.converged:
@@ -211,6 +221,7 @@ def fit_alignment(cal: Calibration, y: np.ndarray, inertial: Inertial,
         A, b = joint.correction()                        # heading-true: the IMU's axes
         R = nearest_rotation(unit_rows((y - b) @ A.T).T @ unit_rows(m))
     elif source == "accelerometer":
+        m = symmetric_field(safe, y)
         rows = static_rows(inertial.acceleration, 0.05)
         up = unit_rows(inertial.acceleration[rows])
         check_spread(up, 0.02)
@@ -423,10 +434,33 @@ def inertial_of(rec: Recording) -> Inertial:
         return rec.stack(names)
 
     attitude = columns(ATTITUDE_COLUMNS)
-    if attitude is not None:            # a fresh array: normalised in place
-        norm = np.linalg.norm(attitude, axis=1, keepdims=True)
-        attitude /= np.where(norm > 0, norm, np.nan)
-    return Inertial(rec.t, rec.gyro, columns(ACCEL_COLUMNS), attitude)
+    return Inertial(rec.t, rec.gyro, columns(ACCEL_COLUMNS),
+                    None if attitude is None else _unit_quaternions(attitude))
+
+
+def _unit_quaternions(q: np.ndarray) -> np.ndarray:
+    """``q`` (a fresh array) normalised in place, a zero row made NaN."""
+    norm = np.linalg.norm(q, axis=1, keepdims=True)
+    q /= np.where(norm > 0, norm, np.nan)
+    return q
+
+
+def _attitude_rows(rec: Recording, rows: slice) -> np.ndarray:
+    """Rows of :func:`inertial_of`'s attitude, made from those rows alone (the same numbers:
+    each row is normalised by itself)."""
+    return _unit_quaternions(rec.rows(rows).stack(ATTITUDE_COLUMNS))
+
+
+def inertial_source(rec: Recording) -> str:
+    """``inertial_of(rec).source``, with the attitude's finite rows counted a block at a time
+    (no normalised ``(K, 4)`` copy of a long log's attitude)."""
+    if rec.extra is not None and all(c in rec.extra for c in ATTITUDE_COLUMNS):
+        finite = sum(int(np.isfinite(_attitude_rows(rec, b)).all(axis=1).sum())
+                     for b in blocks(rec.K))
+        if finite >= 10:
+            return "attitude"
+    accel = rec.extra is not None and all(c in rec.extra for c in ACCEL_COLUMNS)
+    return Inertial(rec.t, rec.gyro, np.empty((0, 3)) if accel else None).source
 
 
 def fold_direction(trials: Sequence[Mapping], work: Recording, name: str,
@@ -542,19 +576,31 @@ def align_chosen(cal: Calibration, rec: Recording, keep: np.ndarray,
     return fit_alignment(cal, rec.y[rows], inertial, **map_options)
 
 
+def _attitude_rate(rec: Recording) -> np.ndarray:
+    """:func:`magbench.core.lag.attitude_rate` of the recording's normalised attitude, that
+    attitude made a block of rows (and their two neighbours) at a time: the same numbers
+    without its ``(K, 4)`` copy."""
+    K = rec.K
+    out = np.empty((K, 3))
+    for rows in blocks(K):
+        near = halo(rows, K)
+        out[rows] = attitude_rate(rec.t[near], _attitude_rows(rec, near))[
+            rows.start - near.start:rows.stop - near.start]
+    return out
+
+
 def lag_corrected(rec: Recording, max_lag_s: float = 0.1) -> tuple[Recording, float]:
     """The recording with its magnetometer moved onto the inertial streams' times, and the
     lag removed (s; positive: the magnetometer reads late), measured against the attitude's
     rate (or the gyro's) by :func:`magbench.core.lag.magnetometer_lag` on the field centred by
     a sphere fit. Unchanged (lag 0) without times and a rate stream, or when no lag is found; rows
     the shift leaves without a value are dropped."""
-    inertial = inertial_of(rec)
-    if rec.t is None or (inertial.attitude is None and rec.gyro is None):
+    has_attitude = rec.extra is not None and all(c in rec.extra for c in ATTITUDE_COLUMNS)
+    if rec.t is None or (not has_attitude and rec.gyro is None):
         return rec, 0.0
-    rate = attitude_rate(rec.t, inertial.attitude) if inertial.attitude is not None \
-        else rec.gyro
-    del inertial                        # its normalised attitude copy, (K, 4), is done with
-    lag, _ = magnetometer_lag(rec.t, rec.y - sphere_fit(rec.y)[0], rate, max_lag_s)
+    rate = _attitude_rate(rec) if has_attitude else rec.gyro
+    # the field centred a block at a time in the lag fit of a long log: no (K, 3) copy
+    lag, _ = magnetometer_lag(rec.t, rec.y, rate, max_lag_s, centre=sphere_fit(rec.y)[0])
     if not np.isfinite(lag) or lag == 0.0:
         return rec, 0.0
     y = shift(rec.t, rec.y, lag)
@@ -669,7 +715,7 @@ def offset_check(rec: Recording, *, tol: float = 0.1, method: str = "magical",
         rows = rows[::max(1, rows.size // max_fit_rows)]
         cal = calibrate(rec.y[rows], method).safe()
         field = symmetric_field(cal, rec.y)
-        field = field / float(np.median(np.linalg.norm(field[rows], axis=1)))
+        field /= float(np.median(np.linalg.norm(field[rows], axis=1)))    # no second (K, 3)
         windows = window_offsets(rec.t, field, orientation, window_s=window_s)
         segments = offset_segments(windows, tol)
         new, best = consistent_rows(windows, segments, rec.K)

@@ -26,7 +26,7 @@ from magbench.pipeline.alignment import (
     DirectionVeto,
     OffsetCheck,
     align_chosen,
-    inertial_of,
+    inertial_source,
     lag_corrected,
     offset_check,
 )
@@ -97,7 +97,7 @@ def decide(rec: Recording, candidates: Sequence[str], *, second_round: Sequence[
     """``calibrate``'s decision on ``rec`` (module notes); the block bootstrap is left to the
     caller (:func:`magbench.pipeline.bootstrap.bootstrap_check`). ``units``: the declared
     unit of the samples (a field strength the Earth cannot give in it is a FAIL)."""
-    has_inertial = inertial_of(rec).source != "none"
+    has_inertial = inertial_source(rec) != "none"
     rec, lag = lag_corrected(rec) if has_inertial else (rec, 0.0)
     # An offset that follows the current, throttle or temperature is what the time-varying
     # terms fit: only without such a regressor is a changed offset a cut.
@@ -131,7 +131,7 @@ def written_correction(decision: Decision) -> Calibration | None:
     if not decision.written:
         return None
     cal = Calibration(*estimate(decision.result.chosen))
-    if inertial_of(decision.rec).source != "none":
+    if inertial_source(decision.rec) != "none":
         try:
             cal, _ = align_chosen(cal, decision.rec, decision.result.inliers)
         except CalibrationFailed:

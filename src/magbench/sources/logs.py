@@ -57,7 +57,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from magbench.core.files import not_a_file
-from magbench.core.quaternions import matrix_to_quat
+from magbench.core.quaternions import blocks, matrix_to_quat
 from magbench.core.rotations import euler_zyx_to_matrix
 
 if TYPE_CHECKING:     # DataFlash logs and table() only: calibrate of a CSV needs no pandas
@@ -237,17 +237,22 @@ def align(t: np.ndarray, stream: Stream, *, quaternion: bool = False) -> np.ndar
     if quaternion:
         flips = np.cumprod(np.where(np.einsum("ki,ki->k", v[1:], v[:-1]) < 0, -1.0, 1.0))
         v = v * np.concatenate([[1.0], flips])[:, None]
-    j = np.searchsorted(s.t, t, side="right")           # s.t[j-1] <= t < s.t[j]
-    inside = (j > 0) & (j < len(s.t)) | (t == s.t[-1])
-    j = np.clip(j, 1, len(s.t) - 1)
-    dt = s.t[j] - s.t[j - 1]
+    t = np.asarray(t)
     limit = GAP_INTERVALS * float(np.median(np.diff(s.t)))
-    inside &= dt <= limit
-    w = ((t - s.t[j - 1]) / dt)[:, None]
-    values = (1 - w) * v[j - 1] + w * v[j]
-    if quaternion:
-        values /= np.linalg.norm(values, axis=1, keepdims=True)
-    out[inside] = values[inside]
+    # a block of rows at a time: each row's value depends on its own time only, and the
+    # whole log's interpolation held several (K, columns) temporaries beside ``out``
+    for rows in blocks(len(t)):
+        tb = t[rows]
+        j = np.searchsorted(s.t, tb, side="right")      # s.t[j-1] <= t < s.t[j]
+        inside = (j > 0) & (j < len(s.t)) | (tb == s.t[-1])
+        j = np.clip(j, 1, len(s.t) - 1)
+        dt = s.t[j] - s.t[j - 1]
+        inside &= dt <= limit
+        w = ((tb - s.t[j - 1]) / dt)[:, None]
+        values = (1 - w) * v[j - 1] + w * v[j]
+        if quaternion:
+            values /= np.linalg.norm(values, axis=1, keepdims=True)
+        out[rows][inside] = values[inside]
     return out
 
 
