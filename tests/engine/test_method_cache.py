@@ -503,3 +503,36 @@ def test_a_records_field_is_the_csv_readers():
         assert [_field(record, i) for i in range(len(fields))] == fields
     with pytest.raises(IndexError):
         _field("a,b\n", 2)
+
+
+def test_a_new_methods_trials_take_the_bound_columns_of_the_reused_rows(tmp_path, calls,
+                                                                       monkeypatch):
+    """A method added computes its rows without the Cramer-Rao columns' work: the bound of
+    each dataset is read from the reused rows (``given_reused``), and the rows equal those
+    computed with it; the fingerprint does not see what was read."""
+    from magbench.studies import review
+
+    s = ReviewStudy("gamma", [Point(K=40, gamma=0.05), Point(K=40, gamma=0.1)], 3, 7,
+                    ("sphere", "fang"))
+    run(s, tmp_path)
+    work = s.with_methods(["ellipsoid"])
+    given = work.given_reused({"trials": tmp_path / "trials.csv"})
+    assert set(given.known_bounds) == set(s.units())
+    assert given.fingerprint() == work.fingerprint()
+    table = (tmp_path / "trials.csv").read_text().splitlines()
+    header = table[0].split(",")
+    crb = [r.split(",")[header.index("crb")] for r in table[1:]]
+    assert [repr(given.known_bounds[u][0]) for u in s.units() for _ in range(2)] == crb
+    expected = {u: work.run_unit(u) for u in s.units()}
+
+    def refused(*args, **kwargs):
+        raise AssertionError("the bound was computed again")
+
+    monkeypatch.setattr(review, "efficient_expected_J", refused)
+    monkeypatch.setattr(review, "crb_covariance", refused)
+    for unit in s.units():
+        got = given.run_unit(unit)
+        for rows in (got["trials"], expected[unit]["trials"]):
+            for row in rows:
+                row.pop("time_s", None)
+        assert got["trials"] == expected[unit]["trials"]

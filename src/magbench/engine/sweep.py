@@ -128,8 +128,15 @@ class Study:
         raise NotImplementedError
 
     def describe(self) -> dict:
-        """The settings as plain data (for ``run.json`` and the fingerprint)."""
-        return json.loads(json.dumps(dataclasses.asdict(self), default=str))
+        """The settings as plain data (for ``run.json`` and the fingerprint); fields marked
+        ``metadata={"setting": False}`` (values a run knows already, :meth:`given_reused`)
+        are left out."""
+        hidden = [f.name for f in dataclasses.fields(self) if not f.metadata.get("setting", True)]
+        data = dataclasses.asdict(dataclasses.replace(self, **dict.fromkeys(hidden))
+                                  if hidden else self)
+        for name in hidden:
+            data.pop(name)
+        return json.loads(json.dumps(data, default=str))
 
     def fingerprint(self) -> str:
         """Hash of the settings and tables: parts of another configuration are never reused."""
@@ -157,6 +164,13 @@ class Study:
         options = getattr(self, "options", None) or {}
         return dataclasses.replace(self, algorithms=tuple(names),
                                    options={k: v for k, v in options.items() if k in names})
+
+    def given_reused(self, tables: Mapping[str, Path]) -> Study:
+        """This study (the entrants a run computes) told the rows reused beside it
+        (``tables``: table name -> the staged CSV of the reused entrants' rows), to take from
+        them what does not depend on the entrant instead of computing it again; the rows must
+        be those computed without it. The default takes nothing."""
+        return self
 
     def method_key(self, name: str) -> dict[str, str]:
         """What determines the rows of method ``name`` besides the base: its options in this
@@ -1139,6 +1153,8 @@ def run_study(study: Study, out_dir: Path | str, *, n_jobs: int = 1, chunk_size:
         reused = staged.methods
         compute = [m for m in study.entrants() if m not in reused] if reused else None
         work = study if compute is None else study.with_methods(compute)
+        if reused and compute:
+            work = work.given_reused({t: staged.path(t) for t in study.tables})
         parts.fingerprint = work.fingerprint()
         if source is not None or reused:
             print(_plan_message(out_dir, reused, reasons), file=sys.stderr)
