@@ -536,3 +536,37 @@ def test_a_new_methods_trials_take_the_bound_columns_of_the_reused_rows(tmp_path
             for row in rows:
                 row.pop("time_s", None)
         assert got["trials"] == expected[unit]["trials"]
+
+
+def test_the_efficient_selection_is_kept_when_a_method_is_added(tmp_path, calls,
+                                                                 monkeypatch):
+    """``efficient_selection.csv`` depends on the points, trials, seed and delta, not on the
+    methods: a method added keeps it (no call), byte for byte a full run's; a file edited
+    since, or another delta, is computed again."""
+    from magbench.cli.kinds.review import finish
+    from magbench.studies import review
+
+    made = []
+    write = review.write_efficient_selection
+    monkeypatch.setattr(review, "write_efficient_selection",
+                        lambda *a, **k: made.append(1) or write(*a, **k))
+
+    def sweep(algorithms, folder, delta=0.5):
+        s = ReviewStudy("coverage", [Point(K=40, cap_deg=60.0)], 2, 7, tuple(algorithms),
+                        delta=delta, plugins=(COUNTING,))
+        run(s, folder, overwrite=True)
+        finish(s, folder, {"progress": False})
+        return folder
+
+    full = sweep(["counting_a", "counting_b"], tmp_path / "full")
+    sweep(["counting_a"], tmp_path / "inc")
+    made.clear()
+    out = sweep(["counting_a", "counting_b"], tmp_path / "inc")
+    assert made == []
+    assert lines(out, "efficient_selection.csv") == lines(full, "efficient_selection.csv")
+    (out / "efficient_selection.csv").write_text("edited\n")
+    sweep(["counting_a", "counting_b"], tmp_path / "inc")
+    assert made == [1]
+    assert lines(out, "efficient_selection.csv") == lines(full, "efficient_selection.csv")
+    sweep(["counting_a", "counting_b"], tmp_path / "inc", delta=0.4)
+    assert made == [1, 1]

@@ -22,7 +22,7 @@ import numpy as np
 import pandas as pd
 
 from magbench.core.crb import crb_covariance, crb_mse, efficient_expected_J
-from magbench.core.files import read_csv_columns, write_csv_atomic
+from magbench.core.files import file_sha256, read_csv_columns, write_csv_atomic
 from magbench.core.intervals import bootstrap_paired_ratio
 from magbench.core.metrics import accuracy_cost, summarize, trivial_cost
 from magbench.core.seeding import rng
@@ -34,7 +34,8 @@ from magbench.sources.synthetic import Point, make_dataset
 from magbench.studies.selection import write_efficient_selection
 from magbench.studies.times import split_times, with_times
 
-__all__ = ["POINT_COLUMNS", "ROW_COLUMNS", "SUMMARY_COLUMNS", "TIME_COLUMNS", "TRUTH_COLUMNS",
+__all__ = ["POINT_COLUMNS", "ROW_COLUMNS", "SELECTION_RECORD", "SUMMARY_COLUMNS",
+           "TIME_COLUMNS", "TRUTH_COLUMNS",
            "OptionAxis", "ReviewStudy", "coverage_label", "efficiency_intervals",
            "method_options", "point_with", "points_for", "read_trials", "summarize_review",
            "trial_rows", "with_coverage_column", "write_efficiency"]
@@ -47,6 +48,8 @@ ROW_COLUMNS = (POINT_COLUMNS + ["trial", "seed", "algorithm", "ok", "error", "n_
                + TRUTH_COLUMNS + H_COLUMNS + T_COLUMNS)
 #: The columns of a study's times sidecar (:mod:`magbench.studies.times`).
 TIME_COLUMNS = ["trial", "algorithm", "time_s"]
+#: The key of ``efficiency.json`` recording what ``efficient_selection.csv`` was computed for.
+SELECTION_RECORD = "efficient_selection"
 #: The columns :func:`summarize_review` needs: ``time_s`` comes from the sidecar (or from an
 #: older trials file that still holds it), ``trial`` matches the sidecar's rows.
 SUMMARY_COLUMNS = POINT_COLUMNS + ["trial", "algorithm", "meaningful", "J", "time_s", "sq_err",
@@ -204,10 +207,35 @@ class ReviewStudy(Study):
         trials = with_times(read_csv_columns(path, self.summary_columns), path, "trial")
         summary = summarize_review(trials, extra)
         write_csv_atomic(summary, Path(out_dir) / "summary.csv")
-        if any(p.cap_deg < 180 or p.band_deg < 90 for p in self.points):
+        if self.has_selection() and not self.selection_is_current(out_dir):
             write_efficient_selection(list(self.points), self.trials, self.seed, self.delta,
                                       out_dir)
         return summary
+
+    def has_selection(self) -> bool:
+        """Whether the sweep has points of partial coverage (``efficient_selection.csv``)."""
+        return any(p.cap_deg < 180 or p.band_deg < 90 for p in self.points)
+
+    def selection_record(self, out_dir: Path | str) -> dict | None:
+        """What :data:`SELECTION_RECORD` keeps of ``efficient_selection.csv``: the
+        :meth:`base_fingerprint` it was computed for (it depends on the points, trials, seed,
+        delta and code, on no method) and its SHA-256; None without the file."""
+        path = Path(out_dir) / "efficient_selection.csv"
+        if not self.has_selection() or not path.exists():
+            return None
+        return {"base": self.base_fingerprint(), "sha256": file_sha256(path)}
+
+    def selection_is_current(self, out_dir: Path | str) -> bool:
+        """True when ``efficient_selection.csv`` was computed for this study's base and is
+        unchanged since (the record :data:`SELECTION_RECORD` names in ``efficiency.json``):
+        adding a method does not recompute it."""
+        import json
+
+        try:
+            kept = json.loads((Path(out_dir) / "efficiency.json").read_text())[SELECTION_RECORD]
+        except (OSError, ValueError, KeyError, TypeError):
+            return False
+        return kept is not None and kept == self.selection_record(out_dir)
 
 
 def trial_rows(point: Point, trial: int, seed: int, algorithms: Sequence[str],
