@@ -58,7 +58,7 @@ from magbench.core.files import (
     atomic_path,
     exclusive_lock,
     file_sha256,
-    write_csv_atomic,
+    write_rows_csv,
     write_text_atomic,
 )
 from magbench.engine.isolation import die_with_parent, run_isolated, watch_calls
@@ -455,16 +455,12 @@ class _Parts:
                 path.unlink(missing_ok=True)
 
     def write(self, start: int, stop: int, rows: dict[str, list[dict]]) -> None:
-        # pandas here only: the CLI imports this module for its errors, and ``calibrate``
-        # must not pay pandas' import.
-        import pandas as pd
-
         sums: dict[str, object] = {"fingerprint": self.fingerprint}
         column = self.study.method_column
         layout = {}
         for table, (_, columns) in self.study.tables.items():
             path = self.path(start, stop, table)
-            write_csv_atomic(pd.DataFrame(rows.get(table, []), columns=list(columns)), path)
+            write_rows_csv(rows.get(table, []), columns, path)
             sums[table] = {"rows": len(rows.get(table, [])), "sha256": file_sha256(path)}
             if column is not None:
                 owner = self.study.table_owner.get(table)
