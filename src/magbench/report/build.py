@@ -17,7 +17,6 @@ from functools import partial
 from pathlib import Path
 
 from magbench.core.files import write_text_atomic
-from magbench.core.intervals import kept_intervals
 from magbench.report.advice import advice_section
 from magbench.report.baseline import baseline_section
 from magbench.report.claims import claims_section
@@ -25,6 +24,7 @@ from magbench.report.decision import decision_section
 from magbench.report.efficiency import efficiency_section
 from magbench.report.format import render, shorten_for_markdown
 from magbench.report.html import section_text, slug, write_html
+from magbench.report.kept import kept_intervals
 from magbench.report.speed import bench_report_section
 from magbench.report.sweeps import SWEEP_SECTIONS, sweep_section
 from magbench.report.table2 import write_sweep_tables

@@ -13,8 +13,8 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
-from magbench.core.intervals import bootstrap_paired_ratio
 from magbench.report.format import format_number
+from magbench.report.kept import bootstrap_paired_ratio
 
 __all__ = ["Paired", "paired", "point_trials"]
 
