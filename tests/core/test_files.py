@@ -162,3 +162,31 @@ def test_each_block_is_formatted_once_with_to_csvs_bytes(tmp_path, monkeypatch, 
     frame.to_csv(tmp_path / "pandas.csv", index=False)
     assert (tmp_path / "ours.csv").read_bytes() == (tmp_path / "pandas.csv").read_bytes()
     assert calls == ([3, 3, 3, 1] if chunk == 3 else [10])
+
+
+def test_rows_are_written_as_the_frame_of_them_writes(tmp_path):
+    """write_rows_csv's bytes are write_csv_atomic's of pd.DataFrame(rows, columns) for
+    every kind of column a study gives (and the frame's for the kinds it does not format):
+    integers, floats with NaN, inf and integers among them, booleans, text with commas,
+    quotes and line breaks, missing keys and values, NumPy scalars, mixed kinds."""
+    import numpy as np
+    import pandas as pd
+
+    from magbench.core.files import write_csv_atomic, write_rows_csv
+
+    columns = ["i", "f", "fi", "b", "s", "none", "missing", "np", "mixed", "big", "boolnone",
+               "intnone"]
+    rows = [
+        {"i": 1, "f": 0.1, "fi": 2, "b": True, "s": "ok", "none": None, "np": np.float64(1 / 3),
+         "mixed": "a", "big": 2 ** 70, "boolnone": True, "intnone": 3},
+        {"i": -7, "f": float("nan"), "fi": 2.5, "b": np.bool_(False), "s": 'say "hi", then\nbye',
+         "none": None, "np": np.int64(4), "mixed": 1.5, "big": 1, "boolnone": None,
+         "intnone": None},
+        {"i": np.int32(3), "f": float("inf"), "fi": -0.0, "b": False, "s": None, "none": None,
+         "np": np.float64("nan"), "mixed": None, "big": 2, "boolnone": False, "intnone": 5},
+    ]
+    for subset in (columns, columns[:6], ["i", "f", "b", "s", "intnone"], ["none"]):
+        for n in (0, 1, 3):
+            write_rows_csv(rows[:n], subset, tmp_path / "fast.csv")
+            write_csv_atomic(pd.DataFrame(rows[:n], columns=subset), tmp_path / "frame.csv")
+            assert (tmp_path / "fast.csv").read_bytes() == (tmp_path / "frame.csv").read_bytes()

@@ -177,3 +177,4 @@ def test_the_memo_keeps_at_most_its_bytes(monkeypatch):
     for seed in range(5):
         iv.resampled_means(np.arange(10.0), np.random.default_rng(seed), 100)
     assert len(iv._MEMO) == 3 and iv._MEMO_SIZE[0] == 3 * 100 * 8
+

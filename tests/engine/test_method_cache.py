@@ -503,3 +503,70 @@ def test_a_records_field_is_the_csv_readers():
         assert [_field(record, i) for i in range(len(fields))] == fields
     with pytest.raises(IndexError):
         _field("a,b\n", 2)
+
+
+def test_a_new_methods_trials_take_the_bound_columns_of_the_reused_rows(tmp_path, calls,
+                                                                       monkeypatch):
+    """A method added computes its rows without the Cramer-Rao columns' work: the bound of
+    each dataset is read from the reused rows (``given_reused``), and the rows equal those
+    computed with it; the fingerprint does not see what was read."""
+    from magbench.studies import review
+
+    s = ReviewStudy("gamma", [Point(K=40, gamma=0.05), Point(K=40, gamma=0.1)], 3, 7,
+                    ("sphere", "fang"))
+    run(s, tmp_path)
+    work = s.with_methods(["ellipsoid"])
+    given = work.given_reused({"trials": tmp_path / "trials.csv"})
+    assert set(given.known_bounds) == set(s.units())
+    assert given.fingerprint() == work.fingerprint()
+    table = (tmp_path / "trials.csv").read_text().splitlines()
+    header = table[0].split(",")
+    crb = [r.split(",")[header.index("crb")] for r in table[1:]]
+    assert [repr(given.known_bounds[u][0]) for u in s.units() for _ in range(2)] == crb
+    expected = {u: work.run_unit(u) for u in s.units()}
+
+    def refused(*args, **kwargs):
+        raise AssertionError("the bound was computed again")
+
+    monkeypatch.setattr(review, "efficient_expected_J", refused)
+    monkeypatch.setattr(review, "crb_covariance", refused)
+    for unit in s.units():
+        got = given.run_unit(unit)
+        for rows in (got["trials"], expected[unit]["trials"]):
+            for row in rows:
+                row.pop("time_s", None)
+        assert got["trials"] == expected[unit]["trials"]
+
+
+def test_the_efficient_selection_is_kept_when_a_method_is_added(tmp_path, calls,
+                                                                 monkeypatch):
+    """``efficient_selection.csv`` depends on the points, trials, seed and delta, not on the
+    methods: a method added keeps it (no call), byte for byte a full run's; a file edited
+    since, or another delta, is computed again."""
+    from magbench.cli.kinds.review import finish
+    from magbench.studies import review
+
+    made = []
+    write = review.write_efficient_selection
+    monkeypatch.setattr(review, "write_efficient_selection",
+                        lambda *a, **k: made.append(1) or write(*a, **k))
+
+    def sweep(algorithms, folder, delta=0.5):
+        s = ReviewStudy("coverage", [Point(K=40, cap_deg=60.0)], 2, 7, tuple(algorithms),
+                        delta=delta, plugins=(COUNTING,))
+        run(s, folder, overwrite=True)
+        finish(s, folder, {"progress": False})
+        return folder
+
+    full = sweep(["counting_a", "counting_b"], tmp_path / "full")
+    sweep(["counting_a"], tmp_path / "inc")
+    made.clear()
+    out = sweep(["counting_a", "counting_b"], tmp_path / "inc")
+    assert made == []
+    assert lines(out, "efficient_selection.csv") == lines(full, "efficient_selection.csv")
+    (out / "efficient_selection.csv").write_text("edited\n")
+    sweep(["counting_a", "counting_b"], tmp_path / "inc")
+    assert made == [1]
+    assert lines(out, "efficient_selection.csv") == lines(full, "efficient_selection.csv")
+    sweep(["counting_a", "counting_b"], tmp_path / "inc", delta=0.4)
+    assert made == [1, 1]

@@ -21,3 +21,30 @@ def test_a_method_that_fails_the_hard_datasets_is_compared_on_the_easy_ones_only
     assert p.n == 50 and np.isclose(p.ratio, 1.1) and p.different
     assert p.text() == "1.1 [1.1, 1.1], n = 50"
     assert paired(trials, "robust", "absent").n == 0
+
+
+def test_the_shared_runs_are_the_pivot_tables_runs():
+    """``paired`` without pivot tables gives the pivot's numbers: trials in any order, a
+    trial one method lacks, runs meaningful for one only, another value column; a trial
+    twice for a method goes to the pivot, which refuses it."""
+    import numpy as np
+    import pandas as pd
+    import pytest
+
+    from magbench.report.matched import _paired_by_pivot, paired
+
+    gen = np.random.default_rng(3)
+    rows = [{"trial": t, "algorithm": m, "meaningful": bool(gen.random() < 0.8),
+             "J": float(gen.random()), "J_h": float(gen.random())}
+            for t in gen.permutation(40) for m in ("a", "b", "c") if (t, m) != (5, "b")]
+    trials = pd.DataFrame(rows)
+    for a, b in (("a", "b"), ("b", "c"), ("c", "a"), ("a", "missing")):
+        for value in ("J", "J_h"):
+            fast = paired(trials, a, b, value, ("k",))
+            slow = _paired_by_pivot(trials, a, b, value, ("k",))
+            assert fast.n == slow.n
+            assert np.array_equal([fast.ratio, fast.low, fast.high],
+                                  [slow.ratio, slow.low, slow.high], equal_nan=True)
+    twice = pd.concat([trials, trials.iloc[:1]])
+    with pytest.raises(ValueError):
+        paired(twice, twice["algorithm"].iloc[0], "c")

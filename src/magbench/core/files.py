@@ -29,7 +29,7 @@ if TYPE_CHECKING:
 
 __all__ = ["CHUNK_ROWS", "LockHeld", "atomic_path", "csv_cell", "exclusive_lock", "file_sha256",
            "not_a_file", "read_csv_columns", "write_csv_atomic", "write_records_csv",
-           "write_text_atomic"]
+           "write_rows_csv", "write_text_atomic"]
 
 #: Rows parsed at a time by :func:`read_csv_columns`: the parser's buffers (every column of
 #: the chunk, as text and as values) stay at a few hundred MB whatever the file's length.
@@ -221,6 +221,63 @@ def write_records_csv(records: Sequence[Mapping[str, object]], path: Path | str)
     column must hold floats here). Without pandas: ``calibrate`` does not import it."""
     columns = list(records[0]) if records else []
     _write_rows(path, columns, ([csv_cell(r.get(c)) for c in columns] for r in records))
+
+
+def write_rows_csv(rows: Sequence[Mapping[str, object]], columns: Sequence[str],
+                   path: Path | str) -> None:
+    """Write ``rows`` (dicts; a missing key is a missing value) as CSV with ``columns``,
+    atomically, with the bytes ``write_csv_atomic(pd.DataFrame(rows, columns=columns), path)``
+    writes. Each column is formatted here when its values are of one plain kind, as the
+    frame's column would be (booleans; integers; floats, integers among them written as
+    floats, missing values empty; text, missing values empty); a table with any other column
+    goes to the frame. A sweep writes every chunk's rows this way: building the frame was most
+    of the cost of a small chunk."""
+    columns = list(columns)
+    cells = [_plain_column([r.get(c) for r in rows]) for c in columns] if rows else None
+    if cells is None or any(c is None for c in cells):
+        import pandas as pd
+
+        write_csv_atomic(pd.DataFrame(list(rows), columns=columns), path)
+        return
+    _write_rows(path, columns, zip(*cells, strict=True))
+
+
+_INT64 = (-(2 ** 63), 2 ** 63 - 1)
+
+
+def _plain_column(values: list) -> list[str] | None:
+    """The cells of one column as a frame built from these values writes them, or None
+    when the values are not of one kind :func:`write_rows_csv` formats (it then builds it)."""
+    kinds = set()
+    for x in values:
+        t = type(x)
+        if x is None:
+            kinds.add("none")
+        elif t is bool or t is np.bool_:
+            kinds.add("bool")
+        elif t is int or isinstance(x, np.integer):
+            kinds.add("int" if _INT64[0] <= int(x) <= _INT64[1] else "other")
+        elif t is float or t is np.float64:
+            kinds.add("float")
+        elif t is str:
+            kinds.add("str")
+        else:
+            kinds.add("other")
+    if kinds <= {"none"}:
+        return [""] * len(values)
+    if kinds == {"bool"}:
+        return ["True" if x else "False" for x in values]
+    if kinds == {"int"}:
+        return [str(int(x)) for x in values]
+    if kinds <= {"float", "int", "none"}:
+        out = []
+        for x in values:
+            f = math.nan if x is None else float(x)
+            out.append("" if f != f else repr(f))
+        return out
+    if kinds <= {"str", "none"}:
+        return ["" if x is None else x for x in values]
+    return None
 
 
 def write_text_atomic(text: str, path: Path | str) -> None:

@@ -58,7 +58,7 @@ from magbench.core.files import (
     atomic_path,
     exclusive_lock,
     file_sha256,
-    write_csv_atomic,
+    write_rows_csv,
     write_text_atomic,
 )
 from magbench.engine.isolation import die_with_parent, run_isolated, watch_calls
@@ -128,8 +128,15 @@ class Study:
         raise NotImplementedError
 
     def describe(self) -> dict:
-        """The settings as plain data (for ``run.json`` and the fingerprint)."""
-        return json.loads(json.dumps(dataclasses.asdict(self), default=str))
+        """The settings as plain data (for ``run.json`` and the fingerprint); fields marked
+        ``metadata={"setting": False}`` (values a run knows already, :meth:`given_reused`)
+        are left out."""
+        hidden = [f.name for f in dataclasses.fields(self) if not f.metadata.get("setting", True)]
+        data = dataclasses.asdict(dataclasses.replace(self, **dict.fromkeys(hidden))
+                                  if hidden else self)
+        for name in hidden:
+            data.pop(name)
+        return json.loads(json.dumps(data, default=str))
 
     def fingerprint(self) -> str:
         """Hash of the settings and tables: parts of another configuration are never reused."""
@@ -157,6 +164,13 @@ class Study:
         options = getattr(self, "options", None) or {}
         return dataclasses.replace(self, algorithms=tuple(names),
                                    options={k: v for k, v in options.items() if k in names})
+
+    def given_reused(self, tables: Mapping[str, Path]) -> Study:
+        """This study (the entrants a run computes) told the rows reused beside it
+        (``tables``: table name -> the staged CSV of the reused entrants' rows), to take from
+        them what does not depend on the entrant instead of computing it again; the rows must
+        be those computed without it. The default takes nothing."""
+        return self
 
     def method_key(self, name: str) -> dict[str, str]:
         """What determines the rows of method ``name`` besides the base: its options in this
@@ -441,16 +455,12 @@ class _Parts:
                 path.unlink(missing_ok=True)
 
     def write(self, start: int, stop: int, rows: dict[str, list[dict]]) -> None:
-        # pandas here only: the CLI imports this module for its errors, and ``calibrate``
-        # must not pay pandas' import.
-        import pandas as pd
-
         sums: dict[str, object] = {"fingerprint": self.fingerprint}
         column = self.study.method_column
         layout = {}
         for table, (_, columns) in self.study.tables.items():
             path = self.path(start, stop, table)
-            write_csv_atomic(pd.DataFrame(rows.get(table, []), columns=list(columns)), path)
+            write_rows_csv(rows.get(table, []), columns, path)
             sums[table] = {"rows": len(rows.get(table, [])), "sha256": file_sha256(path)}
             if column is not None:
                 owner = self.study.table_owner.get(table)
@@ -1139,6 +1149,8 @@ def run_study(study: Study, out_dir: Path | str, *, n_jobs: int = 1, chunk_size:
         reused = staged.methods
         compute = [m for m in study.entrants() if m not in reused] if reused else None
         work = study if compute is None else study.with_methods(compute)
+        if reused and compute:
+            work = work.given_reused({t: staged.path(t) for t in study.tables})
         parts.fingerprint = work.fingerprint()
         if source is not None or reused:
             print(_plan_message(out_dir, reused, reasons), file=sys.stderr)

@@ -24,14 +24,18 @@ from magbench.report.decision import decision_section
 from magbench.report.efficiency import efficiency_section
 from magbench.report.format import render, shorten_for_markdown
 from magbench.report.html import section_text, slug, write_html
+from magbench.report.kept import kept_intervals
 from magbench.report.speed import bench_report_section
 from magbench.report.sweeps import SWEEP_SECTIONS, sweep_section
 from magbench.report.table2 import write_sweep_tables
 from magbench.report.table4 import table4_section
 
-__all__ = ["HTML_DETAILS", "REVIEW_SECTIONS", "Section", "build_report", "contents",
-           "header_section", "link_sections", "write_markdown_report", "write_report",
+__all__ = ["HTML_DETAILS", "INTERVALS_FILE", "REVIEW_SECTIONS", "Section", "build_report",
+           "contents", "header_section", "link_sections", "write_markdown_report", "write_report",
            "write_sweep_tables"]
+
+#: Beside report.md: the bootstrap intervals its sections drew (:func:`kept_intervals`).
+INTERVALS_FILE = "report_intervals.json"
 
 #: A report section: the results folder -> its Markdown ('' when it has nothing to say).
 Section = Callable[[Path], str]
@@ -102,7 +106,11 @@ def write_markdown_report(results_dir: Path | str, sections: Sequence[Section] =
     be written while they are drawn); ``sections`` and ``texts`` as in :func:`build_report`.
     Returns its path."""
     path = Path(results_dir) / "report.md"
-    write_text_atomic(build_report(results_dir, sections, texts), path)
+    # The bootstrap intervals of rows that did not change (every method but one added) are
+    # the last report's: each is keyed by a digest of its inputs.
+    with kept_intervals(Path(results_dir) / INTERVALS_FILE):
+        text = build_report(results_dir, sections, texts)
+    write_text_atomic(text, path)
     return path
 
 

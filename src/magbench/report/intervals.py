@@ -19,8 +19,9 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from magbench.core.intervals import bootstrap_inverse_mean, intervals_overlap, wilson
+from magbench.core.intervals import intervals_overlap, wilson
 from magbench.report.format import format_number
+from magbench.report.kept import bootstrap_inverse_mean
 
 __all__ = ["accuracy_intervals", "annotate", "cell", "commit_in_history", "rb_interval",
            "read_run", "run_note", "significantly_different", "timing_provenance"]

@@ -13,8 +13,8 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
-from magbench.core.intervals import bootstrap_paired_ratio
 from magbench.report.format import format_number
+from magbench.report.kept import bootstrap_paired_ratio
 
 __all__ = ["Paired", "paired", "point_trials"]
 
@@ -50,6 +50,44 @@ def paired(trials: pd.DataFrame, a: str, b: str, value: str = "J",
     """Method ``a`` against ``b`` on the runs of ``trials`` (one sweep point) meaningful for
     both: the ratio of their mean ``value``, its 95 % paired bootstrap interval (stream named
     by ``key``, ``a`` and ``b``) and the number of shared runs."""
+    shared = _shared_runs(trials, a, b, value)
+    if shared is not None:
+        x, y = shared
+        if len(x) == 0:
+            return Paired(np.nan, np.nan, np.nan, 0)
+        low, high = bootstrap_paired_ratio(x, y, *map(str, key), a, b)
+        return Paired(float(x.mean() / y.mean()), low, high, len(x))
+    return _paired_by_pivot(trials, a, b, value, key)
+
+
+def _shared_runs(trials: pd.DataFrame, a: str, b: str, value: str
+                 ) -> tuple[np.ndarray, np.ndarray] | None:
+    """``a``'s and ``b``'s ``value`` on the trials meaningful for both, in trial order: the
+    arrays :func:`_paired_by_pivot` takes from its pivot tables, without building them (the
+    report asks for hundreds of pairs). None where the pivot's rules are not these plain
+    ones (a trial twice for a method, trials that are not integers, ``a == b``)."""
+    if a == b or trials["trial"].dtype.kind not in "iu":
+        return None
+    algorithm = trials["algorithm"].to_numpy()
+    trial = trials["trial"].to_numpy()
+    ok = trials["meaningful"].astype(bool).to_numpy()
+    values = trials[value].to_numpy(float)
+    picked = []
+    for name in (a, b):
+        mine = algorithm == name
+        t = trial[mine]
+        if len(np.unique(t)) != len(t):
+            return None                 # the pivot refuses duplicates: let it say so
+        picked.append((t[ok[mine]], values[mine][ok[mine]]))
+    (ta, xa), (tb, xb) = picked
+    common = np.intersect1d(ta, tb)
+    x = xa[np.argsort(ta, kind="stable")][np.searchsorted(np.sort(ta), common)]
+    y = xb[np.argsort(tb, kind="stable")][np.searchsorted(np.sort(tb), common)]
+    return x, y
+
+
+def _paired_by_pivot(trials: pd.DataFrame, a: str, b: str, value: str, key: tuple) -> Paired:
+    """:func:`paired` by pivot tables of the two methods' rows (the rules' reference)."""
     rows = trials[trials["algorithm"].isin([a, b])]
     ok = rows.assign(meaningful=rows["meaningful"].astype(bool)).pivot(
         index="trial", columns="algorithm", values="meaningful")

@@ -13,15 +13,16 @@ and the method runs on it at its default and at each value, the value in a colum
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Sequence
-from dataclasses import asdict, dataclass, field
+import csv
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
 from magbench.core.crb import crb_covariance, crb_mse, efficient_expected_J
-from magbench.core.files import read_csv_columns, write_csv_atomic
+from magbench.core.files import file_sha256, read_csv_columns, write_csv_atomic
 from magbench.core.intervals import bootstrap_paired_ratio
 from magbench.core.metrics import accuracy_cost, summarize, trivial_cost
 from magbench.core.seeding import rng
@@ -33,7 +34,8 @@ from magbench.sources.synthetic import Point, make_dataset
 from magbench.studies.selection import write_efficient_selection
 from magbench.studies.times import split_times, with_times
 
-__all__ = ["POINT_COLUMNS", "ROW_COLUMNS", "SUMMARY_COLUMNS", "TIME_COLUMNS", "TRUTH_COLUMNS",
+__all__ = ["POINT_COLUMNS", "ROW_COLUMNS", "SELECTION_RECORD", "SUMMARY_COLUMNS",
+           "TIME_COLUMNS", "TRUTH_COLUMNS",
            "OptionAxis", "ReviewStudy", "coverage_label", "efficiency_intervals",
            "method_options", "point_with", "points_for", "read_trials", "summarize_review",
            "trial_rows", "with_coverage_column", "write_efficiency"]
@@ -46,6 +48,8 @@ ROW_COLUMNS = (POINT_COLUMNS + ["trial", "seed", "algorithm", "ok", "error", "n_
                + TRUTH_COLUMNS + H_COLUMNS + T_COLUMNS)
 #: The columns of a study's times sidecar (:mod:`magbench.studies.times`).
 TIME_COLUMNS = ["trial", "algorithm", "time_s"]
+#: The key of ``efficiency.json`` recording what ``efficient_selection.csv`` was computed for.
+SELECTION_RECORD = "efficient_selection"
 #: The columns :func:`summarize_review` needs: ``time_s`` comes from the sidecar (or from an
 #: older trials file that still holds it), ``trial`` matches the sidecar's rows.
 SUMMARY_COLUMNS = POINT_COLUMNS + ["trial", "algorithm", "meaningful", "J", "time_s", "sq_err",
@@ -124,6 +128,11 @@ class ReviewStudy(Study):
     call_timeout_s: float | None = None
     plugins: Sequence[str] = ()
     axis: OptionAxis | None = None
+    #: The Cramer-Rao columns (``crb``, ``crb_J``) of units whose rows were reused beside the
+    #: ones this study computes, ``{(point index, trial): (crb, crb_J)}``: a dataset's bound,
+    #: the same for every method, read back instead of computed again (:meth:`given_reused`).
+    known_bounds: Mapping | None = field(default=None, compare=False, repr=False,
+                                         metadata={"setting": False})
 
     @property
     def method_column(self) -> str | None:
@@ -148,10 +157,37 @@ class ReviewStudy(Study):
 
     def run_unit(self, unit: tuple[int, int]) -> dict[str, list[dict]]:
         point_index, trial = unit
+        bounds = None if self.known_bounds is None else self.known_bounds.get(unit)
         rows, times = split_times(trial_rows(self.points[point_index], trial, self.seed,
                                              self.algorithms, self.options, self.delta,
-                                             self.call_timeout_s, self.axis), "trial")
+                                             self.call_timeout_s, self.axis, bounds), "trial")
         return {"trials": rows, "times": times}
+
+    def given_reused(self, tables: Mapping[str, Path]) -> ReviewStudy:
+        """This study with the bound columns of every unit the reused rows hold
+        (:attr:`known_bounds`): computing them is most of a new method's trial beside its
+        own call. A float is written by ``repr`` and read back by ``float``, which gives the
+        same number, so the rows are those computed without them."""
+        path = tables.get("trials")
+        if path is None or self.axis is not None:
+            return self
+        index = {tuple(float(getattr(p, c)) for c in POINT_COLUMNS): i
+                 for i, p in enumerate(self.points)}
+        known: dict[tuple[int, int], tuple[float, float]] = {}
+        with open(path, newline="") as handle:
+            reader = csv.reader(handle)
+            header = next(reader, [])
+            try:
+                at = [header.index(c) for c in [*POINT_COLUMNS, "trial", "crb", "crb_J"]]
+            except ValueError:
+                return self
+            for row in reader:
+                point = index.get(tuple(float(row[i]) for i in at[:6]))
+                unit = (point, int(row[at[6]]))
+                if point is None or unit in known or not row[at[7]] or not row[at[8]]:
+                    continue
+                known[unit] = (float(row[at[7]]), float(row[at[8]]))
+        return replace(self, known_bounds=known) if known else self
 
     def describe(self) -> dict:
         out = super().describe()
@@ -171,28 +207,57 @@ class ReviewStudy(Study):
         trials = with_times(read_csv_columns(path, self.summary_columns), path, "trial")
         summary = summarize_review(trials, extra)
         write_csv_atomic(summary, Path(out_dir) / "summary.csv")
-        if any(p.cap_deg < 180 or p.band_deg < 90 for p in self.points):
+        if self.has_selection() and not self.selection_is_current(out_dir):
             write_efficient_selection(list(self.points), self.trials, self.seed, self.delta,
                                       out_dir)
         return summary
 
+    def has_selection(self) -> bool:
+        """Whether the sweep has points of partial coverage (``efficient_selection.csv``)."""
+        return any(p.cap_deg < 180 or p.band_deg < 90 for p in self.points)
+
+    def selection_record(self, out_dir: Path | str) -> dict | None:
+        """What :data:`SELECTION_RECORD` keeps of ``efficient_selection.csv``: the
+        :meth:`base_fingerprint` it was computed for (it depends on the points, trials, seed,
+        delta and code, on no method) and its SHA-256; None without the file."""
+        path = Path(out_dir) / "efficient_selection.csv"
+        if not self.has_selection() or not path.exists():
+            return None
+        return {"base": self.base_fingerprint(), "sha256": file_sha256(path)}
+
+    def selection_is_current(self, out_dir: Path | str) -> bool:
+        """True when ``efficient_selection.csv`` was computed for this study's base and is
+        unchanged since (the record :data:`SELECTION_RECORD` names in ``efficiency.json``):
+        adding a method does not recompute it."""
+        import json
+
+        try:
+            kept = json.loads((Path(out_dir) / "efficiency.json").read_text())[SELECTION_RECORD]
+        except (OSError, ValueError, KeyError, TypeError):
+            return False
+        return kept is not None and kept == self.selection_record(out_dir)
+
 
 def trial_rows(point: Point, trial: int, seed: int, algorithms: Sequence[str],
                options: dict | None = None, delta: float = 0.5,
-               call_timeout_s: float | None = None, axis: OptionAxis | None = None
-               ) -> list[dict]:
+               call_timeout_s: float | None = None, axis: OptionAxis | None = None,
+               bounds: tuple[float, float] | None = None) -> list[dict]:
     """Every method on the trial's dataset; one row per method, failures included.
 
     With an ``axis``, its method runs at its default and then once per value (one row each,
-    the value in ``axis.column``, empty for the default).
+    the value in ``axis.column``, empty for the default). ``bounds``: the dataset's
+    ``(crb, crb_J)`` when known (from rows of other methods on it), else computed.
     """
     options = options or {}
     data = make_dataset(rng(seed, point.key, trial), point)
     J0 = trivial_cost(data.T, data.h)
-    # Cramer-Rao bound on E[J_h^2 + J_T^2] and E[J] of an efficient estimator (core/crb.py).
-    C = crb_covariance(data.T, data.m, point.sigma)
-    bound = {"crb": crb_mse(data.T, data.h, data.m, point.sigma, covariance=C).total,
-             "crb_J": efficient_expected_J(data.T, data.m, point.sigma, covariance=C)}
+    if bounds is not None:
+        bound = {"crb": bounds[0], "crb_J": bounds[1]}
+    else:
+        # Cramer-Rao bound on E[J_h^2 + J_T^2] and E[J] of an efficient estimator (core/crb).
+        C = crb_covariance(data.T, data.m, point.sigma)
+        bound = {"crb": crb_mse(data.T, data.h, data.m, point.sigma, covariance=C).total,
+                 "crb_J": efficient_expected_J(data.T, data.m, point.sigma, covariance=C)}
     base = {**{c: getattr(point, c) for c in POINT_COLUMNS},
             "trial": int(trial), "seed": int(seed)}
     truth = truth_columns(data.T, data.h)

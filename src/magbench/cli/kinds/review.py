@@ -81,7 +81,7 @@ def finish(study, out_dir: Path, common: dict) -> None:
     """The timing pass for tau (after the trials, workers gone), summary.csv, the tables and
     efficiency.csv (bound / MSE with its interval per point and method)."""
     from magbench.report.build import write_sweep_tables
-    from magbench.studies.review import write_efficiency
+    from magbench.studies.review import SELECTION_RECORD, write_efficiency
     from magbench.studies.timing import timing_is_current, write_timing
 
     if not timing_is_current(study, out_dir) and not _extend_timing(study, out_dir, common):
@@ -90,7 +90,10 @@ def finish(study, out_dir: Path, common: dict) -> None:
     write_sweep_tables(study.name, summary, out_dir, delta=study.delta)
     if study.axis is not None or not _extend_efficiency(study, out_dir):
         write_efficiency(out_dir, study.name, [] if study.axis is None else [study.axis.column])
-    _write_json(out_dir / EFFICIENCY_RECORD, {"fingerprint": study.fingerprint()})
+    record = {"fingerprint": study.fingerprint()}
+    if study.has_selection():
+        record[SELECTION_RECORD] = study.selection_record(out_dir)
+    _write_json(out_dir / EFFICIENCY_RECORD, record)
 
 
 #: Beside efficiency.csv: the fingerprint of the run it was computed from.
