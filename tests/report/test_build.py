@@ -42,3 +42,25 @@ def test_figures_drawn_by_two_workers_are_the_files_drawn_by_one(tmp_path):
     assert {"gamma/fig2_gamma.png", "report.md", "report.html"} <= set(map(str, files))
     for name in files:
         assert (tmp_path / "j1" / name).read_bytes() == (tmp_path / "j2" / name).read_bytes()
+
+
+def test_figure_workers_know_the_plugins_methods(tmp_path):
+    """The report draws each folder's figures in a worker process: a plugin's method keeps
+    its registered label there, as when one process draws them."""
+    import pandas as pd
+    from joblib.externals.loky import get_reusable_executor
+
+    import tests.plugins.counting  # noqa: F401  (registers counting_a here, as main does)
+    from magbench.cli.commands import draw_figures
+    from tests.report.helpers import rb_sweep
+
+    for sweep, case in (("gamma", gamma_case()), ("beta", rb_sweep("beta", [0.1, 0.5], {}))):
+        added = case[case["algorithm"] == "twostep"].assign(algorithm="counting_a")
+        (tmp_path / sweep).mkdir()
+        pd.concat([case, added], ignore_index=True).to_csv(tmp_path / sweep / "summary.csv",
+                                                           index=False)
+    get_reusable_executor().shutdown(wait=True)          # fresh workers: nothing imported
+    draw_figures(tmp_path, n_jobs=2)
+    for sweep, figure in (("gamma", "fig2_gamma.csv"), ("beta", "fig3_beta.csv")):
+        drawn = pd.read_csv(tmp_path / sweep / figure)
+        assert set(drawn.loc[drawn["series"] == "counting_a", "label"]) == {"counting A"}

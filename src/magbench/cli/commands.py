@@ -25,9 +25,11 @@ from magbench.cli.config import (
 )
 from magbench.cli.kinds import Kind, get_kind, kind_names, kind_of, kind_of_sweep, study_for
 from magbench.core.files import write_csv_atomic, write_text_atomic
+from magbench.engine.plugins import load_plugins, plugin_modules
 from magbench.engine.record import cpu_model, cpu_seconds, git_commit, process_age_s
 from magbench.engine.sweep import parallel_backend, run_lock, run_study
 from magbench.figures.speed import plot_scale, plot_scaling
+from magbench.methods.registry import methods
 from magbench.report import write_report
 from magbench.report.build import write_markdown_report
 from magbench.report.speed import bench_report_section
@@ -127,10 +129,21 @@ def draw_figures(results_dir: Path | str, n_jobs: int = 1, *,
     with parallel_backend("loky", n_jobs) as engine:
         parallel = Parallel(n_jobs=engine["n_jobs"], backend=engine["backend"], batch_size=1,
                             return_as="generator")
-        results = parallel(delayed(figures)(name, folder) for figures, name, folder in jobs)
+        # a worker knows the plugins' methods (their labels and colours) only once it has
+        # imported them, as this process has
+        plugins = plugin_modules(methods())
+        results = parallel(delayed(_draw_with_plugins)(figures, name, folder, plugins)
+                           for figures, name, folder in jobs)
         if meanwhile is not None:
             meanwhile()
         return [path for paths in results for path in paths]
+
+
+def _draw_with_plugins(figures: object, name: str, folder: Path,
+                       plugins: Sequence[str]) -> list[Path]:
+    """``figures(name, folder)`` in a worker, the ``plugins`` imported first."""
+    load_plugins(plugins)
+    return figures(name, folder)
 
 
 def bench(cfg: DictConfig) -> int:
