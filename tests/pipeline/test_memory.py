@@ -233,7 +233,9 @@ def test_an_attitude_log_aligns_in_bounded_memory(tmp_path, monkeypatch):
     # the corrected field, its unit rows and the body directions). The lag fit works a block
     # at a time beyond geometry.BLOCK_ROWS samples: measured 3.4 (the attitude rate, the
     # shifted samples and one block's design), 8.4 with its (K, 3) arrays per candidate lag;
-    # the alignment 4.9, 7.0 when it kept the world directions and a copy of the field.
+    # the alignment 4.9, 7.0 when it kept the world directions and a copy of the field. The
+    # lag's correction written over the samples (as calibrate does) leaves nothing of the
+    # samples' size held (a copy, 1.0, before).
     pytest.importorskip("pyulog")
     import magbench
     from magbench.core import mounting, quaternions
@@ -252,11 +254,37 @@ def test_an_attitude_log_aligns_in_bounded_memory(tmp_path, monkeypatch):
     # on OpenBLAS's threads a hundred times longer than they compute on a loaded machine
     with _one_blas_thread():
         lag_corrected(rec.rows(slice(0, 3000)), 0.03)
-        (_, lag), lag_peak = _peak(lambda: lag_corrected(rec, 0.03))
+        # as calibrate does it: the shift written over the read samples, not beside them
+        y_read = rec.y
+        tracemalloc.start()
+        try:
+            rec, lag = lag_corrected(rec, 0.03, in_place=True)
+            held, lag_peak = tracemalloc.get_traced_memory()
+        finally:
+            tracemalloc.stop()
     found, mounting_peak = _peak(lambda: mounting_rotation(rec, A, b))
     _, aligned = _peak(lambda: align_chosen(cal, rec, np.ones(rec.K, bool)))
-    size = rec.y.nbytes
-    print(f"lag {lag_peak / size:.2f}, mounting {mounting_peak / size:.2f}, "
-          f"alignment {aligned / size:.2f}")
-    assert rec.K == n and found.rotation == 0 and lag == pytest.approx(0.02, abs=1e-3)
+    size = y_read.nbytes
+    print(f"lag {lag_peak / size:.2f} (then held {held / size:.2f}), "
+          f"mounting {mounting_peak / size:.2f}, alignment {aligned / size:.2f}")
+    assert rec.K >= n - 3 and found.rotation == 0 and lag == pytest.approx(0.02, abs=1e-3)
+    assert np.shares_memory(rec.y, y_read) and held < 0.2 * size
     assert lag_peak < 4.5 * size and mounting_peak < 5.0 * size and aligned < 6.0 * size
+
+
+def test_the_lag_written_over_the_samples_is_the_copy_bit_for_bit(tmp_path):
+    # The same numbers in the same (row) layout as the copy, whose sums later steps repeat;
+    # the log's samples are a transposed (3, K) array, a CSV's (K, 3) rows.
+    pytest.importorskip("pyulog")
+    from dataclasses import replace
+
+    from magbench.pipeline.alignment import lag_corrected
+
+    path = _attitude_ulog(tmp_path / "short.ulg", 3000)
+    for layout in (np.asarray, np.ascontiguousarray):
+        read = read_samples(path)
+        copied, lag = lag_corrected(read, 0.03)
+        given = replace(read, y=layout(read.y.copy(order="K")))
+        moved, same_lag = lag_corrected(given, 0.03, in_place=True)
+        assert lag != 0.0 and same_lag == lag and np.shares_memory(moved.y, given.y)
+        assert moved.y.strides == copied.y.strides and np.array_equal(moved.y, copied.y)

@@ -294,7 +294,7 @@ def _calibrate_into(cfg: DictConfig, run: _Run, staging: Staging,
                       options=options, seed=run.common["seed"],
                       call_timeout_s=run.common["call_timeout_s"], max_samples=run.max_samples,
                       gate=run.gate, expected_field=run.expected, compensate=run.compensate,
-                      units=run.units)
+                      units=run.units, consume=True)
     rec, result, lag, offsets, veto = (decision.rec, decision.result, decision.lag_s,
                                        decision.offsets, decision.veto)
     mark_vetoes(result.ranked, veto)

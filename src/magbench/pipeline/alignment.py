@@ -589,12 +589,23 @@ def _attitude_rate(rec: Recording) -> np.ndarray:
     return out
 
 
-def lag_corrected(rec: Recording, max_lag_s: float = 0.1) -> tuple[Recording, float]:
+def _reusable(y: object) -> bool:
+    """Whether ``y`` is a writeable float64 array in one contiguous block of memory (either
+    order), which :func:`lag_corrected` may overwrite."""
+    return (isinstance(y, np.ndarray) and y.dtype == np.float64 and y.flags.writeable
+            and (y.flags.c_contiguous or y.flags.f_contiguous))
+
+
+def lag_corrected(rec: Recording, max_lag_s: float = 0.1, *, in_place: bool = False
+                  ) -> tuple[Recording, float]:
     """The recording with its magnetometer moved onto the inertial streams' times, and the
     lag removed (s; positive: the magnetometer reads late), measured against the attitude's
     rate (or the gyro's) by :func:`magbench.core.lag.magnetometer_lag` on the field centred by
     a sphere fit. Unchanged (lag 0) without times and a rate stream, or when no lag is found; rows
-    the shift leaves without a value are dropped."""
+    the shift leaves without a value are dropped. ``in_place``: the moved field is written
+    over ``rec.y``'s memory when that array allows it (a caller that keeps only the result
+    then holds one copy of a long log's samples after the shift, not two); ``rec`` is not to
+    be used afterwards."""
     has_attitude = rec.extra is not None and all(c in rec.extra for c in ATTITUDE_COLUMNS)
     if rec.t is None or (not has_attitude and rec.gyro is None):
         return rec, 0.0
@@ -604,6 +615,12 @@ def lag_corrected(rec: Recording, max_lag_s: float = 0.1) -> tuple[Recording, fl
     if not np.isfinite(lag) or lag == 0.0:
         return rec, 0.0
     y = shift(rec.t, rec.y, lag)
+    if in_place and _reusable(rec.y):
+        # the read samples' memory takes the result in the copy's own (row) layout, which
+        # NumPy's and BLAS's sums follow: the same numbers as the copy, one copy held after
+        moved, y = y, rec.y.ravel(order="K").reshape(y.shape)
+        y[...] = moved
+        del moved
     keep = np.flatnonzero(np.isfinite(y).all(axis=1))
     if keep.size and keep[-1] - keep[0] + 1 == keep.size:
         keep = slice(keep[0], keep[-1] + 1)         # the shift cuts the ends only: views

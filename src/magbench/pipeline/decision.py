@@ -93,12 +93,15 @@ def decide(rec: Recording, candidates: Sequence[str], *, second_round: Sequence[
            preprocess: str = "centre", options: dict | None = None, seed: int = 0,
            call_timeout_s: float | None = None, max_samples: int | None = None,
            gate: Gate | None = None, expected_field: float | None = None,
-           compensate: list[str] | None = None, units: Units = UNKNOWN) -> Decision:
+           compensate: list[str] | None = None, units: Units = UNKNOWN,
+           consume: bool = False) -> Decision:
     """``calibrate``'s decision on ``rec`` (module notes); the block bootstrap is left to the
     caller (:func:`magbench.pipeline.bootstrap.bootstrap_check`). ``units``: the declared
-    unit of the samples (a field strength the Earth cannot give in it is a FAIL)."""
+    unit of the samples (a field strength the Earth cannot give in it is a FAIL).
+    ``consume``: the caller keeps only the decision's ``rec``, so the lag's shift may be
+    written over ``rec``'s samples (one copy of a long log's samples, not two)."""
     has_inertial = inertial_source(rec) != "none"
-    rec, lag = lag_corrected(rec) if has_inertial else (rec, 0.0)
+    rec, lag = lag_corrected(rec, in_place=consume) if has_inertial else (rec, 0.0)
     # An offset that follows the current, throttle or temperature is what the time-varying
     # terms fit: only without such a regressor is a changed offset a cut.
     offsets = (offset_check(rec)
