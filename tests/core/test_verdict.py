@@ -185,6 +185,11 @@ def test_a_failed_fit_never_says_it_was_written_nonetheless():
     assert out["status"] == "FAIL"
     assert out["reasons"][0] == "moved"
     assert not any(r.startswith("written nonetheless") for r in out["reasons"])
+    # a shortfall demoted to a WARN, then a failing reason: the note goes with the write
+    demoted = with_reason(_fit(spread_pct=(1.0, 60.0)), "moved", fail=True, quality=True)
+    assert demoted["status"] == "WARN" and demoted["reasons"][-1].startswith("written")
+    out = with_reason(demoted, "a minority state", fail=True)
+    assert out["status"] == "FAIL" and out["reasons"] == ["a minority state", "moved"]
 
 
 def test_central_spread_as_a_share_of_a_given_scale():
