@@ -394,3 +394,23 @@ def test_the_block_wise_attitude_steps_give_the_whole_arrays_numbers(monkeypatch
     assert np.array_equal(align(tr.t, coarse, quaternion=True), whole_q, equal_nan=True)
     assert alignment.inertial_source(rec) == "attitude"
     assert alignment.inertial_source(Recording(name="x", y=tr.y, t=tr.t)) == "none"
+
+
+@pytest.mark.parametrize("finite_rows, gyro, accel", [
+    (200, False, False), (10, False, False), (9, False, True), (9, True, True),
+    (0, True, False), (0, False, False)])
+def test_the_counted_source_is_the_inertial_streams_source(finite_rows, gyro, accel):
+    """:func:`inertial_source` counts the attitude's finite rows a block at a time; it names
+    the source :attr:`Inertial.source` names, the attitude's threshold included."""
+    from magbench.pipeline import alignment
+    from magbench.sources.recordings import Recording
+    from magbench.sources.trajectory import simulate
+
+    tr = simulate(np.random.default_rng(3), rate_hz=20.0, duration_s=10.0)
+    q = tr.attitude.copy()
+    q[finite_rows:] = np.nan
+    extra = dict(zip(("qw", "qx", "qy", "qz"), q.T, strict=True))
+    if accel:
+        extra |= dict(zip(("ax", "ay", "az"), np.ones((3, tr.y.shape[0])), strict=True))
+    rec = Recording(name="x", y=tr.y, t=tr.t, gyro=tr.angular_rate if gyro else None, extra=extra)
+    assert alignment.inertial_source(rec) == alignment.inertial_of(rec).source

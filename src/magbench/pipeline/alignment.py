@@ -83,6 +83,10 @@ __all__ = [
 ]
 
 
+#: Fewest rows with a finite attitude for the alignment to take its rotation from them.
+MIN_ATTITUDE_ROWS = 10
+
+
 @dataclass(frozen=True)
 class Inertial:
     """Inertial streams beside the magnetometer samples, on the same rows (any may be None).
@@ -105,11 +109,8 @@ class Inertial:
     def source(self) -> str:
         """What :func:`fit_alignment` will use: ``attitude``, ``gyro+accelerometer``,
         ``accelerometer`` or ``none``."""
-        if self.attitude is not None and np.isfinite(self.attitude).all(axis=1).sum() >= 10:
-            return "attitude"
-        if self.gyro is not None and self.t is not None and self.acceleration is not None:
-            return "gyro+accelerometer"
-        return "accelerometer" if self.acceleration is not None else "none"
+        finite = 0 if self.attitude is None else int(np.isfinite(self.attitude).all(axis=1).sum())
+        return _source(finite, self.t, self.gyro, self.acceleration is not None)
 
 
 def symmetric_field(cal: Calibration, y: np.ndarray) -> np.ndarray:
@@ -454,13 +455,24 @@ def _attitude_rows(rec: Recording, rows: slice) -> np.ndarray:
 def inertial_source(rec: Recording) -> str:
     """``inertial_of(rec).source``, with the attitude's finite rows counted a block at a time
     (no normalised ``(K, 4)`` copy of a long log's attitude)."""
+    finite = 0
     if rec.extra is not None and all(c in rec.extra for c in ATTITUDE_COLUMNS):
         finite = sum(int(np.isfinite(_attitude_rows(rec, b)).all(axis=1).sum())
                      for b in blocks(rec.K))
-        if finite >= 10:
-            return "attitude"
     accel = rec.extra is not None and all(c in rec.extra for c in ACCEL_COLUMNS)
-    return Inertial(rec.t, rec.gyro, np.empty((0, 3)) if accel else None).source
+    return _source(finite, rec.t, rec.gyro, accel)
+
+
+def _source(attitude_rows: int, t: np.ndarray | None, gyro: np.ndarray | None,
+            acceleration: bool) -> str:
+    """:attr:`Inertial.source` from what it depends on: the rows with a finite attitude (at
+    least :data:`MIN_ATTITUDE_ROWS` to fix a rotation), the times, the gyro and whether an
+    accelerometer is present."""
+    if attitude_rows >= MIN_ATTITUDE_ROWS:
+        return "attitude"
+    if gyro is not None and t is not None and acceleration:
+        return "gyro+accelerometer"
+    return "accelerometer" if acceleration else "none"
 
 
 def fold_direction(trials: Sequence[Mapping], work: Recording, name: str,
