@@ -263,20 +263,11 @@ def _plain_column(values: list) -> list[str] | None:
             kinds.add("str")
         else:
             kinds.add("other")
-    if kinds <= {"none"}:
-        return [""] * len(values)
-    if kinds == {"bool"}:
-        return ["True" if x else "False" for x in values]
-    if kinds == {"int"}:
-        return [str(int(x)) for x in values]
+    if kinds in ({"bool"}, {"int"}) or kinds <= {"float", "none"} or kinds <= {"str", "none"}:
+        return [csv_cell(x) for x in values]
     if kinds <= {"float", "int", "none"}:
-        out = []
-        for x in values:
-            f = math.nan if x is None else float(x)
-            out.append("" if f != f else repr(f))
-        return out
-    if kinds <= {"str", "none"}:
-        return ["" if x is None else x for x in values]
+        # the frame's column is float: its integers are written as floats
+        return [csv_cell(None if x is None else float(x)) for x in values]
     return None
 
 
