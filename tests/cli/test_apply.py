@@ -12,6 +12,7 @@ from magbench.cli import main
 from magbench.cli.main import command_help, general_help
 from magbench.core.exports import to_json_dict
 from magbench.core.model import Calibration
+from magbench.sources.recordings import without_unit
 from tests.cli.test_calibrate import H_TRUE, T_TRUE, recording, save
 
 
@@ -53,6 +54,30 @@ def test_the_columns_the_json_records_are_used(tmp_path):
     frame = pd.read_csv(tmp_path / "o.csv")
     assert list(frame.columns) == ["X", "Y", "Z"]
     np.testing.assert_allclose(np.linalg.norm(frame.to_numpy(), axis=1), 1.0, atol=0.05)
+
+
+def test_a_unit_in_a_column_name_becomes_the_corrected_unit(tmp_path, capsys):
+    y = recording()
+    rec = tmp_path / "phyphox.csv"
+    pd.DataFrame({"Time (s)": np.arange(240) * 0.02, "Magnetic field x (µT)": y[:, 0],
+                  "Magnetic field y (µT)": y[:, 1], "Magnetic field z (µT)": y[:, 2],
+                  }).to_csv(rec, index=False)
+    cal = write_calibration(tmp_path / "c.json")
+    assert apply(f"calibration={cal}", f"file={rec}", f"out={tmp_path / 'o.csv'}") == 0
+    frame = pd.read_csv(tmp_path / "o.csv")
+    names = [f"Magnetic field {a} (1 = calibrated field)" for a in "xyz"]
+    assert list(frame.columns) == ["t", *names]
+    np.testing.assert_allclose(frame[names], Calibration(T_TRUE, H_TRUE).safe().apply(y),
+                               atol=1e-12)
+
+
+@pytest.mark.parametrize(("column", "bare", "had"), [
+    ("Magnetic field x (µT)", "Magnetic field x", True),
+    ('"mag_x [counts]"', "mag_x", True),
+    ("mx", "mx", False),
+])
+def test_without_unit_drops_only_a_unit_suffix(column, bare, had):
+    assert without_unit(column) == (bare, had)
 
 
 def test_one_sample_without_header_is_corrected(tmp_path):

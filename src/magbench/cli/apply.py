@@ -4,10 +4,11 @@ Corrects a recording with a saved calibration: reads the ``calibration.json`` th
 wrote (schema of :func:`magbench.core.exports.from_json_dict`, the correction
 ``m = A (y - b)``), reads the samples (:func:`magbench.sources.recordings.read_samples`; no
 coverage check, since a calibration applies to any sample, even one) and writes the corrected
-samples to ``out`` under the same column names, after the time column ``t`` when the file has
-one. The columns are ``columns=[...]`` if given, else those the calibration was fitted on (the
-JSON's ``columns``), else ``mx, my, mz``. Rows with a missing value are dropped with a warning
-line, as in ``calibrate``.
+samples to ``out`` under the same column names (a unit suffix such as ``(µT)`` replaced by
+``(1 = calibrated field)``, the corrected samples' unit), after the time column ``t`` when the
+file has one. The columns are ``columns=[...]`` if given, else those the calibration was
+fitted on (the JSON's ``columns``), else ``mx, my, mz``. Rows with a missing value are
+dropped with a warning line, as in ``calibrate``.
 
 The median field magnitude after correction is checked: the Earth's field strength differs by
 at most about 3x between sites (22-67 uT), so a median beyond 3x or below 1/3 of the
@@ -30,9 +31,10 @@ from magbench.cli.config import UsageError, check_columns, check_instance, writa
 from magbench.core.exports import from_json_dict
 from magbench.core.files import write_csv_atomic
 from magbench.core.model import Calibration
-from magbench.sources.recordings import Recording, read_samples
+from magbench.sources.recordings import Recording, read_samples, without_unit
 
-__all__ = ["corrected_frame", "load_calibration", "output_csv", "run_apply"]
+__all__ = ["CORRECTED_UNIT", "corrected_frame", "corrected_names", "load_calibration", "output_csv",
+           "run_apply"]
 
 #: The Earth's field strength spans about 22-67 uT: no site changes it by more than this factor.
 FIELD_RATIO_FAIL = 3.0
@@ -87,6 +89,24 @@ def output_csv(cfg: DictConfig, source: Path, default: Path, example: str) -> Pa
     return out
 
 
+#: What a corrected column holds, in place of the unit it was recorded in.
+CORRECTED_UNIT = "1 = calibrated field"
+
+
+def corrected_names(columns: list[str]) -> list[str]:
+    """The output's column names: the input's, with a unit suffix replaced by
+    :data:`CORRECTED_UNIT` (the corrected field is no longer in uT or counts); ``mx, my, mz``
+    for a file without a header, which has no names to keep."""
+    names = []
+    for axis, column in zip("xyz", columns, strict=True):
+        bare, had_unit = without_unit(column)
+        if column.startswith("column "):
+            names.append(f"m{axis}")
+        else:
+            names.append(f"{bare} ({CORRECTED_UNIT})" if had_unit else column)
+    return names
+
+
 def corrected_frame(rec: Recording, cal: Calibration, names: list[str]) -> pd.DataFrame:
     """``t`` (if recorded) and the corrected samples ``A (y - b)`` under ``names``."""
     m = cal.apply(rec.y)
@@ -122,8 +142,7 @@ def run_apply(cfg: DictConfig) -> int:
     for w in caught:
         print(f"magbench: warning: {w.message}", file=sys.stderr)
     out = output_csv(cfg, path, Path(f"{rec.name}-corrected.csv"), "corrected.csv")
-    # A file without a header has no names to keep: call the axes mx, my, mz.
-    names = [f"m{'xyz'[i]}" if c.startswith("column ") else c for i, c in enumerate(rec.columns)]
+    names = corrected_names(rec.columns)
     frame = corrected_frame(rec, cal, names)
     median = float(np.median(np.linalg.norm(frame[names].to_numpy(), axis=1)))
     if not 1 / FIELD_RATIO_FAIL <= median <= FIELD_RATIO_FAIL:

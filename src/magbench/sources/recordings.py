@@ -59,6 +59,7 @@ __all__ = [
     "log_recording",
     "read_inertial",
     "read_samples",
+    "without_unit",
 ]
 
 DATA_ENV = "MAGBENCH_DATA"
@@ -843,6 +844,16 @@ def _magnetic_unit(name: str) -> bool:
         return parse_units(unit).known
     except ValueError:
         return False
+
+
+def without_unit(name: str) -> tuple[str, bool]:
+    """``name`` without a unit suffix (``"Magnetic field x (µT)"`` -> ``"Magnetic field x"``),
+    and whether it had one; quotes about the name are dropped with the unit."""
+    bare = name.strip().strip('"')
+    found = _UNIT_SUFFIX.search(bare)
+    if found is None:
+        return name, False
+    return bare[:found.start()], True
 
 
 def _bare_name(name: str) -> str:
