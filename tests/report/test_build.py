@@ -64,3 +64,28 @@ def test_figure_workers_know_the_plugins_methods(tmp_path):
     for sweep, figure in (("gamma", "fig2_gamma.csv"), ("beta", "fig3_beta.csv")):
         drawn = pd.read_csv(tmp_path / sweep / figure)
         assert set(drawn.loc[drawn["series"] == "counting_a", "label"]) == {"counting A"}
+
+
+def test_figures_drawn_as_each_sweep_finishes_are_the_reports_and_not_drawn_again(tmp_path):
+    """reproduce starts each sweep's figures on the workers once its run returns; the report
+    then draws only the other folders', and the files are what one process writes."""
+    from magbench.cli.commands import FigureQueue, draw_figures
+
+    for case in ("one", "queued"):
+        (tmp_path / case / "gamma").mkdir(parents=True)
+        gamma_case().to_csv(tmp_path / case / "gamma" / "summary.csv", index=False)
+    alone = draw_figures(tmp_path / "one", n_jobs=1)
+    queue = FigureQueue(2)
+    queue.submit(tmp_path / "queued", "gamma")
+    assert queue.names() == {"gamma"}
+    png = tmp_path / "queued" / "gamma" / "fig2_gamma.png"
+    assert queue.wait() == {"gamma": [png]}
+    drawn_at, texts = png.stat().st_mtime_ns, []
+    drawn = draw_figures(tmp_path / "queued", n_jobs=2, queue=queue,
+                         meanwhile=lambda: texts.append("report"))
+    assert drawn == [png] and texts == ["report"]
+    assert png.stat().st_mtime_ns == drawn_at                 # not drawn a second time
+    assert [p.relative_to(tmp_path / "one") for p in alone] == [png.relative_to(
+        tmp_path / "queued")]
+    for name in ("gamma/fig2_gamma.png", "gamma/fig2_gamma.csv"):
+        assert (tmp_path / "one" / name).read_bytes() == (tmp_path / "queued" / name).read_bytes()

@@ -10,7 +10,8 @@ from __future__ import annotations
 import os
 import sys
 import time
-from collections.abc import Sequence
+import warnings
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 
 import pandas as pd
@@ -36,14 +37,16 @@ from magbench.report.speed import bench_report_section
 from magbench.studies.speed import format_reproduce_times, reproduce_times, run_bench
 from magbench.studies.timing import repeat_timing
 
-__all__ = ["bench", "draw_figures", "report", "reproduce", "run", "scale", "sweep_names",
-           "timing_check"]
+__all__ = ["FigureQueue", "bench", "draw_figures", "report", "reproduce", "run", "scale",
+           "sweep_names", "timing_check"]
 
 
-def run(cfg: DictConfig, figures: bool = True) -> int:
+def run(cfg: DictConfig, figures: bool = True, queue: FigureQueue | None = None) -> int:
     """``python -m magbench sweep=NAME``: the study, its statistics, figures and text.
 
-    ``figures=False`` leaves the figures to a later ``report`` (as :func:`reproduce` does).
+    ``figures=False`` leaves the figures to a later ``report`` (as :func:`reproduce` does);
+    with a ``queue`` they are started on its workers once the run's files are final, and a
+    sweep with a timing pass first waits for the figures under way.
     """
     kind = kind_of(cfg)
     study, common = study_for(cfg)
@@ -53,8 +56,10 @@ def run(cfg: DictConfig, figures: bool = True) -> int:
                   backend=common["backend"], scheduler_address=common["scheduler_address"],
                   progress=common["progress"], config=OmegaConf.to_container(cfg, resolve=True),
                   overwrite=common["overwrite"])
+        if queue is not None and kind.timed:
+            queue.wait()
         kind.finish(study, out_dir, common)
-        drawn = kind.figures(study.name, out_dir) if figures else []
+        drawn = kind.figures(study.name, out_dir) if figures and queue is None else []
         if kind.section is not None:
             kind.section(out_dir)
         table = next(iter(study.tables.values()))[0]
@@ -62,6 +67,8 @@ def run(cfg: DictConfig, figures: bool = True) -> int:
         n_bad = int((~trials["ok"].astype(bool)).sum())
         shown = ", ".join(p.name for p in drawn) or ("no figure for this sweep" if figures
                                                         else "drawn by the report")
+        if queue is not None:
+            queue.submit(common["results_dir"], study.name)
         print(f"sweep {study.name}: {len(trials)} rows ({n_bad} not ok) -> {out_dir}/ "
               f"({table}, figures: {shown})")
     return 0
@@ -95,8 +102,8 @@ def _figure_jobs(results_dir: Path) -> list[tuple]:
     return [*jobs, (_bench_figures, "bench", results_dir / "bench")]
 
 
-def draw_figures(results_dir: Path | str, n_jobs: int = 1, *,
-                 meanwhile: object = None) -> list[Path]:
+def draw_figures(results_dir: Path | str, n_jobs: int = 1, *, meanwhile: object = None,
+                 queue: FigureQueue | None = None) -> list[Path]:
     """Redraw every figure under ``results_dir`` from its CSV files.
 
     Parameters
@@ -109,34 +116,91 @@ def draw_figures(results_dir: Path | str, n_jobs: int = 1, *,
         are the same either way.
     meanwhile : callable, optional
         Work for this process while the workers draw (the report's text), called once.
+    queue : FigureQueue, optional
+        The folders whose figures it has drawn, or is drawing, from their final files (as
+        the sweeps of ``reproduce`` finished): not drawn again, but waited for (after
+        ``meanwhile``) and listed.
 
     Returns
     -------
     list of Path
         The figures written, folder by folder in :func:`result_folders` order.
     """
+    queued = set() if queue is None else queue.names()
     jobs = _figure_jobs(Path(results_dir))
-    if n_jobs == 1 or len(jobs) < 2:
-        written = [path for figures, name, folder in jobs for path in figures(name, folder)]
+    todo = [job for job in jobs if job[1] not in queued]
+    if n_jobs == 1 or not todo or (len(todo) < 2 and not queued):
+        paths = {name: figures(name, folder) for figures, name, folder in todo}
         if meanwhile is not None:
             meanwhile()
-        return written
-    from joblib import Parallel, delayed
+    else:
+        from joblib import Parallel, delayed
 
-    # The sweeps' worker pool (reproduce has it warm, magbench imported); one task a folder;
-    # the generator dispatches them at once, so this process is free to do ``meanwhile``
-    # before it collects the figures.
-    with parallel_backend("loky", n_jobs) as engine:
-        parallel = Parallel(n_jobs=engine["n_jobs"], backend=engine["backend"], batch_size=1,
-                            return_as="generator")
-        # a worker knows the plugins' methods (their labels and colours) only once it has
-        # imported them, as this process has
-        plugins = plugin_modules(methods())
-        results = parallel(delayed(_draw_with_plugins)(figures, name, folder, plugins)
-                           for figures, name, folder in jobs)
-        if meanwhile is not None:
-            meanwhile()
-        return [path for paths in results for path in paths]
+        # The sweeps' worker pool (reproduce has it warm, magbench imported); one task a
+        # folder; the generator dispatches them at once, so this process is free to do
+        # ``meanwhile`` before it collects the figures.
+        with parallel_backend("loky", n_jobs) as engine:
+            parallel = Parallel(n_jobs=engine["n_jobs"], backend=engine["backend"],
+                                batch_size=1, return_as="generator")
+            # a worker knows the plugins' methods (their labels and colours) only once it
+            # has imported them, as this process has
+            plugins = plugin_modules(methods())
+            results = parallel(delayed(_draw_with_plugins)(figures, name, folder, plugins)
+                               for figures, name, folder in todo)
+            if meanwhile is not None:
+                meanwhile()
+            paths = dict(zip([job[1] for job in todo], results, strict=True))
+    drawn = {} if queue is None else queue.wait()
+    return [path for _, name, _ in jobs
+            for path in (drawn[name] if name in drawn else paths[name])]
+
+
+class FigureQueue:
+    """Each finished sweep's figures drawn on the warm worker pool while this process runs
+    the next sweep (``reproduce``): the folder's files are final once its run returns, and
+    the figures read nothing else, so they are the files the report would draw.
+
+    A sweep with a timing pass waits for the figures under way first (:meth:`wait`): the pass
+    times calls with the machine otherwise idle.
+    """
+
+    def __init__(self, n_jobs: int) -> None:
+        self.n_jobs = n_jobs
+        self._pending: dict[str, Iterator[list[Path]]] = {}
+        self._drawn: dict[str, list[Path]] = {}
+
+    def submit(self, results_dir: Path, name: str) -> None:
+        """Start drawing the figures of sweep ``name`` (its folder under ``results_dir``)."""
+        from joblib import Parallel, delayed
+
+        kind = result_folders(results_dir).get(name)
+        if kind is None:
+            return
+        with parallel_backend("loky", self.n_jobs) as engine:
+            parallel = Parallel(n_jobs=engine["n_jobs"], backend=engine["backend"],
+                                batch_size=1, return_as="generator")
+            self._pending[name] = parallel([delayed(_draw_with_plugins)(
+                kind.figures, name, results_dir / name, plugin_modules(methods()))])
+
+    def names(self) -> set[str]:
+        """The folders whose figures are drawn or under way."""
+        return {*self._pending, *self._drawn}
+
+    def wait(self) -> dict[str, list[Path]]:
+        """The figures drawn so far, folder name -> paths, once those under way are done."""
+        while self._pending:
+            name, results = next(iter(self._pending.items()))
+            del self._pending[name]
+            (self._drawn[name],) = list(results)
+        return dict(self._drawn)
+
+    def close(self) -> None:
+        """Stop waiting for any figures under way (after a failed sweep)."""
+        with warnings.catch_warnings():   # joblib's word on the tasks cancelled
+            warnings.simplefilter("ignore", UserWarning)
+            for results in self._pending.values():
+                results.close()
+        self._pending.clear()
 
 
 def _draw_with_plugins(figures: object, name: str, folder: Path,
@@ -231,9 +295,18 @@ def reproduce(overrides: Sequence[str]) -> int:
             continue
         study_for(sweep_cfg)  # every sweep's config is checked before any of them runs
         sweeps.append(sweep_cfg)
-    for sweep_cfg in sweeps:
-        timed(str(sweep_cfg.sweep.name), lambda c=sweep_cfg: run(c, figures=False))
-    timed("report", lambda: report(cfg))
+    # Each sweep's figures are drawn on the warm pool while the next sweep runs (the report
+    # then draws only the bench's); one process draws them all in the report otherwise.
+    queue = (FigureQueue(common["n_jobs"]) if common["n_jobs"] != 1
+             and common["backend"] == "loky" else None)
+    try:
+        for sweep_cfg in sweeps:
+            timed(str(sweep_cfg.sweep.name),
+                  lambda c=sweep_cfg: run(c, figures=False, queue=queue))
+        timed("report", lambda: report(cfg, queue=queue))
+    finally:
+        if queue is not None:
+            queue.close()
     machine = {"cpu_model": cpu_model(), "cpu_count": os.cpu_count(),
                "n_jobs": common["n_jobs"], "git_commit": git_commit()}
     table = reproduce_times(steps, common["results_dir"], machine)
@@ -272,11 +345,12 @@ def timing_check(cfg: DictConfig) -> int:
     return 0
 
 
-def report(cfg: DictConfig) -> int:
+def report(cfg: DictConfig, queue: FigureQueue | None = None) -> int:
     """``python -m magbench report``: redraw the figures and rewrite ``report.md``.
 
     The figures are drawn by ``n_jobs`` worker processes while this one writes the Markdown
-    report; the HTML page, which embeds the figures, comes last."""
+    report; the HTML page, which embeds the figures, comes last. ``queue``: the figures
+    drawn already, or under way, as the sweeps finished (``reproduce``), not drawn again."""
     results_dir = Path(str(cfg.results_dir)).expanduser()
     if not results_dir.is_dir():
         raise UsageError(f"results_dir={results_dir} is not a folder of results; expected the "
@@ -286,7 +360,8 @@ def report(cfg: DictConfig) -> int:
     sections = [k.report for k in map(get_kind, kind_names()) if k.report is not None]
     path, texts = results_dir / "report.md", {}     # each section computed once for both
     figures = draw_figures(results_dir, os.cpu_count() or 1 if n_jobs < 0 else n_jobs,
-                           meanwhile=lambda: write_markdown_report(results_dir, sections, texts))
+                           meanwhile=lambda: write_markdown_report(results_dir, sections, texts),
+                           queue=queue)
     write_report(results_dir, sections, markdown=False, texts=texts)
     print(f"report written to {path} ({len(figures)} figures redrawn from the CSV files)")
     return 0
