@@ -45,8 +45,9 @@ def run(cfg: DictConfig, figures: bool = True, queue: FigureQueue | None = None)
     """``python -m magbench sweep=NAME``: the study, its statistics, figures and text.
 
     ``figures=False`` leaves the figures to a later ``report`` (as :func:`reproduce` does);
-    with a ``queue`` they are started on its workers once the run's files are final, and a
-    sweep with a timing pass first waits for the figures under way.
+    with a ``queue`` they and the sweep's own text (``section.md``) are started on its workers
+    once the run's files are final, and a sweep with a timing pass first waits for the work
+    under way.
     """
     kind = kind_of(cfg)
     study, common = study_for(cfg)
@@ -60,7 +61,7 @@ def run(cfg: DictConfig, figures: bool = True, queue: FigureQueue | None = None)
             queue.wait()
         kind.finish(study, out_dir, common)
         drawn = kind.figures(study.name, out_dir) if figures and queue is None else []
-        if kind.section is not None:
+        if kind.section is not None and queue is None:
             kind.section(out_dir)
         table = next(iter(study.tables.values()))[0]
         trials = pd.read_csv(out_dir / table, usecols=["ok"])
@@ -156,11 +157,12 @@ def draw_figures(results_dir: Path | str, n_jobs: int = 1, *, meanwhile: object 
 
 
 class FigureQueue:
-    """Each finished sweep's figures drawn on the warm worker pool while this process runs
-    the next sweep (``reproduce``): the folder's files are final once its run returns, and
-    the figures read nothing else, so they are the files the report would draw.
+    """Each finished sweep's text (its kind's ``section``: ``section.md`` and the like) and
+    figures made on the warm worker pool while this process runs the next sweep
+    (``reproduce``): the folder's files are final once its run returns, and the text and
+    figures read nothing else, so they are the files the sweep and the report would write.
 
-    A sweep with a timing pass waits for the figures under way first (:meth:`wait`): the pass
+    A sweep with a timing pass waits for the work under way first (:meth:`wait`): the pass
     times calls with the machine otherwise idle.
     """
 
@@ -170,7 +172,8 @@ class FigureQueue:
         self._drawn: dict[str, list[Path]] = {}
 
     def submit(self, results_dir: Path, name: str) -> None:
-        """Start drawing the figures of sweep ``name`` (its folder under ``results_dir``)."""
+        """Start writing the text and drawing the figures of sweep ``name`` (its folder
+        under ``results_dir``)."""
         from joblib import Parallel, delayed
 
         kind = result_folders(results_dir).get(name)
@@ -180,7 +183,8 @@ class FigureQueue:
             parallel = Parallel(n_jobs=engine["n_jobs"], backend=engine["backend"],
                                 batch_size=1, return_as="generator")
             self._pending[name] = parallel([delayed(_draw_with_plugins)(
-                kind.figures, name, results_dir / name, plugin_modules(methods()))])
+                kind.figures, name, results_dir / name, plugin_modules(methods()),
+                kind.section)])
 
     def names(self) -> set[str]:
         """The folders whose figures are drawn or under way."""
@@ -203,10 +207,13 @@ class FigureQueue:
         self._pending.clear()
 
 
-def _draw_with_plugins(figures: object, name: str, folder: Path,
-                       plugins: Sequence[str]) -> list[Path]:
-    """``figures(name, folder)`` in a worker, the ``plugins`` imported first."""
+def _draw_with_plugins(figures: object, name: str, folder: Path, plugins: Sequence[str],
+                       section: object = None) -> list[Path]:
+    """``figures(name, folder)`` in a worker, the ``plugins`` imported first, and before them
+    ``section(folder)`` if given (a sweep's own text, which a run writes before any figure)."""
     load_plugins(plugins)
+    if section is not None:
+        section(folder)
     return figures(name, folder)
 
 
