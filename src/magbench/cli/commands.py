@@ -66,8 +66,9 @@ def run(cfg: DictConfig, figures: bool = True, queue: FigureQueue | None = None)
         table = next(iter(study.tables.values()))[0]
         trials = pd.read_csv(out_dir / table, usecols=["ok"])
         n_bad = int((~trials["ok"].astype(bool)).sum())
-        shown = ", ".join(p.name for p in drawn) or ("no figure for this sweep" if figures
-                                                        else "drawn by the report")
+        shown = ", ".join(p.name for p in drawn) or (
+            "drawn on the workers beside the next sweep" if queue is not None else
+            "no figure for this sweep" if figures else "drawn by the report")
         if queue is not None:
             queue.submit(common["results_dir"], study.name)
         print(f"sweep {study.name}: {len(trials)} rows ({n_bad} not ok) -> {out_dir}/ "
