@@ -69,17 +69,29 @@ def test_figure_workers_know_the_plugins_methods(tmp_path):
 def test_figures_drawn_as_each_sweep_finishes_are_the_reports_and_not_drawn_again(tmp_path):
     """reproduce starts each sweep's figures on the workers once its run returns; the report
     then draws only the other folders', and the files are what one process writes."""
+    import contextlib
+
+    import pytest
+
     from magbench.cli.commands import FigureQueue, draw_figures
+    from magbench.engine.sweep import FolderBusy, folder_lock, run_lock
 
     for case in ("one", "queued"):
         (tmp_path / case / "gamma").mkdir(parents=True)
         gamma_case().to_csv(tmp_path / case / "gamma" / "summary.csv", index=False)
     alone = draw_figures(tmp_path / "one", n_jobs=1)
     queue = FigureQueue(2)
-    queue.submit(tmp_path / "queued", "gamma")
+    with contextlib.ExitStack() as held:     # the sweep's folder lock, handed to the queue
+        held.enter_context(run_lock(tmp_path / "queued" / "gamma"))
+        queue.submit(tmp_path / "queued", "gamma", held.pop_all())
     assert queue.names() == {"gamma"}
+    with pytest.raises(FolderBusy):          # held until the figures are written
+        with folder_lock(tmp_path / "queued" / "gamma"):
+            pass
     png = tmp_path / "queued" / "gamma" / "fig2_gamma.png"
     assert queue.wait() == {"gamma": [png]}
+    with folder_lock(tmp_path / "queued" / "gamma"):
+        pass
     drawn_at, texts = png.stat().st_mtime_ns, []
     drawn = draw_figures(tmp_path / "queued", n_jobs=2, queue=queue,
                          meanwhile=lambda: texts.append("report"))

@@ -7,6 +7,7 @@ redraws every figure and rewrites the report from the CSV files alone.
 
 from __future__ import annotations
 
+import contextlib
 import os
 import sys
 import time
@@ -52,7 +53,9 @@ def run(cfg: DictConfig, figures: bool = True, queue: FigureQueue | None = None)
     kind = kind_of(cfg)
     study, common = study_for(cfg)
     out_dir = writable_folder(common["results_dir"], "results_dir") / study.name
-    with run_lock(out_dir):    # held until the last file of the run is written
+    with contextlib.ExitStack() as held:
+        # held until the last file of the run is written (by the queue's worker, with one)
+        held.enter_context(run_lock(out_dir))
         run_study(study, out_dir, n_jobs=common["n_jobs"], chunk_size=common["chunk_size"],
                   backend=common["backend"], scheduler_address=common["scheduler_address"],
                   progress=common["progress"], config=OmegaConf.to_container(cfg, resolve=True),
@@ -70,7 +73,7 @@ def run(cfg: DictConfig, figures: bool = True, queue: FigureQueue | None = None)
             "drawn on the workers beside the next sweep" if queue is not None else
             "no figure for this sweep" if figures else "drawn by the report")
         if queue is not None:
-            queue.submit(common["results_dir"], study.name)
+            queue.submit(common["results_dir"], study.name, held.pop_all())
         print(f"sweep {study.name}: {len(trials)} rows ({n_bad} not ok) -> {out_dir}/ "
               f"({table}, figures: {shown})")
     return 0
@@ -171,15 +174,22 @@ class FigureQueue:
         self.n_jobs = n_jobs
         self._pending: dict[str, Iterator[list[Path]]] = {}
         self._drawn: dict[str, list[Path]] = {}
+        self._locks: dict[str, contextlib.ExitStack] = {}
 
-    def submit(self, results_dir: Path, name: str) -> None:
+    def submit(self, results_dir: Path, name: str,
+               lock: contextlib.ExitStack | None = None) -> None:
         """Start writing the text and drawing the figures of sweep ``name`` (its folder
-        under ``results_dir``)."""
+        under ``results_dir``); ``lock``, the folder's lock, is released once they are
+        written (:meth:`wait`, :meth:`close`)."""
         from joblib import Parallel, delayed
 
         kind = result_folders(results_dir).get(name)
         if kind is None:
+            if lock is not None:
+                lock.close()
             return
+        if lock is not None:
+            self._locks[name] = lock
         with parallel_backend("loky", self.n_jobs) as engine:
             parallel = Parallel(n_jobs=engine["n_jobs"], backend=engine["backend"],
                                 batch_size=1, return_as="generator")
@@ -196,7 +206,8 @@ class FigureQueue:
         while self._pending:
             name, results = next(iter(self._pending.items()))
             del self._pending[name]
-            (self._drawn[name],) = list(results)
+            with self._locks.pop(name, contextlib.ExitStack()):
+                (self._drawn[name],) = list(results)
         return dict(self._drawn)
 
     def close(self) -> None:
@@ -206,6 +217,9 @@ class FigureQueue:
             for results in self._pending.values():
                 results.close()
         self._pending.clear()
+        for lock in self._locks.values():
+            lock.close()
+        self._locks.clear()
 
 
 def _draw_with_plugins(figures: object, name: str, folder: Path, plugins: Sequence[str],
