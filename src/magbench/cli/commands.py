@@ -73,7 +73,7 @@ def run(cfg: DictConfig, figures: bool = True, queue: FigureQueue | None = None)
             "drawn on the workers beside the next sweep" if queue is not None else
             "no figure for this sweep" if figures else "drawn by the report")
         if queue is not None:
-            queue.submit(common["results_dir"], study.name, held.pop_all())
+            queue.submit(common["results_dir"], study.name, held.pop_all(), kind)
         print(f"sweep {study.name}: {len(trials)} rows ({n_bad} not ok) -> {out_dir}/ "
               f"({table}, figures: {shown})")
     return 0
@@ -177,13 +177,15 @@ class FigureQueue:
         self._locks: dict[str, contextlib.ExitStack] = {}
 
     def submit(self, results_dir: Path, name: str,
-               lock: contextlib.ExitStack | None = None) -> None:
+               lock: contextlib.ExitStack | None = None, kind: Kind | None = None) -> None:
         """Start writing the text and drawing the figures of sweep ``name`` (its folder
-        under ``results_dir``); ``lock``, the folder's lock, is released once they are
-        written (:meth:`wait`, :meth:`close`)."""
+        under ``results_dir``, of ``kind``: found from its config when not given);
+        ``lock``, the folder's lock, is released once they are written (:meth:`wait`,
+        :meth:`close`)."""
         from joblib import Parallel, delayed
 
-        kind = result_folders(results_dir).get(name)
+        if kind is None:
+            kind = result_folders(results_dir).get(name)
         if kind is None:
             if lock is not None:
                 lock.close()
