@@ -66,9 +66,9 @@ def test_figure_workers_know_the_plugins_methods(tmp_path):
         assert set(drawn.loc[drawn["series"] == "counting_a", "label"]) == {"counting A"}
 
 
-def test_figures_drawn_as_each_sweep_finishes_are_the_reports_and_not_drawn_again(tmp_path):
-    """reproduce starts each sweep's figures on the workers once its run returns; the report
-    then draws only the other folders', and the files are what one process writes."""
+def test_a_sweeps_text_left_to_the_report_is_written_beside_its_figures(tmp_path):
+    """reproduce leaves each sweep's own text (its kind's section) to the report step, whose
+    figure workers write it; the sweep's folder stays locked until then."""
     import contextlib
 
     import pytest
@@ -80,24 +80,25 @@ def test_figures_drawn_as_each_sweep_finishes_are_the_reports_and_not_drawn_agai
         (tmp_path / case / "gamma").mkdir(parents=True)
         gamma_case().to_csv(tmp_path / case / "gamma" / "summary.csv", index=False)
     alone = draw_figures(tmp_path / "one", n_jobs=1)
-    queue = FigureQueue(2)
+    queue = FigureQueue()
     with contextlib.ExitStack() as held:     # the sweep's folder lock, handed to the queue
         held.enter_context(run_lock(tmp_path / "queued" / "gamma"))
-        queue.submit(tmp_path / "queued", "gamma", held.pop_all())
-    assert queue.names() == {"gamma"}
-    with pytest.raises(FolderBusy):          # held until the figures are written
+        queue.submit("gamma", _note_section, held.pop_all())
+    with pytest.raises(FolderBusy):          # held until its files are written
         with folder_lock(tmp_path / "queued" / "gamma"):
             pass
-    png = tmp_path / "queued" / "gamma" / "fig2_gamma.png"
-    assert queue.wait() == {"gamma": [png]}
+    drawn = draw_figures(tmp_path / "queued", n_jobs=2, queue=queue)
+    queue.release()
     with folder_lock(tmp_path / "queued" / "gamma"):
         pass
-    drawn_at, texts = png.stat().st_mtime_ns, []
-    drawn = draw_figures(tmp_path / "queued", n_jobs=2, queue=queue,
-                         meanwhile=lambda: texts.append("report"))
-    assert drawn == [png] and texts == ["report"]
-    assert png.stat().st_mtime_ns == drawn_at                 # not drawn a second time
-    assert [p.relative_to(tmp_path / "one") for p in alone] == [png.relative_to(
-        tmp_path / "queued")]
+    assert (tmp_path / "queued" / "gamma" / "section.md").read_text() == "gamma: 0 figures\n"
+    assert [p.relative_to(tmp_path / "queued") for p in drawn] == [
+        p.relative_to(tmp_path / "one") for p in alone]
     for name in ("gamma/fig2_gamma.png", "gamma/fig2_gamma.csv"):
         assert (tmp_path / "one" / name).read_bytes() == (tmp_path / "queued" / name).read_bytes()
+
+
+def _note_section(out_dir):
+    """A section that says how many figures it found (none: they are drawn after it)."""
+    (out_dir / "section.md").write_text(f"{out_dir.name}: "
+                                        f"{len(list(out_dir.glob('*.png')))} figures\n")

@@ -11,8 +11,7 @@ import contextlib
 import os
 import sys
 import time
-import warnings
-from collections.abc import Iterator, Sequence
+from collections.abc import Sequence
 from pathlib import Path
 
 import pandas as pd
@@ -46,9 +45,7 @@ def run(cfg: DictConfig, figures: bool = True, queue: FigureQueue | None = None)
     """``python -m magbench sweep=NAME``: the study, its statistics, figures and text.
 
     ``figures=False`` leaves the figures to a later ``report`` (as :func:`reproduce` does);
-    with a ``queue`` they and the sweep's own text (``section.md``) are started on its workers
-    once the run's files are final, and a sweep with a timing pass first waits for the work
-    under way.
+    with a ``queue`` the sweep's own text (``section.md``) too, and the folder's lock with it.
     """
     kind = kind_of(cfg)
     study, common = study_for(cfg)
@@ -60,8 +57,6 @@ def run(cfg: DictConfig, figures: bool = True, queue: FigureQueue | None = None)
                   backend=common["backend"], scheduler_address=common["scheduler_address"],
                   progress=common["progress"], config=OmegaConf.to_container(cfg, resolve=True),
                   overwrite=common["overwrite"])
-        if queue is not None and kind.timed:
-            queue.wait()
         kind.finish(study, out_dir, common)
         drawn = kind.figures(study.name, out_dir) if figures and queue is None else []
         if kind.section is not None and queue is None:
@@ -69,11 +64,10 @@ def run(cfg: DictConfig, figures: bool = True, queue: FigureQueue | None = None)
         table = next(iter(study.tables.values()))[0]
         trials = pd.read_csv(out_dir / table, usecols=["ok"])
         n_bad = int((~trials["ok"].astype(bool)).sum())
-        shown = ", ".join(p.name for p in drawn) or (
-            "drawn on the workers beside the next sweep" if queue is not None else
-            "no figure for this sweep" if figures else "drawn by the report")
+        shown = ", ".join(p.name for p in drawn) or ("no figure for this sweep" if figures
+                                                        else "drawn by the report")
         if queue is not None:
-            queue.submit(common["results_dir"], study.name, held.pop_all(), kind)
+            queue.submit(study.name, kind.section, held.pop_all())
         print(f"sweep {study.name}: {len(trials)} rows ({n_bad} not ok) -> {out_dir}/ "
               f"({table}, figures: {shown})")
     return 0
@@ -122,107 +116,69 @@ def draw_figures(results_dir: Path | str, n_jobs: int = 1, *, meanwhile: object 
     meanwhile : callable, optional
         Work for this process while the workers draw (the report's text), called once.
     queue : FigureQueue, optional
-        The folders whose figures it has drawn, or is drawing, from their final files (as
-        the sweeps of ``reproduce`` finished): not drawn again, but waited for (after
-        ``meanwhile``) and listed.
+        The sweeps whose own text (their kind's ``section``) was left for now: written by
+        the same process as the folder's figures, before them.
 
     Returns
     -------
     list of Path
         The figures written, folder by folder in :func:`result_folders` order.
     """
-    queued = set() if queue is None else queue.names()
-    jobs = _figure_jobs(Path(results_dir))
-    todo = [job for job in jobs if job[1] not in queued]
-    if n_jobs == 1 or not todo or (len(todo) < 2 and not queued):
-        paths = {name: figures(name, folder) for figures, name, folder in todo}
+    sections = {} if queue is None else queue.sections()
+    jobs = [(*job, sections.get(job[1])) for job in _figure_jobs(Path(results_dir))]
+    if n_jobs == 1 or len(jobs) < 2:
+        written = [path for figures, name, folder, section in jobs
+                   for path in _draw_with_plugins(figures, name, folder, (), section)]
         if meanwhile is not None:
             meanwhile()
-    else:
-        from joblib import Parallel, delayed
+        return written
+    from joblib import Parallel, delayed
 
-        # The sweeps' worker pool (reproduce has it warm, magbench imported); one task a
-        # folder; the generator dispatches them at once, so this process is free to do
-        # ``meanwhile`` before it collects the figures.
-        with parallel_backend("loky", n_jobs) as engine:
-            parallel = Parallel(n_jobs=engine["n_jobs"], backend=engine["backend"],
-                                batch_size=1, return_as="generator")
-            # a worker knows the plugins' methods (their labels and colours) only once it
-            # has imported them, as this process has
-            plugins = plugin_modules(methods())
-            results = parallel(delayed(_draw_with_plugins)(figures, name, folder, plugins)
-                               for figures, name, folder in todo)
-            if meanwhile is not None:
-                meanwhile()
-            paths = dict(zip([job[1] for job in todo], results, strict=True))
-    drawn = {} if queue is None else queue.wait()
-    return [path for _, name, _ in jobs
-            for path in (drawn[name] if name in drawn else paths[name])]
+    # The sweeps' worker pool (reproduce has it warm, magbench imported); one task a folder;
+    # the generator dispatches them at once, so this process is free to do ``meanwhile``
+    # before it collects the figures.
+    with parallel_backend("loky", n_jobs) as engine:
+        parallel = Parallel(n_jobs=engine["n_jobs"], backend=engine["backend"], batch_size=1,
+                            return_as="generator")
+        # a worker knows the plugins' methods (their labels and colours) only once it has
+        # imported them, as this process has
+        plugins = plugin_modules(methods())
+        results = parallel(delayed(_draw_with_plugins)(figures, name, folder, plugins, section)
+                           for figures, name, folder, section in jobs)
+        if meanwhile is not None:
+            meanwhile()
+        return [path for paths in results for path in paths]
 
 
 class FigureQueue:
-    """Each finished sweep's text (its kind's ``section``: ``section.md`` and the like) and
-    figures made on the warm worker pool while this process runs the next sweep
-    (``reproduce``): the folder's files are final once its run returns, and the text and
-    figures read nothing else, so they are the files the sweep and the report would write.
+    """The finished sweeps' own text (their kind's ``section``: ``section.md`` and the like),
+    left by ``reproduce`` to its report step, which writes each on the worker that draws the
+    folder's figures while this process writes the report's text: the folder's files are
+    final once its run returns, and the text reads nothing else, so it is the file the sweep
+    would have written. Each folder's lock is held until then (:meth:`release`)."""
 
-    A sweep with a timing pass waits for the work under way first (:meth:`wait`): the pass
-    times calls with the machine otherwise idle.
-    """
+    def __init__(self) -> None:
+        self._sections: dict[str, object] = {}
+        self._locks: list[contextlib.ExitStack] = []
 
-    def __init__(self, n_jobs: int) -> None:
-        self.n_jobs = n_jobs
-        self._pending: dict[str, Iterator[list[Path]]] = {}
-        self._drawn: dict[str, list[Path]] = {}
-        self._locks: dict[str, contextlib.ExitStack] = {}
-
-    def submit(self, results_dir: Path, name: str,
-               lock: contextlib.ExitStack | None = None, kind: Kind | None = None) -> None:
-        """Start writing the text and drawing the figures of sweep ``name`` (its folder
-        under ``results_dir``, of ``kind``: found from its config when not given);
-        ``lock``, the folder's lock, is released once they are written (:meth:`wait`,
-        :meth:`close`)."""
-        from joblib import Parallel, delayed
-
-        if kind is None:
-            kind = result_folders(results_dir).get(name)
-        if kind is None:
-            if lock is not None:
-                lock.close()
-            return
+    def submit(self, name: str, section: object, lock: contextlib.ExitStack | None = None,
+               ) -> None:
+        """Leave sweep ``name``'s ``section`` (None: it has none) to the report; ``lock``, its
+        folder's lock, is released by :meth:`release`."""
+        if section is not None:
+            self._sections[name] = section
         if lock is not None:
-            self._locks[name] = lock
-        with parallel_backend("loky", self.n_jobs) as engine:
-            parallel = Parallel(n_jobs=engine["n_jobs"], backend=engine["backend"],
-                                batch_size=1, return_as="generator")
-            self._pending[name] = parallel([delayed(_draw_with_plugins)(
-                kind.figures, name, results_dir / name, plugin_modules(methods()),
-                kind.section)])
+            self._locks.append(lock)
 
-    def names(self) -> set[str]:
-        """The folders whose figures are drawn or under way."""
-        return {*self._pending, *self._drawn}
+    def sections(self) -> dict[str, object]:
+        """Folder name -> the section left to write there."""
+        return dict(self._sections)
 
-    def wait(self) -> dict[str, list[Path]]:
-        """The figures drawn so far, folder name -> paths, once those under way are done."""
-        while self._pending:
-            name, results = next(iter(self._pending.items()))
-            del self._pending[name]
-            with self._locks.pop(name, contextlib.ExitStack()):
-                (self._drawn[name],) = list(results)
-        return dict(self._drawn)
-
-    def close(self) -> None:
-        """Stop waiting for any figures under way (after a failed sweep)."""
-        with warnings.catch_warnings():   # joblib's word on the tasks cancelled
-            warnings.simplefilter("ignore", UserWarning)
-            for results in self._pending.values():
-                results.close()
-        self._pending.clear()
-        for lock in self._locks.values():
+    def release(self) -> None:
+        """Release the folders' locks (their files all written, or the run failed)."""
+        for lock in self._locks:
             lock.close()
         self._locks.clear()
-
 
 def _draw_with_plugins(figures: object, name: str, folder: Path, plugins: Sequence[str],
                        section: object = None) -> list[Path]:
@@ -319,18 +275,16 @@ def reproduce(overrides: Sequence[str]) -> int:
             continue
         study_for(sweep_cfg)  # every sweep's config is checked before any of them runs
         sweeps.append(sweep_cfg)
-    # Each sweep's figures are drawn on the warm pool while the next sweep runs (the report
-    # then draws only the bench's); one process draws them all in the report otherwise.
-    queue = (FigureQueue(common["n_jobs"]) if common["n_jobs"] != 1
-             and common["backend"] == "loky" else None)
+    # Each sweep's own text is written by the report step's figure workers, not here
+    # between sweeps (its folder held until then).
+    queue = FigureQueue()
     try:
         for sweep_cfg in sweeps:
             timed(str(sweep_cfg.sweep.name),
                   lambda c=sweep_cfg: run(c, figures=False, queue=queue))
         timed("report", lambda: report(cfg, queue=queue))
     finally:
-        if queue is not None:
-            queue.close()
+        queue.release()
     machine = {"cpu_model": cpu_model(), "cpu_count": os.cpu_count(),
                "n_jobs": common["n_jobs"], "git_commit": git_commit()}
     table = reproduce_times(steps, common["results_dir"], machine)
@@ -373,8 +327,8 @@ def report(cfg: DictConfig, queue: FigureQueue | None = None) -> int:
     """``python -m magbench report``: redraw the figures and rewrite ``report.md``.
 
     The figures are drawn by ``n_jobs`` worker processes while this one writes the Markdown
-    report; the HTML page, which embeds the figures, comes last. ``queue``: the figures
-    drawn already, or under way, as the sweeps finished (``reproduce``), not drawn again."""
+    report; the HTML page, which embeds the figures, comes last. ``queue``: the
+    sweeps' own texts left to it (``reproduce``), written by the figures' processes."""
     results_dir = Path(str(cfg.results_dir)).expanduser()
     if not results_dir.is_dir():
         raise UsageError(f"results_dir={results_dir} is not a folder of results; expected the "
