@@ -64,3 +64,41 @@ def test_figure_workers_know_the_plugins_methods(tmp_path):
     for sweep, figure in (("gamma", "fig2_gamma.csv"), ("beta", "fig3_beta.csv")):
         drawn = pd.read_csv(tmp_path / sweep / figure)
         assert set(drawn.loc[drawn["series"] == "counting_a", "label"]) == {"counting A"}
+
+
+def test_a_sweeps_text_left_to_the_report_is_written_beside_its_figures(tmp_path):
+    """reproduce leaves each sweep's own text (its kind's section) to the report step, whose
+    figure workers write it; the sweep's folder stays locked until then."""
+    import contextlib
+
+    import pytest
+
+    from magbench.cli.commands import FigureQueue, draw_figures
+    from magbench.engine.sweep import FolderBusy, folder_lock, run_lock
+
+    for case in ("one", "queued"):
+        (tmp_path / case / "gamma").mkdir(parents=True)
+        gamma_case().to_csv(tmp_path / case / "gamma" / "summary.csv", index=False)
+    alone = draw_figures(tmp_path / "one", n_jobs=1)
+    queue = FigureQueue()
+    with contextlib.ExitStack() as held:     # the sweep's folder lock, handed to the queue
+        held.enter_context(run_lock(tmp_path / "queued" / "gamma"))
+        queue.submit("gamma", _note_section, held.pop_all())
+    with pytest.raises(FolderBusy):          # held until its files are written
+        with folder_lock(tmp_path / "queued" / "gamma"):
+            pass
+    drawn = draw_figures(tmp_path / "queued", n_jobs=2, queue=queue)
+    queue.release()
+    with folder_lock(tmp_path / "queued" / "gamma"):
+        pass
+    assert (tmp_path / "queued" / "gamma" / "section.md").read_text() == "gamma: 0 figures\n"
+    assert [p.relative_to(tmp_path / "queued") for p in drawn] == [
+        p.relative_to(tmp_path / "one") for p in alone]
+    for name in ("gamma/fig2_gamma.png", "gamma/fig2_gamma.csv"):
+        assert (tmp_path / "one" / name).read_bytes() == (tmp_path / "queued" / name).read_bytes()
+
+
+def _note_section(out_dir):
+    """A section that says how many figures it found (none: they are drawn after it)."""
+    (out_dir / "section.md").write_text(f"{out_dir.name}: "
+                                        f"{len(list(out_dir.glob('*.png')))} figures\n")

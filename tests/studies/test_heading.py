@@ -140,3 +140,65 @@ def test_a_recording_that_cannot_be_prepared_gives_each_method_a_row_with_the_re
     assert all(not r["ok"] and r["error"] == "not prepared: phone: no lag found within 0.1 s"
                for r in rows)
     assert set(rows[0]) >= set(heading.HEADING_ROW_COLUMNS)
+
+
+def test_a_prepared_recording_is_kept_and_recomputed_when_its_file_or_options_change(
+        tmp_path, monkeypatch):
+    import magbench.studies.heading as heading
+
+    root, cache = write_recording(tmp_path / "data"), tmp_path / "prepared"
+    calls = []
+
+    def counted(rec, **kw):
+        calls.append(kw)
+        return heading.prepare.__wrapped__(rec, **kw)
+
+    counted.__wrapped__ = heading.prepare
+    monkeypatch.setattr(heading, "prepare", counted)
+
+    def get(tolerance=0.1, where=cache):
+        heading._prepared_or_reason.cache_clear()     # a new process: only the disk remembers
+        return heading._prepared(str(root), "sim", tolerance, True,
+                                 None if where is None else str(where))
+
+    direct, kept = get(where=None), get()
+    assert len(calls) == 2 and len(list(cache.glob("sim-*.npz"))) == 1
+    again = get()
+    assert len(calls) == 2                                # read back, not prepared again
+    for p in (kept, again):                               # the very same numbers
+        for k in heading._REC_ARRAYS:
+            a, b = getattr(direct.rec, k), getattr(p.rec, k)
+            assert a.tobytes() == b.tobytes() and a.dtype == b.dtype and a.shape == b.shape
+        for k in ("reference", "clean", "movement"):
+            assert getattr(direct, k).tobytes() == getattr(p, k).tobytes()
+        assert (p.lag_s, p.gyro_lag_s, p.mag_gyro_lag_s, p.strength) == (
+            direct.lag_s, direct.gyro_lag_s, direct.mag_gyro_lag_s, direct.strength)
+    first = next(cache.glob("sim-*.npz")).read_bytes()
+    get(tolerance=0.2)                                    # another option: prepared again
+    assert len(calls) == 3 and calls[-1]["tolerance"] == 0.2
+    get()
+    assert len(calls) == 4                                # the other key's file was replaced
+    assert next(cache.glob("sim-*.npz")).read_bytes() == first      # same bytes every time
+    data = pd.read_csv(root / "sim" / "data.csv")
+    data.loc[100, "mx"] += 1.0                            # the recording changed: one sample
+    data.to_csv(root / "sim" / "data.csv", index=False)
+    changed = get()
+    assert len(calls) == 5 and not np.array_equal(changed.rec.y, direct.rec.y)
+    assert len(list(cache.glob("sim-*.npz"))) == 1
+
+
+def test_a_recording_that_cannot_be_prepared_is_kept_with_its_reason(tmp_path, monkeypatch):
+    import magbench.studies.heading as heading
+
+    root, calls = write_recording(tmp_path / "data"), []
+
+    def no_lag(rec, **kw):
+        calls.append(rec.name)
+        raise ValueError(f"{rec.name}: no lag found within 0.1 s")
+
+    monkeypatch.setattr(heading, "prepare", no_lag)
+    for _ in range(2):
+        heading._prepared_or_reason.cache_clear()
+        with pytest.raises(ValueError, match=r"^sim: no lag found within 0\.1 s$"):
+            heading._prepared(str(root), "sim", 0.1, True, str(tmp_path / "prepared"))
+    assert calls == ["sim"]

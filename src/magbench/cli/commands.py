@@ -7,6 +7,7 @@ redraws every figure and rewrites the report from the CSV files alone.
 
 from __future__ import annotations
 
+import contextlib
 import os
 import sys
 import time
@@ -36,32 +37,37 @@ from magbench.report.speed import bench_report_section
 from magbench.studies.speed import format_reproduce_times, reproduce_times, run_bench
 from magbench.studies.timing import repeat_timing
 
-__all__ = ["bench", "draw_figures", "report", "reproduce", "run", "scale", "sweep_names",
-           "timing_check"]
+__all__ = ["FigureQueue", "bench", "draw_figures", "report", "reproduce", "run", "scale",
+           "sweep_names", "timing_check"]
 
 
-def run(cfg: DictConfig, figures: bool = True) -> int:
+def run(cfg: DictConfig, figures: bool = True, queue: FigureQueue | None = None) -> int:
     """``python -m magbench sweep=NAME``: the study, its statistics, figures and text.
 
-    ``figures=False`` leaves the figures to a later ``report`` (as :func:`reproduce` does).
+    ``figures=False`` leaves the figures to a later ``report`` (as :func:`reproduce` does);
+    with a ``queue`` the sweep's own text (``section.md``) too, and the folder's lock with it.
     """
     kind = kind_of(cfg)
     study, common = study_for(cfg)
     out_dir = writable_folder(common["results_dir"], "results_dir") / study.name
-    with run_lock(out_dir):    # held until the last file of the run is written
+    with contextlib.ExitStack() as held:
+        # held until the last file of the run is written (by the queue's worker, with one)
+        held.enter_context(run_lock(out_dir))
         run_study(study, out_dir, n_jobs=common["n_jobs"], chunk_size=common["chunk_size"],
                   backend=common["backend"], scheduler_address=common["scheduler_address"],
                   progress=common["progress"], config=OmegaConf.to_container(cfg, resolve=True),
                   overwrite=common["overwrite"])
         kind.finish(study, out_dir, common)
-        drawn = kind.figures(study.name, out_dir) if figures else []
-        if kind.section is not None:
+        drawn = kind.figures(study.name, out_dir) if figures and queue is None else []
+        if kind.section is not None and queue is None:
             kind.section(out_dir)
         table = next(iter(study.tables.values()))[0]
         trials = pd.read_csv(out_dir / table, usecols=["ok"])
         n_bad = int((~trials["ok"].astype(bool)).sum())
         shown = ", ".join(p.name for p in drawn) or ("no figure for this sweep" if figures
                                                         else "drawn by the report")
+        if queue is not None:
+            queue.submit(study.name, kind.section, held.pop_all())
         print(f"sweep {study.name}: {len(trials)} rows ({n_bad} not ok) -> {out_dir}/ "
               f"({table}, figures: {shown})")
     return 0
@@ -95,8 +101,8 @@ def _figure_jobs(results_dir: Path) -> list[tuple]:
     return [*jobs, (_bench_figures, "bench", results_dir / "bench")]
 
 
-def draw_figures(results_dir: Path | str, n_jobs: int = 1, *,
-                 meanwhile: object = None) -> list[Path]:
+def draw_figures(results_dir: Path | str, n_jobs: int = 1, *, meanwhile: object = None,
+                 queue: FigureQueue | None = None) -> list[Path]:
     """Redraw every figure under ``results_dir`` from its CSV files.
 
     Parameters
@@ -109,15 +115,20 @@ def draw_figures(results_dir: Path | str, n_jobs: int = 1, *,
         are the same either way.
     meanwhile : callable, optional
         Work for this process while the workers draw (the report's text), called once.
+    queue : FigureQueue, optional
+        The sweeps whose own text (their kind's ``section``) was left for now: written by
+        the same process as the folder's figures, before them.
 
     Returns
     -------
     list of Path
         The figures written, folder by folder in :func:`result_folders` order.
     """
-    jobs = _figure_jobs(Path(results_dir))
+    sections = {} if queue is None else queue.sections()
+    jobs = [(*job, sections.get(job[1])) for job in _figure_jobs(Path(results_dir))]
     if n_jobs == 1 or len(jobs) < 2:
-        written = [path for figures, name, folder in jobs for path in figures(name, folder)]
+        written = [path for figures, name, folder, section in jobs
+                   for path in _draw_with_plugins(figures, name, folder, (), section)]
         if meanwhile is not None:
             meanwhile()
         return written
@@ -132,17 +143,50 @@ def draw_figures(results_dir: Path | str, n_jobs: int = 1, *,
         # a worker knows the plugins' methods (their labels and colours) only once it has
         # imported them, as this process has
         plugins = plugin_modules(methods())
-        results = parallel(delayed(_draw_with_plugins)(figures, name, folder, plugins)
-                           for figures, name, folder in jobs)
+        results = parallel(delayed(_draw_with_plugins)(figures, name, folder, plugins, section)
+                           for figures, name, folder, section in jobs)
         if meanwhile is not None:
             meanwhile()
         return [path for paths in results for path in paths]
 
 
-def _draw_with_plugins(figures: object, name: str, folder: Path,
-                       plugins: Sequence[str]) -> list[Path]:
-    """``figures(name, folder)`` in a worker, the ``plugins`` imported first."""
+class FigureQueue:
+    """The finished sweeps' own text (their kind's ``section``: ``section.md`` and the like),
+    left by ``reproduce`` to its report step, which writes each on the worker that draws the
+    folder's figures while this process writes the report's text: the folder's files are
+    final once its run returns, and the text reads nothing else, so it is the file the sweep
+    would have written. Each folder's lock is held until then (:meth:`release`)."""
+
+    def __init__(self) -> None:
+        self._sections: dict[str, object] = {}
+        self._locks: list[contextlib.ExitStack] = []
+
+    def submit(self, name: str, section: object, lock: contextlib.ExitStack | None = None,
+               ) -> None:
+        """Leave sweep ``name``'s ``section`` (None: it has none) to the report; ``lock``, its
+        folder's lock, is released by :meth:`release`."""
+        if section is not None:
+            self._sections[name] = section
+        if lock is not None:
+            self._locks.append(lock)
+
+    def sections(self) -> dict[str, object]:
+        """Folder name -> the section left to write there."""
+        return dict(self._sections)
+
+    def release(self) -> None:
+        """Release the folders' locks (their files all written, or the run failed)."""
+        for lock in self._locks:
+            lock.close()
+        self._locks.clear()
+
+def _draw_with_plugins(figures: object, name: str, folder: Path, plugins: Sequence[str],
+                       section: object = None) -> list[Path]:
+    """``figures(name, folder)`` in a worker, the ``plugins`` imported first, and before them
+    ``section(folder)`` if given (a sweep's own text, which a run writes before any figure)."""
     load_plugins(plugins)
+    if section is not None:
+        section(folder)
     return figures(name, folder)
 
 
@@ -231,9 +275,16 @@ def reproduce(overrides: Sequence[str]) -> int:
             continue
         study_for(sweep_cfg)  # every sweep's config is checked before any of them runs
         sweeps.append(sweep_cfg)
-    for sweep_cfg in sweeps:
-        timed(str(sweep_cfg.sweep.name), lambda c=sweep_cfg: run(c, figures=False))
-    timed("report", lambda: report(cfg))
+    # Each sweep's own text is written by the report step's figure workers, not here
+    # between sweeps (its folder held until then).
+    queue = FigureQueue()
+    try:
+        for sweep_cfg in sweeps:
+            timed(str(sweep_cfg.sweep.name),
+                  lambda c=sweep_cfg: run(c, figures=False, queue=queue))
+        timed("report", lambda: report(cfg, queue=queue))
+    finally:
+        queue.release()
     machine = {"cpu_model": cpu_model(), "cpu_count": os.cpu_count(),
                "n_jobs": common["n_jobs"], "git_commit": git_commit()}
     table = reproduce_times(steps, common["results_dir"], machine)
@@ -272,11 +323,12 @@ def timing_check(cfg: DictConfig) -> int:
     return 0
 
 
-def report(cfg: DictConfig) -> int:
+def report(cfg: DictConfig, queue: FigureQueue | None = None) -> int:
     """``python -m magbench report``: redraw the figures and rewrite ``report.md``.
 
     The figures are drawn by ``n_jobs`` worker processes while this one writes the Markdown
-    report; the HTML page, which embeds the figures, comes last."""
+    report; the HTML page, which embeds the figures, comes last. ``queue``: the
+    sweeps' own texts left to it (``reproduce``), written by the figures' processes."""
     results_dir = Path(str(cfg.results_dir)).expanduser()
     if not results_dir.is_dir():
         raise UsageError(f"results_dir={results_dir} is not a folder of results; expected the "
@@ -286,7 +338,8 @@ def report(cfg: DictConfig) -> int:
     sections = [k.report for k in map(get_kind, kind_names()) if k.report is not None]
     path, texts = results_dir / "report.md", {}     # each section computed once for both
     figures = draw_figures(results_dir, os.cpu_count() or 1 if n_jobs < 0 else n_jobs,
-                           meanwhile=lambda: write_markdown_report(results_dir, sections, texts))
+                           meanwhile=lambda: write_markdown_report(results_dir, sections, texts),
+                           queue=queue)
     write_report(results_dir, sections, markdown=False, texts=texts)
     print(f"report written to {path} ({len(figures)} figures redrawn from the CSV files)")
     return 0

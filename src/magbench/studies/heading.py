@@ -43,8 +43,11 @@ heading error of the true calibration (``semi``, ``mc``) or of the recording as 
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import inspect
+import io
+import zipfile
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -54,19 +57,20 @@ import numpy as np
 import pandas as pd
 
 from magbench.core.direction import direction_score, heading_bound
-from magbench.core.files import write_csv_atomic
+from magbench.core.files import atomic_path, file_sha256, write_csv_atomic
 from magbench.core.gauge import symmetric_T
 from magbench.core.lag import magnetometer_lag, shift
 from magbench.core.metrics import accuracy_cost, real_cost
 from magbench.core.model import Calibration
 from magbench.core.quaternions import quat_to_matrix
 from magbench.core.seeding import rng
-from magbench.engine.sweep import Study
+from magbench.engine.record import study_code
+from magbench.engine.sweep import Study, settings_hash
 from magbench.engine.trial import estimate_columns, run_method
 from magbench.methods.api import calibrate
 from magbench.methods.registry import get_method
 from magbench.pipeline.fitting import fit_recording
-from magbench.sources.recordings import Recording, read_inertial
+from magbench.sources.recordings import InertialRecording, Recording, read_inertial
 from magbench.sources.semisynthetic import (
     DISTORTIONS,
     Prepared,
@@ -79,8 +83,8 @@ from magbench.sources.trajectory import simulate
 from magbench.studies.review import TIME_COLUMNS, TRUTH_COLUMNS, read_trials, truth_columns
 from magbench.studies.times import split_times
 
-__all__ = ["HEADING_ROW_COLUMNS", "PARTS", "HeadingStudy", "Scene", "correlations",
-           "heading_rows", "scored_field", "summarize_heading"]
+__all__ = ["HEADING_ROW_COLUMNS", "PARTS", "PREPARED_CACHE", "HeadingStudy", "Scene",
+           "correlations", "heading_rows", "scored_field", "summarize_heading"]
 
 PARTS = ("mc", "semi", "given")
 _SCORES = ["heading_rms", "heading_median", "heading_p95", "inclination_rms",
@@ -145,6 +149,10 @@ class HeadingStudy(Study):
     call_timeout_s: float | None = None
     plugins: Sequence[str] = ()
     name: str = "heading"
+    #: A folder where each recording's preparation is kept for the next run (a method
+    #: added prepares nothing again); it determines no row, so it is no setting.
+    cache: str | None = field(default=None, compare=False, repr=False,
+                              metadata={"setting": False})
 
     #: Rows are cached per method (:mod:`magbench.engine.sweep`): one row per method and unit.
     method_column: ClassVar[str] = "algorithm"
@@ -177,11 +185,102 @@ class HeadingStudy(Study):
         return summary
 
 
+def _prepared(root: str, name: str, tolerance: float, correct_lag: bool,
+              cache: str | None = None) -> Prepared:
+    """A recording read and prepared once per process (every unit of it reuses it), and with
+    a ``cache`` folder once per recording file, preparation code and options.
+
+    Raises
+    ------
+    ValueError
+        If the recording cannot be prepared (:func:`~magbench.sources.semisynthetic.prepare`).
+    """
+    found = _prepared_or_reason(root, name, tolerance, correct_lag, cache)
+    if isinstance(found, str):
+        raise ValueError(found)
+    return found
+
+
+#: The folder, in the study's results folder, of the recordings as prepared
+#: (``<recording>-<key>.npz``, :func:`_prepared`).
+PREPARED_CACHE = "prepared"
+#: Bumped when what :func:`_prepared_arrays` keeps changes: older files are not read.
+_PREPARED_FORMAT = 1
+_REC_ARRAYS = ("t", "y", "gyro", "acceleration", "attitude")
+
+
 @functools.lru_cache(maxsize=8)
-def _prepared(root: str, name: str, tolerance: float, correct_lag: bool) -> Prepared:
-    """A recording read and prepared once per process (every unit of it reuses it)."""
-    return prepare(read_inertial(Path(root) / name / "data.csv"), tolerance=tolerance,
-                   correct_lag=correct_lag)
+def _prepared_or_reason(root: str, name: str, tolerance: float, correct_lag: bool,
+                        cache: str | None) -> Prepared | str:
+    """:func:`_prepared`'s work: the prepared recording, or why it cannot be prepared (kept
+    too: a recording that fails would otherwise be prepared again for every unit)."""
+    path = Path(root) / name / "data.csv"
+    if cache is not None:
+        kept = Path(cache) / f"{name}-{_prepared_key(path, tolerance, correct_lag)}.npz"
+        if kept.is_file():
+            with contextlib.suppress(OSError, ValueError, KeyError):
+                return _from_arrays(name, kept)
+    try:
+        found: Prepared | str = prepare(read_inertial(path), tolerance=tolerance,
+                                        correct_lag=correct_lag)
+    except ValueError as exc:
+        found = str(exc)
+    if cache is None:
+        return found
+    with atomic_path(kept) as tmp:
+        _write_npz(tmp, _prepared_arrays(found))
+    for other in Path(cache).glob(f"{name}-*.npz"):   # a stale key's file, not needed again
+        if other != kept and other.name[len(name) + 1:-4].isalnum():
+            other.unlink(missing_ok=True)
+    # What this run uses is what a later run reads back (the same arrays, bit for bit).
+    return _from_arrays(name, kept)
+
+
+def _prepared_key(path: Path, tolerance: float, correct_lag: bool) -> str:
+    """What determines a prepared recording: the file's bytes, the code that reads and
+    prepares it (:func:`~magbench.engine.record.study_code` of
+    :mod:`magbench.sources.semisynthetic`, which covers the reader), its options, NumPy."""
+    return settings_hash({"file": file_sha256(path), "code": _prepare_code(),
+                          "tolerance": tolerance, "correct_lag": correct_lag,
+                          "numpy": np.__version__, "format": _PREPARED_FORMAT})
+
+
+@functools.lru_cache(maxsize=1)
+def _prepare_code() -> str:
+    return study_code(prepare.__module__)
+
+
+def _prepared_arrays(p: Prepared | str) -> dict[str, np.ndarray]:
+    """A prepared recording (or the reason it has none) as named arrays."""
+    if isinstance(p, str):
+        return {"error": np.array(p)}
+    streams = {f"rec_{k}": getattr(p.rec, k) for k in _REC_ARRAYS
+               if getattr(p.rec, k) is not None}
+    return {**streams, "lags": np.array([p.lag_s, p.gyro_lag_s, p.mag_gyro_lag_s, p.strength]),
+            "reference": p.reference, "clean": p.clean, "movement": p.movement}
+
+
+def _from_arrays(name: str, path: Path) -> Prepared | str:
+    """:func:`_prepared_arrays`' file read back."""
+    with np.load(path, allow_pickle=False) as data:
+        arrays = {k: data[k] for k in data.files}
+    if "error" in arrays:
+        return str(arrays["error"])
+    rec = InertialRecording(name, **{k: arrays.get(f"rec_{k}") for k in _REC_ARRAYS})
+    lag, g_lag, mg_lag, strength = (float(v) for v in arrays["lags"])
+    return Prepared(rec, lag, g_lag, mg_lag, arrays["reference"], strength,
+                    arrays["clean"], arrays["movement"])
+
+
+def _write_npz(path: Path, arrays: dict[str, np.ndarray]) -> None:
+    """``np.savez``'s format with a fixed time stamp per member, so that the same arrays
+    give the same bytes (a full and an incremental run leave equal folders)."""
+    with zipfile.ZipFile(path, "w", zipfile.ZIP_STORED) as archive:
+        for key, value in arrays.items():
+            buffer = io.BytesIO()
+            np.lib.format.write_array(buffer, np.asanyarray(value), allow_pickle=False)
+            archive.writestr(zipfile.ZipInfo(f"{key}.npy", date_time=(1980, 1, 1, 0, 0, 0)),
+                             buffer.getvalue())
 
 
 def _stride(n: int, max_samples: int) -> int:
@@ -204,7 +303,7 @@ def _score_streams(p: Prepared, y: np.ndarray, mask: np.ndarray) -> dict:
 
 def semi_scene(spec: HeadingStudy, dataset: str, kind: str, draw: int) -> Scene:
     """A known distortion of one prepared recording (module notes, ``semi``)."""
-    p = _prepared(str(spec.root), dataset, spec.tolerance, spec.correct_lag)
+    p = _prepared(str(spec.root), dataset, spec.tolerance, spec.correct_lag, spec.cache)
     d = distort(rng(spec.seed, "heading", dataset, kind, draw), p, kind, point=spec.point,
                 mount_deg=spec.mount_deg)
     ok = p.clean & np.isfinite(p.rec.attitude).all(axis=1)
@@ -217,7 +316,7 @@ def semi_scene(spec: HeadingStudy, dataset: str, kind: str, draw: int) -> Scene:
 
 def given_scene(spec: HeadingStudy, dataset: str) -> Scene:
     """The recording as given, scaled by its field strength (module notes, ``given``)."""
-    p = _prepared(str(spec.root), dataset, spec.tolerance, spec.correct_lag)
+    p = _prepared(str(spec.root), dataset, spec.tolerance, spec.correct_lag, spec.cache)
     y = p.rec.y / p.strength
     has = np.isfinite(p.rec.attitude).all(axis=1)
     rows = np.flatnonzero(has)[::_stride(int(has.sum()), spec.max_samples)]

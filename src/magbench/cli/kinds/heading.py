@@ -25,7 +25,7 @@ from magbench.core.files import write_text_atomic
 from magbench.pipeline.fitting import PREPROCESSING
 from magbench.sources.recordings import ATTITUDE_COLUMNS, GYRO_COLUMNS
 from magbench.sources.semisynthetic import DISTORTIONS
-from magbench.studies.heading import PARTS, HeadingStudy
+from magbench.studies.heading import PARTS, PREPARED_CACHE, HeadingStudy
 
 
 def _with_attitude(root: Path, names: list[str]) -> list[str]:
@@ -75,7 +75,9 @@ def build(cfg: DictConfig, common: dict, values: dict) -> HeadingStudy:
         datasets=tuple(datasets), options=check_options(cfg, algorithms),
         seed=common["seed"], sigma=nominal.sigma, point=nominal,
         call_timeout_s=common["call_timeout_s"], plugins=common["plugins"],
-        name=str(cfg.sweep.name), **settings)
+        name=str(cfg.sweep.name), **settings,
+        cache=str(Path(common["results_dir"]) / str(cfg.sweep.name) / PREPARED_CACHE)
+        if root is not None else None)
 
 
 def finish(study: HeadingStudy, out_dir: Path, common: dict) -> None:
