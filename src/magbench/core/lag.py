@@ -317,8 +317,14 @@ def shift(t: np.ndarray, values: np.ndarray, lag_s: float) -> np.ndarray:
     t = np.asarray(t, dtype=float)
     v = np.asarray(values, dtype=float)
     flat = v.reshape(len(v), -1)
-    # one column at a time into the result (column_stack held every column twice)
     out = np.empty(flat.shape)
+    if len(t) > geometry.BLOCK_ROWS and _increasing(t):
+        # a block of times at a time from the samples around them (the same numbers): no
+        # (K,) arrays of times and values beside the result
+        for rows in blocks(len(t), geometry.BLOCK_ROWS):
+            out[rows] = interp_rows(t, flat, t[rows] + lag_s)
+        return out.reshape(v.shape)
+    # one column at a time into the result (column_stack held every column twice)
     at = t + lag_s
     for j, col in enumerate(flat.T):
         out[:, j] = np.interp(at, t, col, left=np.nan, right=np.nan)
