@@ -260,7 +260,10 @@ def _long_lag(t: np.ndarray, field: np.ndarray, centre: np.ndarray | None, rate:
             for u, w, observed in _lag_blocks(t, field, centre, rate, lag):
                 design, ok = _rate_design(u, w, observed)
                 count += int(ok.sum())
-                yield design[ok].reshape(-1, 9), observed[ok].reshape(-1)
+                every = ok.all()        # every row finite: the block itself, not a copy
+                yield ((design if every else design[ok]).reshape(-1, 9),
+                       (observed if every else observed[ok]).reshape(-1))
+                del design, ok          # not held while the next block's is built
 
         try:
             a = lstsq_blocks(design_rows())[0]
@@ -275,9 +278,11 @@ def _long_lag(t: np.ndarray, field: np.ndarray, centre: np.ndarray | None, rate:
         s_aa = s_bb = s_ab = 0.0
         for u, w, observed in _lag_blocks(t, field, centre, rate, lag):
             design, ok = _rate_design(u, w, observed)
-            fitted = design[ok] @ a
+            every = ok.all()
+            fitted = (design if every else design[ok]) @ a
+            del design
             both = np.isfinite(fitted).all(axis=1)
-            fa, fb = fitted[both], observed[ok][both]
+            fa, fb = fitted[both], (observed if every else observed[ok])[both]
             if not len(fa):
                 continue
             if shift_a is None:
