@@ -159,3 +159,17 @@ def test_column_sums_and_mean_direction_rows_are_the_whole_arrays():
         [0.83531816338546, -0.49375724123584125, 0.24175887294060763], abs=1e-15)
     with pytest.raises(ValueError, match="no rows"):
         column_sums([])
+
+
+def test_affine_rows_by_chunks_are_the_whole_product_to_round_off():
+    # Issue 40: (y - b) A^T made a chunk at a time; one chunk is the one product, bit for bit.
+    from magbench.core.blockwise import affine_rows
+
+    rng = np.random.default_rng(2)
+    y = rng.normal(size=(3, 10_001)).T * 50.0
+    A, b = rng.normal(size=(3, 3)), rng.normal(size=3)
+    whole = (y - b) @ A.T
+    assert np.array_equal(affine_rows(y, A, b, 10_001), whole)
+    chunked = affine_rows(y, A, b, 1000)
+    assert chunked.shape == whole.shape
+    assert np.allclose(chunked, whole, rtol=1e-15, atol=1e-12)

@@ -89,3 +89,20 @@ def test_a_long_recordings_lag_is_the_whole_fits_to_round_off(monkeypatch):
     centre = np.array([0.3, -0.2, 0.1])
     assert magnetometer_lag(tr.t, tr.y + centre, tr.angular_rate, centre=centre)[0] == \
         pytest.approx(long, rel=1e-9)
+
+
+@pytest.mark.parametrize("lag", [0.0123, -0.05, 3.0])
+def test_a_long_streams_shift_by_blocks_is_the_whole_arrays(monkeypatch, lag):
+    # Issue 40: beyond geometry.BLOCK_ROWS rows with increasing times the shift interpolates
+    # a block of times at a time from the samples around them: every number (the NaN past
+    # either end included) is the whole array's, to the last bit.
+    from magbench.core import geometry
+
+    rng = np.random.default_rng(5)
+    t = np.cumsum(rng.uniform(0.005, 0.015, 5000))
+    v = rng.normal(size=(3, 5000)).T                      # a log's column layout
+    whole = shift(t, v, lag)
+    monkeypatch.setattr(geometry, "BLOCK_ROWS", 333)
+    blocked = shift(t, v, lag)
+    assert np.isnan(whole).any() and np.isfinite(whole).sum() > 1000
+    assert np.array_equal(blocked, whole, equal_nan=True)

@@ -4,6 +4,7 @@ the direction veto and the geomagnetic check."""
 from __future__ import annotations
 
 import datetime as dt
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -414,3 +415,70 @@ def test_the_counted_source_is_the_inertial_streams_source(finite_rows, gyro, ac
         extra |= dict(zip(("ax", "ay", "az"), np.ones((3, tr.y.shape[0])), strict=True))
     rec = Recording(name="x", y=tr.y, t=tr.t, gyro=tr.angular_rate if gyro else None, extra=extra)
     assert alignment.inertial_source(rec) == alignment.inertial_of(rec).source
+
+
+def _attitude_recording(seed: int = 8):
+    """A simulated turning sensor at 50 Hz for 40 s (2000 rows) with attitude columns that
+    are not unit (normalised per row when read) and rows without attitude."""
+    from magbench.sources.recordings import Recording
+
+    tr = simulate(np.random.default_rng(seed), rate_hz=50.0, duration_s=40.0)
+    q = tr.attitude * 1.5
+    q[100:104] = np.nan
+    q[::97] = np.nan
+    return tr, Recording(name="x", y=tr.y, t=tr.t,
+                         extra=dict(zip(("qw", "qx", "qy", "qz"), q.T, strict=True)))
+
+
+def test_the_profile_matrix_by_chunks_is_the_whole_arrays(monkeypatch):
+    # Issue 40: Wahba's B = sum r_k u_k^T summed a chunk of rows at a time; with every row in
+    # one chunk it is the one product of the whole arrays, bit for bit; in chunks of 600 rows
+    # the chunks' products added, equal to round-off.
+    from magbench.core import geometry, quaternions
+    from magbench.core.quaternions import quat_to_matrix, unit_quaternions
+    from magbench.pipeline.alignment import attitude_profile, attitude_view
+
+    tr, rec = _attitude_recording()
+    view = attitude_view(rec)
+    q = unit_quaternions(rec.stack(["qw", "qx", "qy", "qz"]))
+    use = np.isfinite(q).all(axis=1) & (np.arange(rec.K) % 5 != 0)
+    u = tr.y[use] / np.linalg.norm(tr.y[use], axis=1)[:, None]
+    m_w = np.array([0.6, 0.0, -0.8])
+    whole = np.einsum("kji,j->ki", quat_to_matrix(q[use]), m_w).T @ u
+    monkeypatch.setattr(quaternions, "BLOCK_ROWS", 257)
+    assert np.array_equal(attitude_profile(u, view, use, m_w), whole)
+    assert np.array_equal(attitude_profile(u, q, use, m_w), whole)     # an array alike
+    monkeypatch.setattr(geometry, "BLOCK_ROWS", 600)
+    chunked = attitude_profile(u, view, use, m_w)
+    assert np.allclose(chunked, whole, rtol=0.0, atol=1e-12 * len(u))
+    assert np.abs(whole).max() > 100.0                     # not a sum of nothing
+
+
+def test_the_alignment_from_the_columns_is_the_whole_arrays_alignment(monkeypatch):
+    # Issue 40: align_chosen by an attitude reads the recording's columns a block at a time
+    # (no normalised (K, 4) copy, no copy of the kept samples or their field); it is the
+    # alignment fit_alignment gives on those arrays, bit for bit while the rows fit one
+    # chunk, to round-off in chunks.
+    from magbench.core import geometry, quaternions
+    from magbench.pipeline import alignment
+
+    tr, rec = _attitude_recording()
+    keep = np.arange(rec.K) % 7 != 3
+    cal = Calibration(np.diag([1.1, 0.9, 1.0]), tr.y.mean(axis=0))
+    whole, source = alignment.fit_alignment(cal, rec.y[keep],
+                                            alignment.inertial_of(rec).rows(keep))
+    assert source == "attitude"
+    monkeypatch.setattr(quaternions, "BLOCK_ROWS", 257)
+    for rows in (keep, np.ones(rec.K, bool)):
+        expected = whole if rows is keep else alignment.fit_alignment(
+            cal, rec.y, alignment.inertial_of(rec))[0]
+        got, source = alignment.align_chosen(cal, rec, rows)
+        assert source == "attitude" and np.array_equal(got.alignment, expected.alignment)
+        assert np.array_equal(got.T, expected.T) and np.array_equal(got.h, expected.h)
+    monkeypatch.setattr(geometry, "BLOCK_ROWS", 300)
+    got, _ = alignment.align_chosen(cal, rec, keep)
+    assert np.allclose(got.alignment, whole.alignment, rtol=0.0, atol=1e-13)
+    frozen = replace(rec, extra={k: np.full(rec.K, v) for k, v in zip(
+        ("qw", "qx", "qy", "qz"), (1.0, 0.0, 0.0, 0.0), strict=True)})
+    with pytest.raises(CalibrationFailed, match="turned through 0 deg"):
+        alignment.align_chosen(cal, frozen, keep)

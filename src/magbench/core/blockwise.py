@@ -16,8 +16,8 @@ import numpy as np
 from magbench.core.direction import _unit
 from magbench.core.quaternions import blocks
 
-__all__ = ["column_sums", "gradient_rows", "gradient_spacing", "halo", "interp_rows",
-           "mean_direction_rows"]
+__all__ = ["affine_rows", "column_sums", "gradient_rows", "gradient_spacing", "halo",
+           "interp_rows", "mean_direction_rows"]
 
 
 def gradient_spacing(t: np.ndarray) -> float | None:
@@ -103,6 +103,20 @@ def interp_rows(xp: np.ndarray, fp: np.ndarray, x: np.ndarray) -> np.ndarray:
     part = xp[lo:hi]
     return np.column_stack([np.interp(x, part, col, left=np.nan, right=np.nan)
                             for col in fp[lo:hi].T])
+
+
+def affine_rows(y: np.ndarray, A: np.ndarray, b: np.ndarray, size: int) -> np.ndarray:
+    """``(y - b) @ A.T`` for ``(K, 3)`` rows ``y``, made ``size`` rows at a time into one
+    result: no ``(K, 3)`` temporary beside it. With no more than ``size`` rows, one product,
+    the whole array's numbers; else each chunk's product, whose rows BLAS may round in the
+    last bit otherwise than the whole array's (another kernel for another row count)."""
+    A = np.asarray(A)
+    if len(y) <= size:
+        return (y - b) @ A.T
+    out = np.empty((len(y), A.shape[0]))
+    for rows in blocks(len(y), size):
+        out[rows] = (y[rows] - b) @ A.T
+    return out
 
 
 def column_sums(parts: Iterable[np.ndarray]) -> np.ndarray:

@@ -260,7 +260,10 @@ def _long_lag(t: np.ndarray, field: np.ndarray, centre: np.ndarray | None, rate:
             for u, w, observed in _lag_blocks(t, field, centre, rate, lag):
                 design, ok = _rate_design(u, w, observed)
                 count += int(ok.sum())
-                yield design[ok].reshape(-1, 9), observed[ok].reshape(-1)
+                every = ok.all()        # every row finite: the block itself, not a copy
+                yield ((design if every else design[ok]).reshape(-1, 9),
+                       (observed if every else observed[ok]).reshape(-1))
+                del design, ok          # not held while the next block's is built
 
         try:
             a = lstsq_blocks(design_rows())[0]
@@ -275,9 +278,11 @@ def _long_lag(t: np.ndarray, field: np.ndarray, centre: np.ndarray | None, rate:
         s_aa = s_bb = s_ab = 0.0
         for u, w, observed in _lag_blocks(t, field, centre, rate, lag):
             design, ok = _rate_design(u, w, observed)
-            fitted = design[ok] @ a
+            every = ok.all()
+            fitted = (design if every else design[ok]) @ a
+            del design
             both = np.isfinite(fitted).all(axis=1)
-            fa, fb = fitted[both], observed[ok][both]
+            fa, fb = fitted[both], (observed if every else observed[ok])[both]
             if not len(fa):
                 continue
             if shift_a is None:
@@ -317,8 +322,14 @@ def shift(t: np.ndarray, values: np.ndarray, lag_s: float) -> np.ndarray:
     t = np.asarray(t, dtype=float)
     v = np.asarray(values, dtype=float)
     flat = v.reshape(len(v), -1)
-    # one column at a time into the result (column_stack held every column twice)
     out = np.empty(flat.shape)
+    if len(t) > geometry.BLOCK_ROWS and _increasing(t):
+        # a block of times at a time from the samples around them (the same numbers): no
+        # (K,) arrays of times and values beside the result
+        for rows in blocks(len(t), geometry.BLOCK_ROWS):
+            out[rows] = interp_rows(t, flat, t[rows] + lag_s)
+        return out.reshape(v.shape)
+    # one column at a time into the result (column_stack held every column twice)
     at = t + lag_s
     for j, col in enumerate(flat.T):
         out[:, j] = np.interp(at, t, col, left=np.nan, right=np.nan)

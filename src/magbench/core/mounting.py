@@ -26,7 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from magbench.core.quaternions import MatrixView, blocks, quat_span_deg
+from magbench.core.quaternions import MatrixView, UnitRows, blocks, quat_span_deg
 from magbench.core.rotations import euler_zyx_to_matrix, span_deg
 
 __all__ = ["AUTO_ROTATIONS", "MIN_CONFIDENCE", "ROTATIONS", "MountingResult", "detect_mounting",
@@ -179,7 +179,7 @@ def _costs_dip(m: np.ndarray, down: np.ndarray, rotations: tuple[int, ...]) -> n
     return dip.var(axis=1)
 
 
-def detect_mounting(m: np.ndarray, *, attitude: np.ndarray | None = None,
+def detect_mounting(m: np.ndarray, *, attitude: np.ndarray | UnitRows | None = None,
                     accel: np.ndarray | None = None, rotations: tuple[int, ...] = AUTO_ROTATIONS,
                     min_confidence: float = MIN_CONFIDENCE) -> MountingResult:
     """Rank the standard rotations by how constant the field is in world axes.
@@ -190,7 +190,8 @@ def detect_mounting(m: np.ndarray, *, attitude: np.ndarray | None = None,
         Calibrated field in the compass's own axes (``A (y - b)``; hard iron removed).
     attitude : ndarray, shape (K, 3, 3) or (K, 4), optional
         Body-to-world attitude at each sample, as matrices or unit quaternions (scalar
-        first; turned into matrices a block at a time). Preferred when given.
+        first; turned into matrices a block at a time; or a :class:`UnitRows` view of
+        them). Preferred when given.
     accel : ndarray, shape (K, 3), optional
         Accelerometer in body axes (specific force: ``-g`` at rest), used without an attitude;
         only samples whose magnitude is within 5 % of the median are used (at rest).
@@ -212,7 +213,8 @@ def detect_mounting(m: np.ndarray, *, attitude: np.ndarray | None = None,
     """
     m = np.asarray(m, dtype=float)
     if attitude is not None:
-        R = np.asarray(attitude, dtype=float)
+        # a UnitRows view is read a block at a time, as a (K, 4) array is
+        R = attitude if isinstance(attitude, UnitRows) else np.asarray(attitude, dtype=float)
         if R.shape not in ((m.shape[0], 3, 3), (m.shape[0], 4)):
             raise ValueError(f"attitude must have shape ({m.shape[0]}, 3, 3) or "
                              f"({m.shape[0]}, 4), got {R.shape}")

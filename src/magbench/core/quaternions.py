@@ -12,7 +12,7 @@ given, so a quaternion that is not unit is read as the rotation it points to.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 
 import numpy as np
 
@@ -21,7 +21,9 @@ from magbench.core.rotations import rotation_class, span_deg
 __all__ = [
     "BLOCK_ROWS",
     "MatrixView",
+    "UnitRows",
     "blocks",
+    "finite_rows",
     "matrix_to_quat",
     "quat_about_axis",
     "quat_conjugate",
@@ -30,6 +32,7 @@ __all__ = [
     "quat_span_deg",
     "quat_to_matrix",
     "quat_to_rotvec",
+    "unit_quaternions",
 ]
 
 
@@ -81,13 +84,63 @@ def quat_to_matrix(q: np.ndarray) -> np.ndarray:
 BLOCK_ROWS = 1 << 14
 
 
-class MatrixView:
-    """The rotation matrices of ``(K, 4)`` quaternions, made only for the rows indexed:
-    ``view[rows]`` is ``quat_to_matrix(q[rows])`` (row by row the same numbers), so code
-    written for a ``(K, 3, 3)`` array can walk a long attitude a block at a time."""
+def unit_quaternions(q: np.ndarray) -> np.ndarray:
+    """``q`` (a fresh float array of ``(n, 4)`` quaternions) normalised in place, row by row
+    (each row by its own norm), a zero row made NaN."""
+    norm = np.linalg.norm(q, axis=1, keepdims=True)
+    q /= np.where(norm > 0, norm, np.nan)
+    return q
 
-    def __init__(self, q: np.ndarray) -> None:
-        self.q = np.asarray(q, dtype=float)
+
+class UnitRows:
+    """Unit quaternions of four ``(K,)`` columns (``w, x, y, z``), made only for the rows
+    indexed: ``view[rows]`` is :func:`unit_quaternions` of those rows stacked (row by row the
+    numbers of the whole ``(K, 4)`` array normalised), so a long log's attitude is read a
+    block at a time without its normalised ``(K, 4)`` copy (32 bytes a sample).
+
+    The rows are stacked as columns (each contiguous in memory), the layout of
+    :meth:`magbench.sources.recordings.Recording.stack`."""
+
+    def __init__(self, columns: Sequence[np.ndarray], index: np.ndarray | None = None) -> None:
+        if len(columns) != 4:
+            raise ValueError(f"UnitRows takes 4 columns (w, x, y, z), got {len(columns)}")
+        self.columns = [np.asarray(c) for c in columns]
+        self.index = index
+        self.shape = (len(self.columns[0]) if index is None else len(index), 4)
+        self.ndim = 2
+
+    def __len__(self) -> int:
+        return self.shape[0]
+
+    def __getitem__(self, rows: slice | np.ndarray) -> np.ndarray:
+        rows = rows if self.index is None else self.index[rows]
+        return unit_quaternions(np.array([np.asarray(c[rows], dtype=float)
+                                          for c in self.columns]).T)
+
+    def take(self, index: np.ndarray) -> UnitRows:
+        """The view of rows ``index`` (integers) of this one: 8 bytes a row, not 32."""
+        return UnitRows(self.columns, index if self.index is None else self.index[index])
+
+
+def finite_rows(q: np.ndarray | UnitRows) -> np.ndarray:
+    """Which rows of ``(K, d)`` values (an array or a :class:`UnitRows`) are all finite,
+    read a block at a time."""
+    if isinstance(q, np.ndarray):
+        return np.isfinite(q).all(axis=1)
+    ok = np.empty(len(q), dtype=bool)
+    for rows in blocks(len(q)):
+        ok[rows] = np.isfinite(q[rows]).all(axis=1)
+    return ok
+
+
+class MatrixView:
+    """The rotation matrices of ``(K, 4)`` quaternions (an array or a :class:`UnitRows`),
+    made only for the rows indexed: ``view[rows]`` is ``quat_to_matrix(q[rows])`` (row by
+    row the same numbers), so code written for a ``(K, 3, 3)`` array can walk a long
+    attitude a block at a time."""
+
+    def __init__(self, q: np.ndarray | UnitRows) -> None:
+        self.q = q if isinstance(q, UnitRows) else np.asarray(q, dtype=float)
         self.shape = (len(self.q), 3, 3)
 
     def __len__(self) -> int:

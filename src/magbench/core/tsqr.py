@@ -58,6 +58,7 @@ def lstsq_blocks(blocks: Iterable[tuple[np.ndarray, np.ndarray]]
             stacked[:top] = R
         stacked[top:, :p] = A
         stacked[top:, p] = b
+        del A, b                        # a block's rows not held while the next is made
         R = np.linalg.qr(stacked, mode="r")
     if R is None:
         raise ValueError("least squares over no rows")

@@ -31,7 +31,8 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from magbench.core.blockwise import halo, mean_direction_rows
+from magbench.core import geometry
+from magbench.core.blockwise import affine_rows, halo, mean_direction_rows
 from magbench.core.direction import direction_score, mean_direction, world_field
 from magbench.core.gauge import safe_gauge
 from magbench.core.geomagnetic import ExpectedField, Site, expected_field
@@ -45,7 +46,15 @@ from magbench.core.offsets import (
     offset_segments,
     window_offsets,
 )
-from magbench.core.quaternions import MatrixView, blocks, quat_span_deg, quat_to_matrix
+from magbench.core.quaternions import (
+    MatrixView,
+    UnitRows,
+    blocks,
+    finite_rows,
+    quat_span_deg,
+    quat_to_matrix,
+    unit_quaternions,
+)
 from magbench.core.units import infer_units
 from magbench.methods.algorithms._alignment_common import (
     check_spread,
@@ -67,7 +76,9 @@ __all__ = [
     "Inertial",
     "OffsetCheck",
     "align_chosen",
+    "attitude_profile",
     "attitude_turn_deg",
+    "attitude_view",
     "direction_consistency",
     "direction_report",
     "direction_vetoes",
@@ -92,7 +103,8 @@ class Inertial:
     """Inertial streams beside the magnetometer samples, on the same rows (any may be None).
 
     ``t`` in s, ``gyro`` in rad/s and ``acceleration`` (specific force) in the IMU's axes,
-    ``attitude`` unit quaternions scalar first, sensor -> world (NaN rows allowed).
+    ``attitude`` unit quaternions scalar first, sensor -> world (NaN rows allowed): an array,
+    or a :class:`~magbench.core.quaternions.UnitRows` that normalises rows as read.
     """
 
     t: np.ndarray | None = None
@@ -109,7 +121,7 @@ class Inertial:
     def source(self) -> str:
         """What :func:`fit_alignment` will use: ``attitude``, ``gyro+accelerometer``,
         ``accelerometer`` or ``none``."""
-        finite = 0 if self.attitude is None else int(np.isfinite(self.attitude).all(axis=1).sum())
+        finite = 0 if self.attitude is None else int(finite_rows(self.attitude).sum())
         return _source(finite, self.t, self.gyro, self.acceleration is not None)
 
 
@@ -129,10 +141,23 @@ def _finite_rows(x: np.ndarray) -> np.ndarray:
     return x if ok.all() else x[ok]
 
 
-def attitude_turn_deg(attitude: np.ndarray) -> float:
-    """How far an attitude stream (``(K, 4)`` quaternions, NaN rows allowed) turns: the largest
-    angle between its first finite row and any other, deg (0 without a finite row)."""
-    return quat_span_deg(_finite_rows(attitude))     # a block at a time: no (K, 3, 3)
+def attitude_turn_deg(attitude: np.ndarray | UnitRows, use: np.ndarray | None = None
+                      ) -> float:
+    """How far an attitude stream (``(K, 4)`` quaternions or a
+    :class:`~magbench.core.quaternions.UnitRows`, NaN rows allowed) turns: the largest angle
+    between its first finite row and any other, deg (0 without a finite row). ``use``: only
+    these rows (a mask; each must be finite)."""
+    if isinstance(attitude, np.ndarray) and use is None:
+        return quat_span_deg(_finite_rows(attitude))     # a block at a time: no (K, 3, 3)
+    # a block of rows read at a time, each block's rows measured from the first used row
+    first, turned = None, 0.0
+    for b in blocks(len(attitude)):
+        q = attitude[b]
+        q = _finite_rows(q) if use is None else q[use[b]]
+        if len(q):
+            first = q[:1] if first is None else first
+            turned = max(turned, quat_span_deg(np.concatenate([first, q])))
+    return turned
 
 
 def wahba_alignment(m: np.ndarray, attitude: np.ndarray, n_iter: int = 10, *,
@@ -146,38 +171,87 @@ def wahba_alignment(m: np.ndarray, attitude: np.ndarray, n_iter: int = 10, *,
     Raises :class:`CalibrationFailed` when the attitude turns through less than
     :data:`MIN_ATTITUDE_SPAN_DEG`: the reference directions are then nearly one, which fixes
     no rotation (a frozen or wrong attitude stream beside a magnetometer that turned)."""
-    turned = attitude_turn_deg(attitude)
-    if turned < MIN_ATTITUDE_SPAN_DEG:
-        raise CalibrationFailed(f"the attitude turned through {turned:.0f} deg (< "
-                                f"{MIN_ATTITUDE_SPAN_DEG:g}): it cannot fix the rotation")
-    ok = np.isfinite(attitude).all(axis=1)
+    _check_turn(attitude)
+    ok = finite_rows(attitude)
     if overwrite:                       # unit_rows(m[ok]): the rows moved up, divided in place
         u = m if ok.all() else compact_rows(m, ok)
-        u = np.divide(u, np.sqrt(np.einsum("ij,ij->i", u, u))[:, None], out=u)
+        u = _unit_in_place(u)
     else:
         u = unit_rows(m if ok.all() else m[ok])
     del m
-    # the finite rows' matrices are made a block of the attitude at a time in each pass (a
-    # long log's (K, 3, 3) would be three times its samples, a copy of its finite rows 1.3
-    # times); the world directions are only summed (their mean), the body directions kept
+    return _wahba(u, attitude, ok, n_iter)
+
+
+def _check_turn(attitude: np.ndarray | UnitRows, use: np.ndarray | None = None) -> None:
+    """:class:`CalibrationFailed` when the ``use`` rows of the attitude turn through less
+    than :data:`MIN_ATTITUDE_SPAN_DEG`."""
+    turned = attitude_turn_deg(attitude, use)
+    if turned < MIN_ATTITUDE_SPAN_DEG:
+        raise CalibrationFailed(f"the attitude turned through {turned:.0f} deg (< "
+                                f"{MIN_ATTITUDE_SPAN_DEG:g}): it cannot fix the rotation")
+
+
+def _unit_in_place(u: np.ndarray) -> np.ndarray:
+    """The rows of ``u`` (a fresh array) made unit in place: :func:`unit_rows`'s numbers."""
+    return np.divide(u, np.sqrt(np.einsum("ij,ij->i", u, u))[:, None], out=u)
+
+
+def _parts(attitude: np.ndarray | UnitRows, use: np.ndarray) -> list[tuple[slice, slice]]:
+    """Each block of the attitude's rows and the rows of its used ones among all used rows."""
     parts, n = [], 0
     for b in blocks(len(attitude)):
-        k = int(ok[b].sum())
+        k = int(use[b].sum())
         parts.append((b, slice(n, n + k)))
         n += k
+    return parts
 
-    def matrices(b: slice) -> np.ndarray:
-        q = attitude[b]
-        return quat_to_matrix(q if ok[b].all() else q[ok[b]])
 
-    rows = np.empty_like(u)
+def _matrices(attitude: np.ndarray | UnitRows, use: np.ndarray, b: slice) -> np.ndarray:
+    """The rotation matrices of the used rows of block ``b`` of the attitude."""
+    q = attitude[b]
+    return quat_to_matrix(q if use[b].all() else q[use[b]])
+
+
+def attitude_profile(u: np.ndarray, attitude: np.ndarray | UnitRows, use: np.ndarray,
+                     m_w: np.ndarray) -> np.ndarray:
+    """Wahba's attitude profile matrix ``B = sum_k r_k u_k^T``, ``r_k = Q_k^T m_w`` the world
+    direction ``m_w`` in body axes at the ``use`` rows of ``attitude`` and ``u`` their
+    body directions (in order), summed a chunk of at most
+    :data:`magbench.core.geometry.BLOCK_ROWS` rows at a time: the reference directions of
+    one chunk are held, not of every row. With no more rows than that, one product over
+    every row (the whole array's numbers); else the chunks' products added in order (a sum
+    in another order: round-off)."""
+    chunks: list[list[tuple[slice, slice]]] = []
+    for b, r in _parts(attitude, use):
+        if chunks and r.stop - chunks[-1][0][1].start <= geometry.BLOCK_ROWS:
+            chunks[-1].append((b, r))
+        else:
+            chunks.append([(b, r)])
+    spans = [slice(c[0][1].start, c[-1][1].stop) for c in chunks]
+    rows = np.empty((max(s.stop - s.start for s in spans), 3))
+    B = np.zeros((3, 3))
+    for chunk, span in zip(chunks, spans, strict=True):
+        for b, r in chunk:
+            rows[r.start - span.start:r.stop - span.start] = np.einsum(
+                "kji,j->ki", _matrices(attitude, use, b), m_w)
+        part = rows[:span.stop - span.start].T @ u[span]
+        B = part if len(spans) == 1 else B + part
+    return B
+
+
+def _wahba(u: np.ndarray, attitude: np.ndarray | UnitRows, use: np.ndarray,
+           n_iter: int) -> np.ndarray:
+    """:func:`wahba_alignment`'s iterations: ``u`` the unit body directions of the ``use``
+    rows of ``attitude`` (in order), which are finite. The used rows' matrices are made a
+    block of the attitude at a time in each pass (a long log's ``(K, 3, 3)`` would be three
+    times its samples); the world directions are only summed (their mean), the reference
+    directions in body axes a chunk at a time (:func:`attitude_profile`)."""
+    parts = _parts(attitude, use)
     R = np.eye(3)
     for _ in range(n_iter):
-        m_w = mean_direction_rows(np.einsum("kij,kj->ki", matrices(b), u[r] @ R.T)
-                                  for b, r in parts)
-        for b, r in parts:
-            rows[r] = np.einsum("kji,j->ki", matrices(b), m_w)
-        R = nearest_rotation(rows.T @ u)
+        m_w = mean_direction_rows(np.einsum("kij,kj->ki", _matrices(attitude, use, b),
+                                            u[r] @ R.T) for b, r in parts)
+        R = nearest_rotation(attitude_profile(u, attitude, use, m_w))
     return R
 
 
@@ -436,20 +510,21 @@ def inertial_of(rec: Recording) -> Inertial:
 
     attitude = columns(ATTITUDE_COLUMNS)
     return Inertial(rec.t, rec.gyro, columns(ACCEL_COLUMNS),
-                    None if attitude is None else _unit_quaternions(attitude))
+                    None if attitude is None else unit_quaternions(attitude))
 
 
-def _unit_quaternions(q: np.ndarray) -> np.ndarray:
-    """``q`` (a fresh array) normalised in place, a zero row made NaN."""
-    norm = np.linalg.norm(q, axis=1, keepdims=True)
-    q /= np.where(norm > 0, norm, np.nan)
-    return q
+def attitude_view(rec: Recording) -> UnitRows | None:
+    """:func:`inertial_of`'s attitude as a view that normalises rows as read (the same
+    numbers, row by row, without the ``(K, 4)`` copy); None without attitude columns."""
+    if rec.extra is None or not all(c in rec.extra for c in ATTITUDE_COLUMNS):
+        return None
+    return UnitRows([rec.extra[c] for c in ATTITUDE_COLUMNS])
 
 
 def _attitude_rows(rec: Recording, rows: slice) -> np.ndarray:
     """Rows of :func:`inertial_of`'s attitude, made from those rows alone (the same numbers:
     each row is normalised by itself)."""
-    return _unit_quaternions(rec.rows(rows).stack(ATTITUDE_COLUMNS))
+    return unit_quaternions(rec.rows(rows).stack(ATTITUDE_COLUMNS))
 
 
 def inertial_source(rec: Recording) -> str:
@@ -568,8 +643,13 @@ def align_chosen(cal: Calibration, rec: Recording, keep: np.ndarray,
     consecutive rows, the :data:`MAX_JOINT_ROWS` of them that turn the most). The joint fit
     takes hand-held noise levels and the accelerometer as calibrated (a flight controller's
     firmware calibrates it; a free bias soaks up linear accelerations)."""
-    inertial = inertial_of(rec)
     keep = np.asarray(keep, dtype=bool)
+    attitude = attitude_view(rec)
+    if attitude is not None:
+        use = keep & finite_rows(attitude)
+        if use.sum() >= MIN_ATTITUDE_ROWS:     # the attitude fixes it: a block at a time
+            return _attitude_alignment(cal, rec.y, attitude, keep, use), "attitude"
+    inertial = inertial_of(rec)
     rows = slice(None) if keep.all() else np.flatnonzero(keep)      # views when all kept
     if inertial.source == "gyro+accelerometer":
         rows = most_turning_run(keep, rec.t, rec.gyro, MAX_JOINT_ROWS)
@@ -586,6 +666,29 @@ def align_chosen(cal: Calibration, rec: Recording, keep: np.ndarray,
     inertial = replace(inertial.rows(rows) if inertial.attitude is None else
                        replace(inertial, attitude=None).rows(rows), attitude=attitude)
     return fit_alignment(cal, rec.y[rows], inertial, **map_options)
+
+
+def _attitude_alignment(cal: Calibration, y: np.ndarray, attitude: UnitRows, keep: np.ndarray,
+                        use: np.ndarray) -> Calibration:
+    """:func:`fit_alignment` by the attitude on the ``keep`` rows (``use``: those of them
+    with a finite attitude) without a copy of the kept samples, their field or the
+    normalised attitude: the unit field of the used rows is the one array of their size,
+    made :data:`magbench.core.geometry.BLOCK_ROWS` rows at a time (each chunk's field made
+    from its kept rows, then its rows without attitude dropped, as the whole array's was);
+    one chunk, the whole array's numbers, when there are no more rows."""
+    safe = cal.safe()
+    _check_turn(attitude, use)
+    u = np.empty((int(use.sum()), 3))
+    n = 0
+    for b in blocks(len(y), geometry.BLOCK_ROWS):
+        every = keep[b].all()
+        field = symmetric_field(safe, y[b] if every else y[b][keep[b]])
+        ok = use[b] if every else use[b][keep[b]]
+        field = _unit_in_place(field if ok.all() else field[ok])
+        u[n:n + len(field)] = field
+        n += len(field)
+    R = _wahba(u, attitude, use, 10)
+    return Calibration(safe.T, safe.h, cal.n_iter, cal.converged, cal.message, cal.gyro_bias, R)
 
 
 def _attitude_rate(rec: Recording) -> np.ndarray:
@@ -624,6 +727,7 @@ def lag_corrected(rec: Recording, max_lag_s: float = 0.1, *, in_place: bool = Fa
     rate = _attitude_rate(rec) if has_attitude else rec.gyro
     # the field centred a block at a time in the lag fit of a long log: no (K, 3) copy
     lag, _ = magnetometer_lag(rec.t, rec.y, rate, max_lag_s, centre=sphere_fit(rec.y)[0])
+    del rate                            # a (K, 3) array not held beside the shift's result
     if not np.isfinite(lag) or lag == 0.0:
         return rec, 0.0
     y = shift(rec.t, rec.y, lag)
@@ -728,10 +832,9 @@ def offset_check(rec: Recording, *, tol: float = 0.1, method: str = "magical",
         None without times and a rate (gyro, or an attitude that turns through at least
         :data:`MIN_ATTITUDE_SPAN_DEG`).
     """
-    inertial = inertial_of(rec)
     if rec.t is None:
         return None
-    attitude = inertial.attitude
+    attitude = attitude_view(rec)            # rows normalised as read: no (K, 4) copy
     if attitude is not None and attitude_turn_deg(attitude) >= MIN_ATTITUDE_SPAN_DEG:
         orientation = MatrixView(attitude)         # matrices made a window at a time
     elif rec.gyro is not None:
@@ -743,8 +846,9 @@ def offset_check(rec: Recording, *, tol: float = 0.1, method: str = "magical",
         rows = np.flatnonzero(keep)
         rows = rows[::max(1, rows.size // max_fit_rows)]
         cal = calibrate(rec.y[rows], method).safe()
-        field = symmetric_field(cal, rec.y)
-        field /= float(np.median(np.linalg.norm(field[rows], axis=1)))    # no second (K, 3)
+        # made a chunk of rows at a time (no (K, 3) temporary), then scaled in place
+        field = affine_rows(rec.y, safe_gauge(cal.T, cal.h).A, cal.h, geometry.BLOCK_ROWS)
+        field /= float(np.median(np.linalg.norm(field[rows], axis=1)))
         windows = window_offsets(rec.t, field, orientation, window_s=window_s)
         segments = offset_segments(windows, tol)
         new, best = consistent_rows(windows, segments, rec.K)

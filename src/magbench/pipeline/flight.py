@@ -13,7 +13,10 @@ from __future__ import annotations
 
 import numpy as np
 
+from magbench.core import geometry
+from magbench.core.blockwise import affine_rows
 from magbench.core.mounting import MountingResult, detect_mounting
+from magbench.core.quaternions import UnitRows, finite_rows
 from magbench.methods.regressors import HeldOutChoice, StaticFit, held_out_choice
 from magbench.sources.recordings import Recording
 
@@ -56,18 +59,20 @@ def mounting_rotation(rec: Recording, A: np.ndarray, b: np.ndarray,
                                  or all(c in rec.extra for c in ACCEL)):
         return None         # before the corrected samples, a (K, 3) array, are built
     base = np.ones(rec.K, bool) if keep is None else np.asarray(keep, bool)
-    m = (rec.y - b) @ np.asarray(A).T if corrected is None else np.asarray(corrected)
+    m = (affine_rows(rec.y, A, b, geometry.BLOCK_ROWS) if corrected is None    # no temporary
+         else np.asarray(corrected))
     base = base & np.isfinite(m).all(axis=1)
     if all(c in rec.extra for c in QUATERNION):
-        q = rec.stack(QUATERNION)
-        use = base & np.isfinite(q).all(axis=1)
+        view = UnitRows([rec.extra[c] for c in QUATERNION])
+        use = base & finite_rows(view)
         if use.sum() >= 2:
-            # the used rows moved to the front of the fresh arrays: no copies of a long log
-            unit = compact_rows(q, use)
-            unit /= np.linalg.norm(unit, axis=1, keepdims=True)             # nearly unit
-            # as quaternions: the detection turns them into matrices a block at a time
-            return detect_mounting(compact_rows(m, use) if corrected is None else m[use],
-                                   attitude=unit)
+            # the used rows of the field moved to the front of its fresh array, those of
+            # the attitude normalised as read (the detection turns them into matrices a
+            # block at a time): no copies of a long log's samples or attitude
+            every = use.all()
+            return detect_mounting(m if every else compact_rows(m, use) if corrected is None
+                                   else m[use],
+                                   attitude=view if every else view.take(np.flatnonzero(use)))
     if all(c in rec.extra for c in ACCEL):
         a = rec.stack(ACCEL)
         use = base & np.isfinite(a).all(axis=1)
