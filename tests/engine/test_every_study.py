@@ -103,7 +103,7 @@ def check_failures_are_rows(kind: str, n_jobs: int, tmp_path: Path) -> None:
     assert (tmp_path / "out" / folder / "run.json").exists()
 
 
-@pytest.mark.parametrize("kind", kinds_beyond("review", "real", "heading"))
+@pytest.mark.parametrize("kind", kinds_beyond("review", "heading"))
 def test_same_rows_with_one_worker_two_workers_and_dask(kind, tmp_path):
     pytest.importorskip("distributed")
     args, folder, name = kind_args(kind, tmp_path)
@@ -126,7 +126,7 @@ def slow_args(kind: str, tmp_path: Path, results: Path) -> list[str]:
             f"results_dir={results}"]
 
 
-@pytest.mark.parametrize("kind", kinds_beyond("review", "real", "heading"))
+@pytest.mark.parametrize("kind", kinds_beyond("review"))
 def test_a_killed_run_of_every_kind_resumes_to_the_same_rows(kind, faulty, tmp_path):
     _, folder, name = kind_args(kind, tmp_path)
     # The uninterrupted run and the resumed one run in this process; only the killed one needs

@@ -98,7 +98,7 @@ def test_deterministic(name, nominal):
     np.testing.assert_array_equal(a.h, b.h)
 
 
-@pytest.mark.parametrize("seed", [0, 1, 2])
+@pytest.mark.parametrize("seed", [0, *(pytest.param(s, marks=pytest.mark.slow) for s in (1, 2))])
 @pytest.mark.parametrize("name", GYRO_METHODS)
 def test_noise_free_recovery(name, seed):
     traj = noise_free(name, seed)
