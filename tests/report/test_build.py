@@ -73,14 +73,14 @@ def test_a_sweeps_text_left_to_the_report_is_written_beside_its_figures(tmp_path
 
     import pytest
 
-    from magbench.cli.commands import FigureQueue, draw_figures
+    from magbench.cli.commands import SectionQueue, draw_figures
     from magbench.engine.sweep import FolderBusy, folder_lock, run_lock
 
     for case in ("one", "queued"):
         (tmp_path / case / "gamma").mkdir(parents=True)
         gamma_case().to_csv(tmp_path / case / "gamma" / "summary.csv", index=False)
     alone = draw_figures(tmp_path / "one", n_jobs=1)
-    queue = FigureQueue()
+    queue = SectionQueue()
     with contextlib.ExitStack() as held:     # the sweep's folder lock, handed to the queue
         held.enter_context(run_lock(tmp_path / "queued" / "gamma"))
         queue.submit("gamma", _note_section, held.pop_all())

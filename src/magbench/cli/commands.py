@@ -37,11 +37,11 @@ from magbench.report.speed import bench_report_section
 from magbench.studies.speed import format_reproduce_times, reproduce_times, run_bench
 from magbench.studies.timing import repeat_timing
 
-__all__ = ["FigureQueue", "bench", "draw_figures", "report", "reproduce", "run", "scale",
+__all__ = ["SectionQueue", "bench", "draw_figures", "report", "reproduce", "run", "scale",
            "sweep_names", "timing_check"]
 
 
-def run(cfg: DictConfig, figures: bool = True, queue: FigureQueue | None = None) -> int:
+def run(cfg: DictConfig, figures: bool = True, queue: SectionQueue | None = None) -> int:
     """``python -m magbench sweep=NAME``: the study, its statistics, figures and text.
 
     ``figures=False`` leaves the figures to a later ``report`` (as :func:`reproduce` does);
@@ -102,7 +102,7 @@ def _figure_jobs(results_dir: Path) -> list[tuple]:
 
 
 def draw_figures(results_dir: Path | str, n_jobs: int = 1, *, meanwhile: object = None,
-                 queue: FigureQueue | None = None) -> list[Path]:
+                 queue: SectionQueue | None = None) -> list[Path]:
     """Redraw every figure under ``results_dir`` from its CSV files.
 
     Parameters
@@ -115,7 +115,7 @@ def draw_figures(results_dir: Path | str, n_jobs: int = 1, *, meanwhile: object 
         are the same either way.
     meanwhile : callable, optional
         Work for this process while the workers draw (the report's text), called once.
-    queue : FigureQueue, optional
+    queue : SectionQueue, optional
         The sweeps whose own text (their kind's ``section``) was left for now: written by
         the same process as the folder's figures, before them.
 
@@ -150,7 +150,7 @@ def draw_figures(results_dir: Path | str, n_jobs: int = 1, *, meanwhile: object 
         return [path for paths in results for path in paths]
 
 
-class FigureQueue:
+class SectionQueue:
     """The finished sweeps' own text (their kind's ``section``: ``section.md`` and the like),
     left by ``reproduce`` to its report step, which writes each on the worker that draws the
     folder's figures while this process writes the report's text: the folder's files are
@@ -179,6 +179,7 @@ class FigureQueue:
         for lock in self._locks:
             lock.close()
         self._locks.clear()
+
 
 def _draw_with_plugins(figures: object, name: str, folder: Path, plugins: Sequence[str],
                        section: object = None) -> list[Path]:
@@ -277,7 +278,7 @@ def reproduce(overrides: Sequence[str]) -> int:
         sweeps.append(sweep_cfg)
     # Each sweep's own text is written by the report step's figure workers, not here
     # between sweeps (its folder held until then).
-    queue = FigureQueue()
+    queue = SectionQueue()
     try:
         for sweep_cfg in sweeps:
             timed(str(sweep_cfg.sweep.name),
@@ -323,7 +324,7 @@ def timing_check(cfg: DictConfig) -> int:
     return 0
 
 
-def report(cfg: DictConfig, queue: FigureQueue | None = None) -> int:
+def report(cfg: DictConfig, queue: SectionQueue | None = None) -> int:
     """``python -m magbench report``: redraw the figures and rewrite ``report.md``.
 
     The figures are drawn by ``n_jobs`` worker processes while this one writes the Markdown
