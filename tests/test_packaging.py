@@ -32,6 +32,9 @@ def test_the_configuration_is_package_data():
         assert data[package] == ["*.yaml"] and list(folder.glob("*.yaml"))
 
 
+# CI installs the package as the README does (editable); the built wheel's package data are
+# checked above without a build, the wheel itself in make test-all.
+@pytest.mark.slow
 def test_a_built_wheel_runs_a_sweep_from_another_folder(tmp_path):
     """A non-editable install (the wheel, not src/) finds its configs from any folder."""
     pip = [sys.executable, "-m", "pip"]

@@ -84,7 +84,7 @@ def test_failures_of_every_kind_are_rows_in_every_study(kind, faulty, tmp_path):
     check_failures_are_rows(kind, 1, tmp_path)
 
 
-@pytest.mark.parametrize("kind", kinds_beyond("review", "real"))
+@pytest.mark.parametrize("kind", kinds_beyond("review"))
 def test_failures_are_rows_with_two_workers(kind, faulty, tmp_path):
     check_failures_are_rows(kind, 2, tmp_path)
 

@@ -98,8 +98,9 @@ def test_a_killed_sweep_resumes_to_the_same_rows(tmp_path):
     assert not b.duplicated(["trial", "algorithm"]).any() and len(b) == 60
 
 
-@pytest.mark.parametrize(("signum", "code", "word"), [(signal.SIGINT, 130, "interrupted"),
-                                                      (signal.SIGTERM, 143, "terminated")])
+@pytest.mark.parametrize(("signum", "code", "word"), [
+    (signal.SIGINT, 130, "interrupted"),
+    pytest.param(signal.SIGTERM, 143, "terminated", marks=pytest.mark.slow)])
 def test_sigint_and_sigterm_stop_cleanly_with_one_line(tmp_path, signum, code, word):
     proc = subprocess.Popen(sweep_command(tmp_path), cwd=REPO, stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True, preexec_fn=with_ctrl_c)
@@ -124,6 +125,8 @@ def test_a_killed_sweep_leaves_no_worker_process_behind(tmp_path):
     assert alive == [], f"orphaned after SIGKILL: {[p.cmdline()[-3:] for p in alive]}"
 
 
+# tests/engine/test_every_study.py holds the Dask rows against one and two workers in CI.
+@pytest.mark.slow
 def test_dask_backend_gives_the_same_rows(tmp_path):
     pytest.importorskip("distributed")
     # A generous limit: each run's fresh process loads the compiled loops in its first call.
