@@ -99,11 +99,11 @@ def corrected_names(columns: list[str]) -> list[str]:
     for a file without a header, which has no names to keep."""
     names = []
     for axis, column in zip("xyz", columns, strict=True):
-        bare, had_unit = without_unit(column)
         if column.startswith("column "):
             names.append(f"m{axis}")
-        else:
-            names.append(f"{bare} ({CORRECTED_UNIT})" if had_unit else column)
+            continue
+        bare, had_unit = without_unit(column)
+        names.append(f"{bare} ({CORRECTED_UNIT})" if had_unit else column)
     return names
 
 

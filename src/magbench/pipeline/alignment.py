@@ -521,19 +521,11 @@ def attitude_view(rec: Recording) -> UnitRows | None:
     return UnitRows([rec.extra[c] for c in ATTITUDE_COLUMNS])
 
 
-def _attitude_rows(rec: Recording, rows: slice) -> np.ndarray:
-    """Rows of :func:`inertial_of`'s attitude, made from those rows alone (the same numbers:
-    each row is normalised by itself)."""
-    return unit_quaternions(rec.rows(rows).stack(ATTITUDE_COLUMNS))
-
-
 def inertial_source(rec: Recording) -> str:
     """``inertial_of(rec).source``, with the attitude's finite rows counted a block at a time
     (no normalised ``(K, 4)`` copy of a long log's attitude)."""
-    finite = 0
-    if rec.extra is not None and all(c in rec.extra for c in ATTITUDE_COLUMNS):
-        finite = sum(int(np.isfinite(_attitude_rows(rec, b)).all(axis=1).sum())
-                     for b in blocks(rec.K))
+    attitude = attitude_view(rec)
+    finite = 0 if attitude is None else int(finite_rows(attitude).sum())
     accel = rec.extra is not None and all(c in rec.extra for c in ACCEL_COLUMNS)
     return _source(finite, rec.t, rec.gyro, accel)
 
@@ -695,11 +687,11 @@ def _attitude_rate(rec: Recording) -> np.ndarray:
     """:func:`magbench.core.lag.attitude_rate` of the recording's normalised attitude, that
     attitude made a block of rows (and their two neighbours) at a time: the same numbers
     without its ``(K, 4)`` copy."""
-    K = rec.K
+    K, attitude = rec.K, attitude_view(rec)
     out = np.empty((K, 3))
     for rows in blocks(K):
         near = halo(rows, K)
-        out[rows] = attitude_rate(rec.t[near], _attitude_rows(rec, near))[
+        out[rows] = attitude_rate(rec.t[near], attitude[near])[
             rows.start - near.start:rows.stop - near.start]
     return out
 
@@ -721,7 +713,7 @@ def lag_corrected(rec: Recording, max_lag_s: float = 0.1, *, in_place: bool = Fa
     over ``rec.y``'s memory when that array allows it (a caller that keeps only the result
     then holds one copy of a long log's samples after the shift, not two); ``rec`` is not to
     be used afterwards."""
-    has_attitude = rec.extra is not None and all(c in rec.extra for c in ATTITUDE_COLUMNS)
+    has_attitude = attitude_view(rec) is not None
     if rec.t is None or (not has_attitude and rec.gyro is None):
         return rec, 0.0
     rate = _attitude_rate(rec) if has_attitude else rec.gyro

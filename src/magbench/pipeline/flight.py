@@ -69,10 +69,10 @@ def mounting_rotation(rec: Recording, A: np.ndarray, b: np.ndarray,
             # the used rows of the field moved to the front of its fresh array, those of
             # the attitude normalised as read (the detection turns them into matrices a
             # block at a time): no copies of a long log's samples or attitude
-            every = use.all()
-            return detect_mounting(m if every else compact_rows(m, use) if corrected is None
-                                   else m[use],
-                                   attitude=view if every else view.take(np.flatnonzero(use)))
+            if use.all():
+                return detect_mounting(m, attitude=view)
+            field = compact_rows(m, use) if corrected is None else m[use]
+            return detect_mounting(field, attitude=view.take(np.flatnonzero(use)))
     if all(c in rec.extra for c in ACCEL):
         a = rec.stack(ACCEL)
         use = base & np.isfinite(a).all(axis=1)

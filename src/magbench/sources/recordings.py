@@ -862,7 +862,7 @@ def _bare_name(name: str) -> str:
     magnetic one (:func:`_magnetic_unit`), so that it matches no magnetometer name."""
     if not _magnetic_unit(name):
         return ""
-    return re.sub(r"[^0-9a-z]", "", _UNIT_SUFFIX.sub("", name.strip().strip('"')).lower())
+    return re.sub(r"[^0-9a-z]", "", without_unit(name)[0].lower())
 
 
 def _axis_triple(names: list[str]) -> list[int] | None:
