@@ -16,14 +16,15 @@ def write(folder, cases):
                    "needless_fail": 0, "not_written": 1, "direction_cases": 0,
                    "losses_direction": 0, "heading_cases": 1, "losses_heading": 1,
                    "losses_compass": 1, "losses_peers": 1, "harmful_compass": 1,
-                   "needless_fail_compass": 1},
+                   "needless_fail_compass": 1, "losses_recording_best": 2},
                   {"protocol": "all", "cases": len(cases), "regret_median": 0.1,
                    "regret_max": 2.0, "losses": int(cases["loss"].sum()), "loss_pct": 50.0,
                    "harmful": 1, "harmful_mean_norm": 2, "needless_fail": 0,
                    "not_written": 1, "direction_cases": 0, "losses_direction": 0,
                    "heading_cases": 1, "losses_heading": 1,
                    "losses_compass": 1, "losses_peers": 1, "harmful_compass": 1,
-                   "needless_fail_compass": 1, "wtl:sphere": "1/0/1"}]).to_csv(
+                   "needless_fail_compass": 1, "losses_recording_best": 1,
+                   "wtl:sphere": "1/0/1"}]).to_csv(
         folder / "generalisation_summary.csv", index=False)
     pd.DataFrame({"kind": ["auto"], "algorithm": ["calibrate"], "protocol": ["half"],
                   "direction_deg": [float("nan")], "heading_deg": [float("nan")]}).to_csv(
@@ -52,14 +53,16 @@ def test_the_section_leads_with_the_counts(tmp_path):
                           # b's best fixed fit still points 45 deg astray: no usable compass
                           "best_fixed_heading_deg": [float("nan"), 45.0],
                           "loss_oracle": [False, True],
-                          "loss_compass_oracle": [False, False]})
+                          "loss_compass_oracle": [False, False],
+                          "loss_recording_best": [False, True], "tied": [1, 3]})
     assert headline(cases) == {"cases": 2, "losses": 1, "harmful": 1, "harmful_mean_norm": 2,
                                "direction_cases": 0, "losses_direction": 0,
                                "heading_cases": 1, "losses_heading": 1,
                                "losses_compass": 1, "harmful_compass": 1,
                                "needless_fail_compass": 1, "needless_unusable": 1,
                                "losses_peers": 1, "losses_oracle": 1,
-                               "losses_compass_oracle": 0,
+                               "losses_compass_oracle": 0, "losses_recording_best": 1,
+                               "one_tied": 1,
                                "needless_fail": 0, "not_written": 1, "recordings": 2}
     write(tmp_path / "generalisation", cases)
     text = generalisation_section(tmp_path)
@@ -72,6 +75,10 @@ def test_the_section_leads_with_the_counts(tmp_path):
             "raw in 1 and FAILs where a fixed fit would have helped in 1; in 1 of those the best "
             "fixed fit's heading error is still above the gate's 30 deg") in text
     assert "it would still lose 1 by magnitude and 0 by the compass score" in text
+    assert "in 1 of 2 cases (50 %) only the best fixed fit itself is within" in text
+    assert "| 1, 1, 1 | 2 | +0.10 |" in text
+    assert "loses fewer than it on `half` (1 against 2)." in text
+    assert "picked knowing every held-out score of all its protocols, still loses 1 of 2" in text
     assert "| sphere | 1/0/1 |" in text and "| a | half | PASS | fang |" in text
 
 

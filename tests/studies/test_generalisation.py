@@ -248,6 +248,32 @@ def test_the_oracle_counts_what_a_ranking_in_hindsight_would_lose():
     assert protocol_table(cases).loc[0, "losses_oracle"] == 1
 
 
+def test_the_recordings_best_fixed_fit_is_chosen_knowing_every_case():
+    # recording a: sphere wins one protocol by far and loses the other two narrowly; fang
+    # ties every case: fang loses none, sphere two. Recording b: only sphere ties its one case
+    rows = (_rows("a", "half", 1.0, {"sphere": 1.0, "fang": 1.2})
+            + _rows("a", "blocks", 1.0, {"sphere": 2.0, "fang": 1.0})
+            + _rows("a", "band_x", 1.0, {"sphere": 2.0, "fang": 1.0})
+            + _rows("b", "half", 1.0, {"sphere": 1.0, "fang": 9.0}))
+    cases = case_table(pd.DataFrame(rows))
+    assert cases["recording_best"].tolist() == ["fang"] * 3 + ["sphere"]
+    assert cases["loss_recording_best"].tolist() == [False] * 4
+    assert cases["tied"].tolist() == [2, 1, 1, 1]
+    # a third fixed method that loses everywhere changes neither choice
+    worse = [dict(r, algorithm="diagonal", spread_pct=r["spread_pct"] * 3) for r in rows
+             if r["algorithm"] == "sphere"]
+    again = case_table(pd.DataFrame(rows + worse).sort_values(["dataset", "protocol"],
+                                                                kind="stable"))
+    assert sorted(again["recording_best"]) == ["fang"] * 3 + ["sphere"]
+    # with one method per recording, recording a must lose a case: sphere and fang split it
+    split = case_table(pd.DataFrame(_rows("a", "half", 1.0, {"sphere": 1.0, "fang": 3.0})
+                                    + _rows("a", "blocks", 1.0, {"sphere": 3.0, "fang": 1.0})))
+    assert split["loss_recording_best"].sum() == 1
+    table = protocol_table(split)
+    assert table.set_index("protocol").loc["all", ["losses_recording_best", "one_tied"]
+                                           ].tolist() == [1, 2]
+
+
 def test_a_degenerate_fit_never_is_the_best_in_hindsight():
     rows = _rows("a", "half", 1.0, {"sphere": 1.0, "crassidis": 0.01})
     rows[-1]["degenerate"] = True

@@ -658,7 +658,9 @@ def case_table(trials: pd.DataFrame) -> pd.DataFrame:
     a user of those libraries makes (False without peers). ``loss_oracle`` and
     ``loss_compass_oracle``: the same losses for the best of calibrate's eligible
     candidates in hindsight (:func:`_oracle`), so that what a better ranking could win is
-    told apart from what the candidates and the gate leave."""
+    told apart from what the candidates and the gate leave. ``tied``: how many fixed
+    methods are within the tolerance of the best (1: only the best itself), and
+    ``recording_best`` / ``loss_recording_best``: :func:`_with_recording_best`."""
     import pandas as pd
 
     out = []
@@ -720,10 +722,34 @@ def case_table(trials: pd.DataFrame) -> pd.DataFrame:
         row["loss_compass_oracle"] = (
             _beyond_best_direction(oracle_heading, fixed, "heading_deg") if heading
             else row["loss_oracle"])
+        row["tied"] = int(np.sum(fixed["spread_pct"].to_numpy(float) <= best_score + tol))
         for _, r in g[g["kind"] != "auto"].iterrows():
             row[f"pct:{r['algorithm']}"] = _user_score(r) if r["status"] == "ok" else raw
         out.append(row)
-    return pd.DataFrame(out)
+    fixed_names = list(dict.fromkeys(trials.loc[trials["kind"] == "fixed", "algorithm"]))
+    return _with_recording_best(pd.DataFrame(out), fixed_names)
+
+
+def _with_recording_best(cases: pd.DataFrame, fixed: Sequence[str]) -> pd.DataFrame:
+    """Add ``recording_best`` and ``loss_recording_best``: per recording, the one fixed method
+    that loses least over all its protocols, chosen knowing every held-out score, and whether
+    it loses each case. No choice made per recording can lose fewer cases: it bounds what
+    any rule that does not see the held-out part can hope for."""
+    cases = cases.copy()
+    cases["recording_best"], cases["loss_recording_best"] = "", False
+    columns = [f"pct:{name}" for name in fixed if f"pct:{name}" in cases.columns]
+    if cases.empty or not columns:
+        return cases
+    best = cases["best_fixed_pct"].to_numpy(float)
+    with np.errstate(invalid="ignore"):
+        lost = ~(cases[columns].to_numpy(float) <= (best + np.maximum(0.25, 0.05 * best))
+                 [:, None]) & np.isfinite(best)[:, None]
+    for _, index in cases.groupby("dataset", sort=False).groups.items():
+        rows = cases.index.get_indexer(index)
+        k = int(np.argmin(lost[rows].sum(axis=0)))
+        cases.loc[index, "recording_best"] = columns[k].removeprefix("pct:")
+        cases.loc[index, "loss_recording_best"] = lost[rows, k]
+    return cases
 
 
 def _wtl(auto: np.ndarray, other: np.ndarray) -> tuple[int, int, int]:
@@ -764,6 +790,8 @@ def protocol_table(cases: pd.DataFrame) -> pd.DataFrame:
                "losses_compass": int(g["loss_compass"].sum()),
                "losses_oracle": int(g["loss_oracle"].sum()),
                "losses_compass_oracle": int(g["loss_compass_oracle"].sum()),
+               "losses_recording_best": int(g["loss_recording_best"].sum()),
+               "one_tied": int((g["tied"] == 1).sum()),
                "not_written": int((~g["written"].astype(bool)).sum())}
         for e in entrants:
             w, t, l_ = _wtl(g["auto_pct"].to_numpy(float), g[f"pct:{e}"].to_numpy(float))
