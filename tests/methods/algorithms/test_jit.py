@@ -7,10 +7,10 @@ import sys
 import magbench
 
 
-def run_fresh(code: str) -> str:
+def run_fresh(code: str, cwd: str | None = None) -> str:
     env = {**os.environ, "PYTHONPATH": os.pathsep.join(p for p in sys.path if p)}
     out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True,
-                         check=True)
+                         check=True, cwd=cwd)
     return out.stdout.split()
 
 
@@ -56,3 +56,17 @@ def test_prepare_loads_numba_for_a_compiled_method_only():
         "from magbench.methods.algorithms import _common, _jit\n"
         "print(closed, 'numba' in sys.modules, not isinstance(_common.fit_affine, _jit.LazyLoop))")
     assert (closed, compiled, rebound) == ("False", "True", "True")
+
+
+def test_a_folder_named_coverage_in_the_working_directory_does_not_break_numba(tmp_path):
+    """``results/`` holds a ``coverage`` folder: run from there, numba took it for coverage.py
+    (an empty namespace package) and its import failed. The folder stays importable after."""
+    (tmp_path / "coverage").mkdir()
+    loaded, folder = run_fresh(
+        "import sys\n"
+        "from magbench.methods.algorithms import _jit\n"
+        "_jit.load()\n"
+        "import coverage\n"
+        "print('numba' in sys.modules, getattr(coverage, '__file__', None) is None)",
+        cwd=str(tmp_path))
+    assert (loaded, folder) == ("True", "True")

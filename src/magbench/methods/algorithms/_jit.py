@@ -19,6 +19,8 @@ after that are compiled directly.
 from __future__ import annotations
 
 import functools
+import importlib.util
+import sys
 import threading
 from collections.abc import Callable
 from typing import Any
@@ -78,9 +80,7 @@ def load_for(fit: Callable[..., Any]) -> None:
 def _materialise() -> None:
     global _numba_jit, _ready
     if _numba_jit is None:
-        from numba import njit as numba_njit
-
-        _numba_jit = numba_njit(**OPTIONS)
+        _numba_jit = _import_njit()(**OPTIONS)
     for loop in _pending:
         loop.dispatcher = _numba_jit(loop.py_func)
     _pending.clear()
@@ -89,6 +89,31 @@ def _materialise() -> None:
             if isinstance(value, LazyLoop) and value.dispatcher is not None:
                 namespace[name] = value.dispatcher
     _ready = True
+
+
+def _import_njit() -> Callable[..., Any]:
+    """``numba.njit``, imported so that a folder named ``coverage`` in the working directory
+    (``results/`` has one) is not taken for coverage.py: numba uses coverage.py if it can
+    import it, and a folder without ``__init__.py`` imports as an empty namespace package,
+    on which numba's import fails."""
+    module = sys.modules.get("coverage")
+    spec = (getattr(module, "__spec__", None) if module is not None
+            else importlib.util.find_spec("coverage"))
+    folder = (spec is not None and spec.submodule_search_locations is not None
+              and spec.origin in (None, "namespace"))
+    if not folder:
+        from numba import njit as numba_njit
+
+        return numba_njit
+    sys.modules["coverage"] = None      # an import of it raises ImportError for numba
+    try:
+        from numba import njit as numba_njit
+    finally:
+        if module is None:
+            del sys.modules["coverage"]
+        else:
+            sys.modules["coverage"] = module
+    return numba_njit
 
 
 def njit(py_func: Callable[..., Any]) -> Any:
