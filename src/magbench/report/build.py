@@ -110,6 +110,9 @@ def write_markdown_report(results_dir: Path | str, sections: Sequence[Section] =
     # the last report's: each is keyed by a digest of its inputs.
     with kept_intervals(Path(results_dir) / INTERVALS_FILE):
         text = build_report(results_dir, sections, texts)
+        if texts is not None:      # the page's folded details too, while the figures are drawn
+            for extra in HTML_DETAILS.values():
+                section_text(extra, results_dir, texts)
     write_text_atomic(text, path)
     return path
 

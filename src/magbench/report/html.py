@@ -309,7 +309,7 @@ def build_html(results_dir: Path | str, sections: Sequence[Callable[[Path], str]
             continue
         html = md_to_html(md.strip(), results_dir)
         extra = details.get(section)
-        more = extra(results_dir) if extra else ""
+        more = section_text(extra, results_dir, texts) if extra else ""
         if more:
             body = md_to_html("\n".join(x for x in more.strip().split("\n")
                                         if not x.startswith("## ")), results_dir)
