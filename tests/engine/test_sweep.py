@@ -56,6 +56,21 @@ def test_rows_come_in_unit_order_whatever_the_workers(tmp_path):
     assert {"git_commit", "cpu_model", "packages", "settings", "wall_s"} <= set(record)
 
 
+def test_local_workers_write_their_own_chunks(tmp_path, monkeypatch):
+    """With workers on this machine the rows of a chunk never cross to the main process: each
+    worker writes its chunk's part files, and the tables are those one process writes."""
+    from magbench.engine import sweep
+
+    taken = []
+    monkeypatch.setattr(sweep._Parts, "write", lambda self, *args: taken.append(args))
+    run_study(Toy(), tmp_path / "b", n_jobs=2, chunk_size=2, progress=False)
+    assert taken == []
+    monkeypatch.undo()
+    run_study(Toy(), tmp_path / "a", n_jobs=1, chunk_size=5, progress=False)
+    for name in ("rows.csv", "extra.csv"):
+        assert (tmp_path / "a" / name).read_bytes() == (tmp_path / "b" / name).read_bytes()
+
+
 def interrupted(folder, chunk_size=2, stop_at=7):
     with pytest.raises(KeyboardInterrupt):
         run_study(Toy(stop_at=stop_at), folder, chunk_size=chunk_size, progress=False)
@@ -320,16 +335,20 @@ def test_another_chunk_size_on_resume_warns_and_gives_the_same_rows(tmp_path):
 
 
 def test_a_run_stopped_between_chunks_leaves_no_joblib_warning(tmp_path, monkeypatch):
-    """A Ctrl-C while a finished chunk is written stops the run with the chunks still on the
+    """A Ctrl-C while a finished chunk is taken in stops the run with the chunks still on the
     workers cancelled on purpose: joblib's warning about them would follow the run's one line."""
     import warnings
 
-    from magbench.engine import sweep
+    import tqdm
 
-    def stop(self, start, stop, rows):
-        raise KeyboardInterrupt
+    calls = []
 
-    monkeypatch.setattr(sweep._Parts, "write", stop)
+    def stop(self, n=1):
+        calls.append(n)
+        if len(calls) > 1:           # the first sets the bar to the chunks already done
+            raise KeyboardInterrupt
+
+    monkeypatch.setattr(tqdm.tqdm, "update", stop)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         with pytest.raises(KeyboardInterrupt):

@@ -355,9 +355,12 @@ def _exit_with_parent(parent_pid: int | None, poll_s: float = 1.0) -> None:
 
 
 def _run_chunk(study: Study, units: list, start: int, parent_pid: int | None = None,
-               marker: str | None = None) -> tuple[int, dict[str, list[dict]]]:
+               marker: str | None = None, writer: _ChunkWriter | None = None,
+               ) -> tuple[int, dict[str, list[dict]] | None]:
     """A worker's task: the rows of one chunk. ``marker`` is touched first, so that after a
-    worker's death the run knows which chunks were under way (:func:`_run_todo`)."""
+    worker's death the run knows which chunks were under way (:func:`_run_todo`). With a
+    ``writer`` (a worker that sees the run's folder) the worker writes the chunk's part files
+    and returns None for its rows."""
     _exit_with_parent(parent_pid)
     if marker is not None:
         with contextlib.suppress(OSError):      # a remote worker may not see the folder
@@ -368,7 +371,43 @@ def _run_chunk(study: Study, units: list, start: int, parent_pid: int | None = N
     for unit in units:
         for name, rows in study.run_unit(unit).items():
             out[name].extend(rows)
+    if writer is not None:
+        writer.write(start, start + len(units), out)
+        return start, None
     return start, out
+
+
+def _chunk_stem(start: int, stop: int) -> str:
+    return f"c{start:07d}-{stop:07d}"
+
+
+@dataclasses.dataclass(frozen=True)
+class _ChunkWriter:
+    """Writes one chunk's part files and then its record: picklable, so that a local worker
+    writes the chunk it computed instead of sending its rows to the main process."""
+
+    dir: Path
+    fingerprint: str
+    tables: Mapping[str, tuple[str, Sequence[str]]]
+    method_column: str | None
+    table_owner: Mapping[str, str]
+
+    def write(self, start: int, stop: int, rows: dict[str, list[dict]]) -> None:
+        sums: dict[str, object] = {"fingerprint": self.fingerprint}
+        layout = {}
+        for table, (_, columns) in self.tables.items():
+            path = self.dir / f"{_chunk_stem(start, stop)}.{table}.csv"
+            write_rows_csv(rows.get(table, []), columns, path)
+            sums[table] = {"rows": len(rows.get(table, [])), "sha256": file_sha256(path)}
+            if self.method_column is not None:
+                owner = self.table_owner.get(table)
+                layout[table] = (_layout(rows.get(table, []), stop - start, self.method_column)
+                                 if owner is None else
+                                 _owned_layout(rows.get(table, []), stop - start, owner))
+        if self.method_column is not None:
+            sums["layout"] = layout
+        # The record goes last: a chunk counts as done only once all its tables are in place.
+        write_text_atomic(json.dumps(sums), self.dir / f"{_chunk_stem(start, stop)}.json")
 
 
 class _Parts:
@@ -400,7 +439,13 @@ class _Parts:
         self.clear_markers()        # a killed run's markers say nothing about this one
 
     def _stem(self, start: int, stop: int) -> str:
-        return f"c{start:07d}-{stop:07d}"
+        return _chunk_stem(start, stop)
+
+    @property
+    def writer(self) -> _ChunkWriter:
+        """What writes a chunk's files (:meth:`write`), to hand to a local worker."""
+        return _ChunkWriter(self.dir, self.fingerprint, dict(self.study.tables),
+                            self.study.method_column, dict(self.study.table_owner))
 
     def path(self, start: int, stop: int, table: str) -> Path:
         return self.dir / f"{self._stem(start, stop)}.{table}.csv"
@@ -455,22 +500,7 @@ class _Parts:
                 path.unlink(missing_ok=True)
 
     def write(self, start: int, stop: int, rows: dict[str, list[dict]]) -> None:
-        sums: dict[str, object] = {"fingerprint": self.fingerprint}
-        column = self.study.method_column
-        layout = {}
-        for table, (_, columns) in self.study.tables.items():
-            path = self.path(start, stop, table)
-            write_rows_csv(rows.get(table, []), columns, path)
-            sums[table] = {"rows": len(rows.get(table, [])), "sha256": file_sha256(path)}
-            if column is not None:
-                owner = self.study.table_owner.get(table)
-                layout[table] = (_layout(rows.get(table, []), stop - start, column)
-                                 if owner is None else
-                                 _owned_layout(rows.get(table, []), stop - start, owner))
-        if column is not None:
-            sums["layout"] = layout
-        # The record goes last: a chunk counts as done only once all its tables are in place.
-        write_text_atomic(json.dumps(sums), self.dir / f"{self._stem(start, stop)}.json")
+        self.writer.write(start, stop, rows)
 
     def layout(self, chunks: Sequence[tuple[int, int]]) -> list[dict[str, list]] | None:
         """The rows of each entrant in every table, one ``{table: [[method, n], ...]}`` per
@@ -955,7 +985,7 @@ def _table_record(files: Mapping[str, Path], counts: Mapping[str, int]) -> dict[
 
 
 def _run_todo(study: Study, units: list, todo: list[tuple[int, int]], parts: _Parts,
-              done: Callable[[int, int, dict], None], n_jobs: int, backend: str,
+              done: Callable[[int, int, dict | None], None], n_jobs: int, backend: str,
               scheduler_address: str | None) -> None:
     """Run the unfinished chunks; a worker's death costs a rerun of the chunks under way.
 
@@ -986,7 +1016,7 @@ def _run_todo(study: Study, units: list, todo: list[tuple[int, int]], parts: _Pa
 
 
 def _run_parallel(study: Study, units: list, todo: list[tuple[int, int]], parts: _Parts,
-                  done: Callable[[int, int, dict], None], n_jobs: int, backend: str,
+                  done: Callable[[int, int, dict | None], None], n_jobs: int, backend: str,
                   scheduler_address: str | None) -> None:
     """The chunks on joblib's workers or a Dask cluster, each written as it finishes."""
     from joblib import Parallel, delayed
@@ -1001,8 +1031,11 @@ def _run_parallel(study: Study, units: list, todo: list[tuple[int, int]], parts:
                 parallel = stack.enter_context(Parallel(
                     n_jobs=engine["n_jobs"], backend=engine["backend"],
                     return_as="generator_unordered"))
+                # each worker writes the chunk it computed: the rows never cross to this
+                # process, which only follows the records
+                writer = parts.writer
                 results = parallel(delayed(_run_chunk)(study, units[a:b], a, os.getpid(),
-                                                       str(parts.marker(a, b)))
+                                                       str(parts.marker(a, b)), writer)
                                    for a, b in todo)
             try:
                 for start, rows in results:
@@ -1025,7 +1058,7 @@ def _close_quietly(results: Iterator) -> None:
 
 
 def _run_on_dask(client: object, study: Study, units: list, todo: list[tuple[int, int]],
-                 parts: _Parts, done: Callable[[int, int, dict], None]) -> None:
+                 parts: _Parts, done: Callable[[int, int, dict | None], None]) -> None:
     """The chunks as Dask futures: a task that failed, or whose workers died (``KilledWorker``),
     raises here at once, and the tasks still pending are cancelled."""
     from distributed import as_completed
@@ -1166,7 +1199,8 @@ def run_study(study: Study, out_dir: Path | str, *, n_jobs: int = 1, chunk_size:
                   disable=not progress or not run_chunks, smoothing=0.1) as bar:
             bar.update(total - sum(sum(weights[a:b]) for a, b in todo))
             def done(start: int, stop: int, rows: dict[str, list[dict]]) -> None:
-                parts.write(start, stop, rows)
+                if rows is not None:        # else the worker wrote the chunk
+                    parts.write(start, stop, rows)
                 bar.update(sum(weights[start:stop]))
 
             _run_todo(work, units, todo, parts, done, n_jobs, backend, scheduler_address)
