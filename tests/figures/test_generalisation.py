@@ -4,7 +4,12 @@ from __future__ import annotations
 
 import pandas as pd
 
-from magbench.figures.generalisation import ORACLE, generalisation_figure, losses_by_protocol
+from magbench.figures.generalisation import (
+    ORACLE,
+    RECORDING_BEST,
+    generalisation_figure,
+    losses_by_protocol,
+)
 
 
 def cases() -> pd.DataFrame:
@@ -29,6 +34,14 @@ def test_the_oracle_bar_counts_the_best_eligible_fit():
     table = losses_by_protocol(c)
     assert list(table.columns) == ["calibrate", ORACLE, "sphere"]
     assert table.loc["half", ORACLE] == 0 and table.loc["blocks", ORACLE] == 2
+
+
+def test_the_recordings_best_fit_bar_counts_the_studys_flags():
+    c = cases().assign(oracle_pct=[1.0, 10.0, 2.3, 3.0],
+                       loss_recording_best=[True, False, True, True])
+    table = losses_by_protocol(c)
+    assert list(table.columns) == ["calibrate", ORACLE, RECORDING_BEST, "sphere"]
+    assert table[RECORDING_BEST].tolist() == [1, 2]
 
 
 def test_the_figure_has_both_panels():

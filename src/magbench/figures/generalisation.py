@@ -4,7 +4,9 @@
 nothing, minus the best fixed method's), by protocol; (b) losses per protocol (worse than the
 best fixed method in hindsight by more than max(0.25 points, 5 %)) of ``calibrate``, of the
 best of its eligible candidates in hindsight (what a perfect ranking would lose, when the
-cases carry ``oracle_pct``), beside always using one fixed method or one peer.
+cases carry ``oracle_pct``), of each recording's best fixed fit in hindsight (what any one
+method per recording would lose at best, when they carry ``loss_recording_best``), beside
+always using one fixed method or one peer.
 """
 
 from __future__ import annotations
@@ -15,7 +17,8 @@ from matplotlib.figure import Figure
 
 from magbench.figures.style import method_style, new_figure
 
-__all__ = ["ORACLE", "POLICIES", "generalisation_figure", "losses_by_protocol"]
+__all__ = ["ORACLE", "POLICIES", "RECORDING_BEST", "generalisation_figure",
+           "losses_by_protocol"]
 
 #: The fixed methods and peers drawn beside ``calibrate`` in panel (b), when present.
 POLICIES = ("sphere", "ellipsoid", "fang", "wu_shi_nm", "navlib.cal_mag_sphere_fit",
@@ -24,6 +27,8 @@ POLICIES = ("sphere", "ellipsoid", "fang", "wu_shi_nm", "navlib.cal_mag_sphere_f
 AUTO_COLOUR = "#BB5566"
 #: The bar of calibrate's best eligible candidate in hindsight.
 ORACLE = "calibrate's best eligible fit in hindsight"
+#: The bar of each recording's one best fixed method in hindsight.
+RECORDING_BEST = "each recording's best fixed fit in hindsight"
 
 
 def _tolerance(best: np.ndarray) -> np.ndarray:
@@ -31,30 +36,36 @@ def _tolerance(best: np.ndarray) -> np.ndarray:
 
 
 def losses_by_protocol(cases: pd.DataFrame) -> pd.DataFrame:
-    """Losses of ``calibrate`` and of each policy of :data:`POLICIES` present, per protocol
-    (rows) and entrant (columns)."""
-    out = {}
+    """Losses of ``calibrate``, of the bounds (:data:`ORACLE`, :data:`RECORDING_BEST`) and of
+    each policy of :data:`POLICIES` present, per protocol (rows) and entrant (columns)."""
     best = cases["best_fixed_pct"].to_numpy(float)
-    entrants = {"calibrate": cases["auto_pct"].to_numpy(float)}
+
+    def beyond(score: np.ndarray) -> np.ndarray:
+        return score > best + _tolerance(best)
+
+    lost = {"calibrate": beyond(cases["auto_pct"].to_numpy(float))}
     if "oracle_pct" in cases:
-        entrants[ORACLE] = cases["oracle_pct"].to_numpy(float)
-    entrants |= {p: cases[f"pct:{p}"].to_numpy(float) for p in POLICIES
-                 if f"pct:{p}" in cases}
+        lost[ORACLE] = beyond(cases["oracle_pct"].to_numpy(float))
+    if "loss_recording_best" in cases:
+        lost[RECORDING_BEST] = cases["loss_recording_best"].astype(bool).to_numpy()
+    lost |= {p: beyond(cases[f"pct:{p}"].to_numpy(float)) for p in POLICIES
+             if f"pct:{p}" in cases}
     protocols = list(dict.fromkeys(cases["protocol"]))
-    for name, score in entrants.items():
-        lost = score > best + _tolerance(best)
-        out[name] = [int(lost[(cases["protocol"] == p).to_numpy()].sum()) for p in protocols]
+    out = {name: [int(flags[(cases["protocol"] == p).to_numpy()].sum()) for p in protocols]
+           for name, flags in lost.items()}
     return pd.DataFrame(out, index=protocols)
 
 
 def _label(name: str) -> str:
-    return name if "." in name or name in ("calibrate", ORACLE) \
+    return name if "." in name or name in ("calibrate", ORACLE, RECORDING_BEST) \
         else str(method_style(name)["label"])
 
 
 def _style(name: str) -> tuple[str, str]:
     if name == "calibrate":
         return AUTO_COLOUR, ""
+    if name == RECORDING_BEST:          # hollow grey: not an entrant, a bound on any one fit
+        return "#555555", "xx"
     if name == ORACLE:                  # hollow: not an entrant, a bound on the ranking
         return AUTO_COLOUR, ".."
     if "." in name:                     # a peer: its paired method's colour, hollow bars
