@@ -104,9 +104,10 @@ INTERVAL_COLUMNS = ["dataset", "axis", "method_first", "method_second", "b_first
                     "source_second", "agree"]
 
 
-def tolerance(best: float) -> float:
-    """How much worse than ``best`` still ties: max(0.25 points, 5 %)."""
-    return max(0.25, 0.05 * best)
+def tolerance(best: float | np.ndarray) -> float | np.ndarray:
+    """How much worse than ``best`` still ties: max(0.25 points, 5 %) (elementwise for an
+    array)."""
+    return np.maximum(0.25, 0.05 * best)
 
 
 def tolerance_deg(best: float) -> float:
@@ -742,8 +743,8 @@ def _with_recording_best(cases: pd.DataFrame, fixed: Sequence[str]) -> pd.DataFr
         return cases
     best = cases["best_fixed_pct"].to_numpy(float)
     with np.errstate(invalid="ignore"):
-        lost = ~(cases[columns].to_numpy(float) <= (best + np.maximum(0.25, 0.05 * best))
-                 [:, None]) & np.isfinite(best)[:, None]
+        lost = ~(cases[columns].to_numpy(float) <= (best + tolerance(best))[:, None]) \
+            & np.isfinite(best)[:, None]
     for _, index in cases.groupby("dataset", sort=False).groups.items():
         rows = cases.index.get_indexer(index)
         k = int(np.argmin(lost[rows].sum(axis=0)))
@@ -756,7 +757,7 @@ def _wtl(auto: np.ndarray, other: np.ndarray) -> tuple[int, int, int]:
     """Wins, ties and losses; a degenerate answer (NaN) loses to any other."""
     auto = np.where(np.isnan(auto), np.inf, auto)
     other = np.where(np.isnan(other), np.inf, other)
-    tol = np.maximum(0.25, 0.05 * np.where(np.isfinite(other), other, 0.0))
+    tol = tolerance(np.where(np.isfinite(other), other, 0.0))
     with np.errstate(invalid="ignore"):
         tie = (np.abs(auto - other) <= tol) | (np.isinf(auto) & np.isinf(other))
         return (int(np.sum((auto < other - tol) & ~tie)), int(np.sum(tie)),
