@@ -4,7 +4,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from magbench.core.rotations import cumulative_product, euler_zyx_to_matrix, rotation_exp, skew
+from magbench.core.rotations import (
+    cross_rows,
+    cumulative_product,
+    euler_zyx_to_matrix,
+    rotation_exp,
+    skew,
+)
 
 
 def test_exponential_map_known_answers():
@@ -15,6 +21,15 @@ def test_exponential_map_known_answers():
     phi = np.array([1e-9, -2e-9, 3e-9])
     assert np.allclose(rotation_exp(phi), np.eye(3) + skew(phi), rtol=0, atol=1e-17)
     assert rotation_exp(np.zeros((2, 5, 3))).shape == (2, 5, 3, 3)
+
+
+def test_cross_rows_are_numpys_cross_products_bit_for_bit():
+    gen = np.random.default_rng(3)
+    a, b = gen.normal(size=(500, 3)) * 1e3, gen.normal(size=(500, 3))
+    assert np.array_equal(cross_rows(a, b), np.cross(a, b))
+    assert np.array_equal(cross_rows(a[:1], b), np.cross(a[:1], b))     # one row against many
+    x, y, z = np.eye(3)
+    assert np.array_equal(cross_rows(np.array([x, y]), np.array([y, z])), [z, x])
 
 
 def test_euler_zyx_is_yaw_after_pitch_after_roll():

@@ -454,6 +454,26 @@ def test_the_profile_matrix_by_chunks_is_the_whole_arrays(monkeypatch):
     assert np.abs(whole).max() > 100.0                     # not a sum of nothing
 
 
+def test_an_attitude_of_one_block_has_its_matrices_made_once_per_alignment(monkeypatch):
+    # Wahba's ten passes reuse one block's rotation matrices; a longer attitude makes them a
+    # block at a time in every pass (its (K, 3, 3) is not held).
+    from magbench.core import quaternions
+    from magbench.pipeline import alignment
+
+    _, rec = _attitude_recording()
+    cal = Calibration(np.eye(3), np.zeros(3))
+    made = []
+    real = alignment._matrices
+    monkeypatch.setattr(alignment, "_matrices", lambda *a: made.append(1) or real(*a))
+    whole, _ = alignment.fit_alignment(cal, rec.y, alignment.inertial_of(rec))
+    assert len(made) == 1
+    made.clear()
+    monkeypatch.setattr(quaternions, "BLOCK_ROWS", 500)
+    blocked, _ = alignment.fit_alignment(cal, rec.y, alignment.inertial_of(rec))
+    assert len(made) == 2 * 10 * 4                  # mean and profile, ten passes, 4 blocks
+    assert np.array_equal(blocked.alignment, whole.alignment)
+
+
 def test_the_alignment_from_the_columns_is_the_whole_arrays_alignment(monkeypatch):
     # Issue 40: align_chosen by an attitude reads the recording's columns a block at a time
     # (no normalised (K, 4) copy, no copy of the kept samples or their field); it is the

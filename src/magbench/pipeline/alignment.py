@@ -24,9 +24,10 @@ beside the geomagnetic model at the user's site.
 from __future__ import annotations
 
 import datetime as dt
+import functools
 import hashlib
 import math
-from collections.abc import Collection, Mapping, Sequence
+from collections.abc import Callable, Collection, Mapping, Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -221,8 +222,16 @@ def attitude_profile(u: np.ndarray, attitude: np.ndarray | UnitRows, use: np.nda
     one chunk are held, not of every row. With no more rows than that, one product over
     every row (the whole array's numbers); else the chunks' products added in order (a sum
     in another order: round-off)."""
+    parts = _parts(attitude, use)
+    return _profile(u, parts, functools.partial(_matrices, attitude, use), m_w)
+
+
+def _profile(u: np.ndarray, parts: list[tuple[slice, slice]],
+             matrices: Callable[[slice], np.ndarray], m_w: np.ndarray) -> np.ndarray:
+    """:func:`attitude_profile` over ``parts`` (:func:`_parts`), ``matrices(b)`` the used rows'
+    rotation matrices of block ``b``."""
     chunks: list[list[tuple[slice, slice]]] = []
-    for b, r in _parts(attitude, use):
+    for b, r in parts:
         if chunks and r.stop - chunks[-1][0][1].start <= geometry.BLOCK_ROWS:
             chunks[-1].append((b, r))
         else:
@@ -233,7 +242,7 @@ def attitude_profile(u: np.ndarray, attitude: np.ndarray | UnitRows, use: np.nda
     for chunk, span in zip(chunks, spans, strict=True):
         for b, r in chunk:
             rows[r.start - span.start:r.stop - span.start] = np.einsum(
-                "kji,j->ki", _matrices(attitude, use, b), m_w)
+                "kji,j->ki", matrices(b), m_w)
         part = rows[:span.stop - span.start].T @ u[span]
         B = part if len(spans) == 1 else B + part
     return B
@@ -245,13 +254,19 @@ def _wahba(u: np.ndarray, attitude: np.ndarray | UnitRows, use: np.ndarray,
     rows of ``attitude`` (in order), which are finite. The used rows' matrices are made a
     block of the attitude at a time in each pass (a long log's ``(K, 3, 3)`` would be three
     times its samples); the world directions are only summed (their mean), the reference
-    directions in body axes a chunk at a time (:func:`attitude_profile`)."""
+    directions in body axes a chunk at a time (:func:`attitude_profile`). An attitude of
+    one block has its matrices made once, for every pass."""
     parts = _parts(attitude, use)
+    held = _matrices(attitude, use, parts[0][0]) if len(parts) == 1 else None
+
+    def matrices(b: slice) -> np.ndarray:
+        return held if held is not None else _matrices(attitude, use, b)
+
     R = np.eye(3)
     for _ in range(n_iter):
-        m_w = mean_direction_rows(np.einsum("kij,kj->ki", _matrices(attitude, use, b),
-                                            u[r] @ R.T) for b, r in parts)
-        R = nearest_rotation(attitude_profile(u, attitude, use, m_w))
+        m_w = mean_direction_rows(np.einsum("kij,kj->ki", matrices(b), u[r] @ R.T)
+                                  for b, r in parts)
+        R = nearest_rotation(_profile(u, parts, matrices, m_w))
     return R
 
 

@@ -15,7 +15,7 @@ from __future__ import annotations
 import numpy as np
 
 from magbench.core.model import Calibration, CalibrationFailed
-from magbench.core.rotations import skew
+from magbench.core.rotations import cross_rows, skew
 
 __all__ = ["check_gyro_inputs", "midpoint_differences", "skew"]
 
@@ -123,12 +123,12 @@ def magyc_residual(x: np.ndarray, y: np.ndarray, y_dot: np.ndarray, g: np.ndarra
     d = x[8:11] if with_gyro_bias else np.zeros(3)
     u = g - d
     v = y @ C.T - b
-    r = y_dot @ C.T + np.cross(u, v)
+    r = y_dot @ C.T + cross_rows(u, v)
     N = y.shape[0]
     J = np.empty((N, 3, x.size))
     for p in range(5):
         dC = dL[p] @ L.T + L @ dL[p].T
-        J[:, :, p] = y_dot @ dC.T + np.cross(u, y @ dC.T)
+        J[:, :, p] = y_dot @ dC.T + cross_rows(u, y @ dC.T)
     J[:, :, 5:8] = -skew(u)                      # d/db of u x (C y - b)
     if with_gyro_bias:
         J[:, :, 8:11] = skew(v)                  # d/dd of -d x v = v x d

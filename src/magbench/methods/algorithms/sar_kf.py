@@ -77,8 +77,9 @@ def fit(samples: np.ndarray, *, angular_rate: np.ndarray, time: np.ndarray,
     z = np.concatenate([y[0], np.zeros(3)])
     P = np.diag([r2] * 3 + [p_b**2] * 3)
     I3 = np.eye(3)
+    F = np.block([[I3, np.zeros((3, 3))], [np.zeros((3, 3)), I3]])    # [[R, I - R], [0, I]]
     for k in range(len(dt)):
-        F = np.block([[Rs[k], I3 - Rs[k]], [np.zeros((3, 3)), I3]])
+        F[:3, :3], F[:3, 3:] = Rs[k], I3 - Rs[k]
         v = z[:3] - z[3:]
         z = F @ z
         P = F @ P @ F.T
