@@ -354,6 +354,45 @@ def test_when_the_chosen_fit_fails_the_gate_the_next_that_passes_is_written(monk
     assert named.chosen["algorithm"] == "ellipsoid" and named.fitness["status"] == "FAIL"
 
 
+def test_a_fit_passed_over_as_possibly_worse_than_raw_is_not_the_gates_fallback(monkeypatch):
+    # The choice passed over the ellipsoid (off the recorded directions it could be worse
+    # than no correction); when the sphere fit it chose FAILs, the FAIL stands: the raw data
+    # it leaves are no worse than that, while the ellipsoid could be.
+    import magbench.pipeline.choice as choice
+    import magbench.pipeline.gate as study
+
+    rec = synthetic(600)
+    real_beyond, real_fitness = choice.beyond_raw, study.fitness
+
+    def ellipsoid_could_be_worse(ranked):
+        return [{**r, "beyond_raw_pct": 1.0 if r["algorithm"] == "ellipsoid" else -1.0}
+                if r["eligible"] else r for r in real_beyond(ranked)]
+
+    monkeypatch.setattr(choice, "beyond_raw", ellipsoid_could_be_worse)
+    kept = calibrate_recording(rec, ["ellipsoid", "sphere"], bootstrap=0)
+    assert kept.chosen["algorithm"] == "sphere"
+    assert next(r for r in kept.ranked if r["algorithm"] == "ellipsoid")["note"].startswith(
+        "passed over: off the recorded directions")
+
+    refused = float(np.cbrt(abs(np.linalg.det(
+        np.array([[kept.chosen[f"T_{i}{j}"] for j in range(3)] for i in range(3)])))))
+
+    def gate_refusing_the_sphere_fit(gate, **kw):
+        out = real_fitness(gate, **kw)
+        if abs(kw["field"] / refused - 1) < 1e-12:
+            out = {**out, "status": "FAIL", "reasons": ["refused by this test", *out["reasons"]]}
+        return out
+
+    monkeypatch.setattr(study, "fitness", gate_refusing_the_sphere_fit)
+    out = calibrate_recording(rec, ["ellipsoid", "sphere"], bootstrap=0)
+    assert out.chosen["algorithm"] == "sphere" and out.fitness["status"] == "FAIL"
+    assert out.fitness["reasons"][0] == "refused by this test"
+    # the ellipsoid, not passed over, is the fallback as before
+    monkeypatch.setattr(choice, "beyond_raw", real_beyond)
+    assert calibrate_recording(rec, ["ellipsoid", "sphere"], bootstrap=0).chosen[
+        "algorithm"] == "ellipsoid"
+
+
 @pytest.mark.parametrize(("step", "status"), [(0.0, "PASS"), (0.08, "WARN"), (0.25, "WARN")])
 def test_a_hard_iron_that_steps_halfway_is_never_a_pass(step, status):
     K = 1200

@@ -5,8 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from magbench.core.geometry import fibonacci_sphere
 from magbench.pipeline.choice import (
     TIE_RTOL,
+    WHOLE_SPHERE,
     allowed,
     annotate,
     choose,
@@ -122,6 +124,55 @@ def test_a_refused_fit_passes_the_choice_to_the_next_of_the_tie():
               refuse=lambda r: "test refusal" if r["algorithm"] == "fang" else "")
     assert out.chosen["algorithm"] == "ellipsoid"
     assert by_name(out.ranked)["fang"]["note"] == "refused: test refusal"
+
+
+def with_fit(row, T, h):
+    """``row`` with the fit ``y = T m + h``."""
+    return {**row, **{f"T_{i}{j}": T[i, j] for i in range(3) for j in range(3)},
+            **{f"h_{i}": h[i] for i in range(3)}}
+
+
+def band_candidates(h):
+    """A band's two fits: Fang best held out, alone in the tie, with a scale across the band
+    10 % above the in-plane ones; the sphere fit (unit scale) behind it; both centred on h."""
+    fang, sphere = table([("fang", 1.0, 1.0, 0), ("sphere", 1.5, 1.5, 0)])
+    return [with_fit(fang, np.diag([1.0, 1.0, 1.1]), h), with_fit(sphere, np.eye(3), h)]
+
+
+def spread_pct(v):
+    n = np.linalg.norm(v, axis=1)
+    return 100 * n.std() / n.mean()
+
+
+def test_a_fit_that_could_be_worse_than_raw_off_the_data_is_passed_over():
+    # Raw data already calibrated if the sphere fit is right: Fang's correction would then
+    # spread the field on the whole sphere (its 10 % across the band), where none would not.
+    out = choose(band_candidates(np.zeros(3)), {}, 20.0)
+    fang, sphere = by_name(out.ranked)["fang"], by_name(out.ranked)["sphere"]
+    assert out.tie == ["fang"] and out.chosen["algorithm"] == "sphere"
+    expected = spread_pct(fibonacci_sphere(WHOLE_SPHERE) @ np.diag([1.0, 1.0, 1 / 1.1]))
+    assert fang["beyond_raw_if"] == "sphere"
+    assert np.isclose(fang["beyond_raw_pct"], expected, rtol=1e-12) and expected > 2.0
+    assert fang["note"].startswith("passed over: off the recorded directions it could leave "
+                                   f"the field {expected:.2f} points more spread")
+    assert sphere["beyond_raw_pct"] <= 0 and sphere["note"] == ""
+    assert "chosen sphere, the first that could not" in out.how
+
+
+def test_where_the_raw_data_need_a_correction_no_fit_is_passed_over():
+    # The same two fits about an offset of five times the field: either correction is far
+    # better than none on the whole sphere, whichever model is right; the ranking decides.
+    out = choose(band_candidates(np.array([5.0, 0.0, 0.0])), {}, 20.0)
+    assert out.chosen["algorithm"] == "fang"
+    assert all(r["beyond_raw_pct"] < -50 for r in out.ranked)
+
+
+def test_when_every_fit_could_be_worse_than_raw_the_ranking_stands():
+    fang, ellipsoid = table([("fang", 1.0, 1.0, 0), ("ellipsoid", 1.5, 1.5, 0)])
+    out = choose([with_fit(fang, np.diag([1.0, 1.0, 1.1]), np.zeros(3)),
+                  with_fit(ellipsoid, np.diag([1.1, 1.0, 1.0]), np.zeros(3))], {}, 20.0)
+    assert all(r["beyond_raw_pct"] > 0 for r in out.ranked)
+    assert out.chosen["algorithm"] == "fang" and by_name(out.ranked)["fang"]["note"] == ""
 
 
 def test_the_choice_does_not_depend_on_fit_times():

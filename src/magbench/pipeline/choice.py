@@ -19,11 +19,15 @@ join the choice:
    the mean and the worst fold's held-out J_r, :data:`SCORES`): each within
    :data:`TIE_RTOL` of the best's. Another per-candidate score (lower is better) joins by
    adding its column to the table and its name to ``scores``.
-6. :func:`pick`: the simplest of the tie (fewest model parameters, then the best mean
+6. :func:`beyond_raw`: how much more spread than the raw data each eligible fit could leave
+   the field's magnitude on the whole sphere, if any other eligible fit were the sensor's
+   true model (directions never recorded included: a band, a cap).
+7. :func:`pick`: the simplest of the tie (fewest model parameters, then the best mean
    held-out J_r: a closed form is no simpler where it extrapolates), skipping refused fits
-   (:func:`magbench.core.robust.refusal_reason`); if all of the tie is refused, the next in
-   the ranking. Fit times are never used, so the same
-   file gives the same choice.
+   (:func:`magbench.core.robust.refusal_reason`) and passing over those that
+   :func:`beyond_raw` finds could be worse than no correction while another could not; if
+   all of the tie is set aside, the next in the ranking. Fit times are never used, so the
+   same file gives the same choice.
 
 A simpler model therefore wins only when it is as good out of sample on average *and* on the
 worst fold; on a band or a cap, where the full models extrapolate badly, the sphere and
@@ -38,12 +42,14 @@ from collections.abc import Callable, Mapping, Sequence
 import numpy as np
 
 from magbench.core.crb import MODEL_PARAMETERS
+from magbench.core.geometry import fibonacci_sphere
 from magbench.core.verdict import MAX_GAP_DEG, field_error_pct
 from magbench.methods.registry import get_method
+from magbench.pipeline.holdout import estimate
 
-__all__ = ["ROBUST_ON_CAPS", "SCORES", "THIN_GAP_DEG", "TIE_RTOL", "Choice", "allowed",
-           "annotate", "choose", "eligibility", "find_tie", "gyro_rule", "pick", "rank",
-           "ranking_frame"]
+__all__ = ["ROBUST_ON_CAPS", "SCORES", "THIN_GAP_DEG", "TIE_RTOL", "WHOLE_SPHERE", "Choice",
+           "allowed", "annotate", "beyond_raw", "choose", "could_be_worse_than_raw",
+           "eligibility", "find_tie", "gyro_rule", "pick", "rank", "ranking_frame"]
 
 #: A candidate's row: a plain record (column -> value), so that ``calibrate`` needs no pandas.
 Row = dict
@@ -58,6 +64,9 @@ ROBUST_ON_CAPS = ("magical", "fang")
 SCORES = ("J_r_out", "J_r_worst")
 #: Two methods tie on a score when the larger is at most this much above the smaller.
 TIE_RTOL = 0.05
+#: Field directions over the whole sphere on which :func:`beyond_raw` compares a correction
+#: with the raw data.
+WHOLE_SPHERE = 600
 
 
 def allowed(name: str, gap_deg: float) -> bool:
@@ -179,20 +188,74 @@ def find_tie(ranked: Sequence[Mapping], scores: Sequence[str] = SCORES) -> list[
     return out
 
 
+def _spread_pct(v: np.ndarray, scale: float | None = None) -> float:
+    """``100 std|v| / mean|v|`` over the rows of ``v`` (of ``scale`` instead of the mean)."""
+    norm = np.linalg.norm(v, axis=1)
+    return float(100 * norm.std() / (norm.mean() if scale is None else scale))
+
+
+def beyond_raw(ranked: Sequence[Mapping]) -> list[Row]:
+    """``ranked`` with ``beyond_raw_pct`` and ``beyond_raw_if``: for each eligible fit ``j``,
+    the most its correction could leave the field's magnitude more spread than the raw data
+    over the whole sphere, in points of the field, and under which model.
+
+    Each eligible fit ``k`` is taken in turn as the sensor's true model: the samples it
+    predicts on :data:`WHOLE_SPHERE` field directions ``u`` are ``y = T_k u + h_k``, whose
+    raw spread is ``100 std|y| / |det T_k|^(1/3)`` (a share of the field, as the raw data
+    are scored); ``j``'s correction of them spreads ``100 std|c| / mean|c|`` with ``c =
+    T_j^-1 (y - h_j)``. ``beyond_raw_pct`` is the largest difference over ``k`` (NaN for a fit
+    that is not eligible). Where the data cover the sphere the eligible fits agree, and every
+    correction beats raw data that need one; on a band or a cap they agree only where the
+    data are, and a positive value says this correction could be worse than none on the
+    directions not recorded if ``beyond_raw_if``'s model is the right one."""
+    out = [{**r, "beyond_raw_pct": math.nan, "beyond_raw_if": ""} for r in ranked]
+    models = [(r, *estimate(r)) for r in out if r["eligible"] and "T_00" in r]
+    models = [(r, T, h) for r, T, h in models
+              if np.isfinite(T).all() and np.isfinite(h).all() and np.linalg.det(T) != 0]
+    u = fibonacci_sphere(WHOLE_SPHERE)
+    truths = []
+    for r, T, h in models:
+        y = u @ T.T + h
+        truths.append((str(r["algorithm"]), y, _spread_pct(y, float(np.cbrt(abs(
+            np.linalg.det(T)))))))
+    for r, T, h in models:
+        worst = max(((_spread_pct(np.linalg.solve(T, (y - h).T).T) - raw, name)
+                     for name, y, raw in truths), key=lambda x: x[0])
+        r["beyond_raw_pct"], r["beyond_raw_if"] = float(worst[0]), worst[1]
+    return out
+
+
+def could_be_worse_than_raw(row: Mapping) -> bool:
+    """Whether :func:`beyond_raw` found that ``row``'s correction could leave the field more
+    spread than no correction on the whole sphere."""
+    return float(row.get("beyond_raw_pct", math.nan)) > 0
+
+
 def pick(ranked: Sequence[Mapping], refuse: Callable[[Row], str] | None = None
          ) -> tuple[list[Row], Row | None]:
-    """The simplest of the tie not refused, else the next eligible one (module notes, 6);
-    the chosen row is a copy."""
+    """The simplest of the tie not refused, else the next eligible one (module notes, 7); of
+    those, the first that :func:`beyond_raw` does not find could be worse than the raw data
+    (``beyond_raw_pct`` above 0), when there is one; the chosen row is a copy."""
     out = [dict(r) for r in ranked]
     tie = sorted((r for r in out if r["tie"]),
                  key=lambda r: (MODEL_PARAMETERS[r["model"]], float(r[SCORES[0]])))
     rest = [r for r in out if r["eligible"] and not r["tie"]]
+    usable = []
     for r in tie + rest:
         reason = refuse(dict(r)) if refuse else ""
-        if not reason:
-            return out, dict(r)
-        r["note"] = f"refused: {reason}"
-    return out, None
+        if reason:
+            r["note"] = f"refused: {reason}"
+        else:
+            usable.append(r)
+    safe = [r for r in usable if not could_be_worse_than_raw(r)]
+    if not usable:
+        return out, None
+    chosen = safe[0] if safe else usable[0]
+    for r in usable[:usable.index(chosen)]:
+        r["note"] = (f"passed over: off the recorded directions it could leave the field "
+                     f"{r['beyond_raw_pct']:.2f} points more spread than no correction (if "
+                     f"{r['beyond_raw_if']}'s model is the sensor's)")
+    return out, dict(chosen)
 
 
 class Choice:
@@ -221,6 +284,11 @@ def _how(ranked: Sequence[Mapping], chosen: Mapping | None) -> str:
             else "every eligible method was refused"
     tie = [r["algorithm"] for r in ranked if r["tie"]]
     best = next(r for r in ranked if r["eligible"])["algorithm"]
+    passed = [r["algorithm"] for r in ranked if str(r.get("note", "")).startswith("passed over")]
+    if passed:
+        return (f"{', '.join(passed)} could leave the field more spread than no correction "
+                f"off the recorded directions; chosen {chosen['algorithm']}, the first that "
+                "could not")
     if chosen["algorithm"] not in tie:
         return f"every method of the tie was refused; chosen {chosen['algorithm']}, the next"
     if len(tie) == 1:
@@ -252,7 +320,7 @@ def choose(summary: Sequence[Mapping], corrected: Mapping[str, np.ndarray | None
     """
     table = gyro_rule(eligibility(annotate(summary, corrected), gap_deg, scores,
                                   max_field_pct), scores)
-    ranked, chosen = pick(find_tie(rank(table, scores), scores), refuse)
+    ranked, chosen = pick(beyond_raw(find_tie(rank(table, scores), scores)), refuse)
     if chosen is None:
         # Nothing else can be chosen: the best fit off the data's scale is judged, and the
         # gate FAILs it with the reason, rather than no answer at all.

@@ -27,7 +27,13 @@ from magbench.core.verdict import (
     with_reason,
 )
 from magbench.methods.registry import get_method
-from magbench.pipeline.choice import ROBUST_ON_CAPS, THIN_GAP_DEG, Choice, allowed
+from magbench.pipeline.choice import (
+    ROBUST_ON_CAPS,
+    THIN_GAP_DEG,
+    Choice,
+    allowed,
+    could_be_worse_than_raw,
+)
 from magbench.pipeline.holdout import estimate, held_out_corrected
 from magbench.pipeline.result import CalibrationResult
 from magbench.sources.recordings import Recording
@@ -135,11 +141,16 @@ def _next_that_passes(result: CalibrationResult, gate: Gate,
                       headings: Mapping[str, float]) -> None:
     """When the chosen fit FAILs the gate, the next eligible candidate in the ranking that
     does not (and is not refused) is chosen instead, and the table says why; unchanged when
-    none passes (a reason of the recording's, coverage say, fails them all)."""
+    none passes (a reason of the recording's, coverage say, fails them all). When the choice
+    could not leave the field more spread than no correction off the recorded directions
+    (:func:`~magbench.pipeline.choice.beyond_raw`), neither may the next: a FAIL leaves the
+    raw data, which a correction worse than none would not."""
     first = result.chosen
     reason = result.fitness["reasons"][0]
+    safe_only = not could_be_worse_than_raw(first)
     for row in result.ranked:
         if not row["eligible"] or row["algorithm"] == first["algorithm"] or \
+                (safe_only and could_be_worse_than_raw(row)) or \
                 refusal_reason(*estimate(row), result.work.y, result.screen.centre):
             continue
         trial = replace(result, choice=Choice(result.ranked, dict(row), result.how))
