@@ -167,6 +167,15 @@ def test_where_the_raw_data_need_a_correction_no_fit_is_passed_over():
     assert all(r["beyond_raw_pct"] < -50 for r in out.ranked)
 
 
+def test_round_off_is_not_worse_than_raw():
+    # A calibrated sensor's noise-free fits differ by round-off: the ranking decides.
+    fang, sphere = table([("fang", 1.0, 1.0, 0), ("sphere", 1.5, 1.5, 0)])
+    out = choose([with_fit(fang, np.eye(3) * (1 + 3e-16), np.zeros(3)),
+                  with_fit(sphere, np.eye(3), np.zeros(3))], {}, 20.0)
+    assert 0 < by_name(out.ranked)["fang"]["beyond_raw_pct"] < 1e-12
+    assert out.chosen["algorithm"] == "fang"
+
+
 def test_when_every_fit_could_be_worse_than_raw_the_ranking_stands():
     fang, ellipsoid = table([("fang", 1.0, 1.0, 0), ("ellipsoid", 1.5, 1.5, 0)])
     out = choose([with_fit(fang, np.diag([1.0, 1.0, 1.1]), np.zeros(3)),

@@ -67,6 +67,9 @@ TIE_RTOL = 0.05
 #: Field directions over the whole sphere on which :func:`beyond_raw` compares a correction
 #: with the raw data.
 WHOLE_SPHERE = 600
+#: Points of spread below which :func:`beyond_raw`'s differences are round-off, not a
+#: correction worse than none (a calibrated sensor's noise-free samples).
+ROUND_OFF_PCT = 1e-9
 
 
 def allowed(name: str, gap_deg: float) -> bool:
@@ -227,8 +230,8 @@ def beyond_raw(ranked: Sequence[Mapping]) -> list[Row]:
 
 def could_be_worse_than_raw(row: Mapping) -> bool:
     """Whether :func:`beyond_raw` found that ``row``'s correction could leave the field more
-    spread than no correction on the whole sphere."""
-    return float(row.get("beyond_raw_pct", math.nan)) > 0
+    spread than no correction on the whole sphere (by more than round-off)."""
+    return float(row.get("beyond_raw_pct", math.nan)) > ROUND_OFF_PCT
 
 
 def pick(ranked: Sequence[Mapping], refuse: Callable[[Row], str] | None = None
