@@ -70,6 +70,8 @@ WHOLE_SPHERE = 600
 #: Points of spread below which :func:`beyond_raw`'s differences are round-off, not a
 #: correction worse than none (a calibrated sensor's noise-free samples).
 ROUND_OFF_PCT = 1e-9
+#: How a candidate's note starts when :func:`pick` passed over it (:func:`beyond_raw`).
+PASSED_OVER = "passed over"
 
 
 def allowed(name: str, gap_deg: float) -> bool:
@@ -201,10 +203,11 @@ def beyond_raw(ranked: Sequence[Mapping]) -> list[Row]:
     raw spread is ``100 std|y| / |det T_k|^(1/3)`` (a share of the field, as the raw data
     are scored); ``j``'s correction of them spreads ``100 std|c| / mean|c|`` with ``c =
     T_j^-1 (y - h_j)``. ``beyond_raw_pct`` is the largest difference over ``k`` (NaN for a fit
-    that is not eligible). Where the data cover the sphere the eligible fits agree, and every
-    correction beats raw data that need one; on a band or a cap they agree only where the
-    data are, and a positive value says this correction could be worse than none on the
-    directions not recorded if ``beyond_raw_if``'s model is the right one."""
+    that is not eligible or has no invertible ``T``). Where the data cover the sphere the
+    eligible fits agree, and every correction beats raw data that need one; on a band or a
+    cap they agree only where the data are, and a positive value says this correction could
+    be worse than none on the directions not recorded if ``beyond_raw_if``'s model is the
+    right one."""
     out = [{**r, "beyond_raw_pct": math.nan, "beyond_raw_if": ""} for r in ranked]
     models = [(r, *estimate(r)) for r in out if r["eligible"] and "T_00" in r]
     models = [(r, T, h) for r, T, h in models
@@ -236,7 +239,7 @@ def pick(ranked: Sequence[Mapping], refuse: Callable[[Row], str] | None = None
          ) -> tuple[list[Row], Row | None]:
     """The simplest of the tie not refused, else the next eligible one (module notes, 7); of
     those, the first that :func:`beyond_raw` does not find could be worse than the raw data
-    (``beyond_raw_pct`` above 0), when there is one; the chosen row is a copy."""
+    (:func:`could_be_worse_than_raw`), when there is one; the chosen row is a copy."""
     out = [dict(r) for r in ranked]
     tie = sorted((r for r in out if r["tie"]),
                  key=lambda r: (MODEL_PARAMETERS[r["model"]], float(r[SCORES[0]])))
@@ -253,7 +256,7 @@ def pick(ranked: Sequence[Mapping], refuse: Callable[[Row], str] | None = None
         return out, None
     chosen = safe[0] if safe else usable[0]
     for r in usable[:usable.index(chosen)]:
-        r["note"] = (f"passed over: off the recorded directions it could leave the field "
+        r["note"] = (f"{PASSED_OVER}: off the recorded directions it could leave the field "
                      f"{r['beyond_raw_pct']:.2f} points more spread than no correction (if "
                      f"{r['beyond_raw_if']}'s model is the sensor's)")
     return out, dict(chosen)
@@ -285,7 +288,7 @@ def _how(ranked: Sequence[Mapping], chosen: Mapping | None) -> str:
             else "every eligible method was refused"
     tie = [r["algorithm"] for r in ranked if r["tie"]]
     best = next(r for r in ranked if r["eligible"])["algorithm"]
-    passed = [r["algorithm"] for r in ranked if str(r.get("note", "")).startswith("passed over")]
+    passed = [r["algorithm"] for r in ranked if str(r.get("note", "")).startswith(PASSED_OVER)]
     if passed:
         return (f"{', '.join(passed)} could leave the field more spread than no correction "
                 f"off the recorded directions; chosen {chosen['algorithm']}, the first that "

@@ -143,8 +143,8 @@ def _next_that_passes(result: CalibrationResult, gate: Gate,
     does not (and is not refused) is chosen instead, and the table says why; unchanged when
     none passes (a reason of the recording's, coverage say, fails them all). When the choice
     could not leave the field more spread than no correction off the recorded directions
-    (:func:`~magbench.pipeline.choice.beyond_raw`), neither may the next: a FAIL leaves the
-    raw data, which a correction worse than none would not."""
+    (:func:`~magbench.pipeline.choice.beyond_raw`), neither may the next: the FAIL then
+    stands, and the raw data it leaves are better than a correction that could be worse."""
     first = result.chosen
     reason = result.fitness["reasons"][0]
     safe_only = not could_be_worse_than_raw(first)
