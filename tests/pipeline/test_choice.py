@@ -170,9 +170,10 @@ def test_where_the_raw_data_need_a_correction_no_fit_is_passed_over():
 def test_round_off_is_not_worse_than_raw():
     # A calibrated sensor's noise-free fits differ by round-off: the ranking decides.
     fang, sphere = table([("fang", 1.0, 1.0, 0), ("sphere", 1.5, 1.5, 0)])
-    out = choose([with_fit(fang, np.eye(3) * (1 + 3e-16), np.zeros(3)),
+    out = choose([with_fit(fang, np.eye(3) * (1 + 1e-15), np.zeros(3)),
                   with_fit(sphere, np.eye(3), np.zeros(3))], {}, 20.0)
     assert 0 < by_name(out.ranked)["fang"]["beyond_raw_pct"] < 1e-12
+    assert by_name(out.ranked)["sphere"]["beyond_raw_pct"] <= 0
     assert out.chosen["algorithm"] == "fang"
 
 
