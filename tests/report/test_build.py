@@ -47,23 +47,36 @@ def test_figures_drawn_by_two_workers_are_the_files_drawn_by_one(tmp_path):
 def test_figure_workers_know_the_plugins_methods(tmp_path):
     """The report draws each folder's figures in a worker process: a plugin's method keeps
     its registered label there, as when one process draws them."""
+    import sys
+
     import pandas as pd
     from joblib.externals.loky import get_reusable_executor
 
-    import tests.plugins.counting  # noqa: F401  (registers counting_a here, as main does)
     from magbench.cli.commands import draw_figures
+    from magbench.methods.registry import methods, unregister
     from tests.report.helpers import rb_sweep
 
-    for sweep, case in (("gamma", gamma_case()), ("beta", rb_sweep("beta", [0.1, 0.5], {}))):
-        added = case[case["algorithm"] == "twostep"].assign(algorithm="counting_a")
-        (tmp_path / sweep).mkdir()
-        pd.concat([case, added], ignore_index=True).to_csv(tmp_path / sweep / "summary.csv",
-                                                           index=False)
-    get_reusable_executor().shutdown(wait=True)          # fresh workers: nothing imported
-    draw_figures(tmp_path, n_jobs=2)
-    for sweep, figure in (("gamma", "fig2_gamma.csv"), ("beta", "fig3_beta.csv")):
-        drawn = pd.read_csv(tmp_path / sweep / figure)
-        assert set(drawn.loc[drawn["series"] == "counting_a", "label"]) == {"counting A"}
+    before, imported = set(methods()), "tests.plugins.counting" in sys.modules
+    import tests.plugins.counting  # noqa: F401  (registers counting_a here, as main does)
+
+    try:
+        for sweep, case in (("gamma", gamma_case()),
+                            ("beta", rb_sweep("beta", [0.1, 0.5], {}))):
+            added = case[case["algorithm"] == "twostep"].assign(algorithm="counting_a")
+            (tmp_path / sweep).mkdir()
+            pd.concat([case, added], ignore_index=True).to_csv(
+                tmp_path / sweep / "summary.csv", index=False)
+        get_reusable_executor().shutdown(wait=True)          # fresh workers: nothing imported
+        draw_figures(tmp_path, n_jobs=2)
+        for sweep, figure in (("gamma", "fig2_gamma.csv"), ("beta", "fig3_beta.csv")):
+            drawn = pd.read_csv(tmp_path / sweep / figure)
+            assert set(drawn.loc[drawn["series"] == "counting_a", "label"]) == {"counting A"}
+    finally:
+        # The plugin's methods leave with this test: the tests after it see the shipped ones.
+        for name in set(methods()) - before:
+            unregister(name)
+        if not imported:
+            sys.modules.pop("tests.plugins.counting", None)
 
 
 def test_a_sweeps_text_left_to_the_report_is_written_beside_its_figures(tmp_path):

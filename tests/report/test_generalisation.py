@@ -54,7 +54,8 @@ def test_the_section_leads_with_the_counts(tmp_path):
                           "best_fixed_heading_deg": [float("nan"), 45.0],
                           "loss_oracle": [False, True],
                           "loss_compass_oracle": [False, False],
-                          "loss_recording_best": [False, True], "tied": [1, 3]})
+                          "loss_recording_best": [False, True], "tied": [1, 3],
+                          "passed_over": ["twostep;fang", ""]})
     assert headline(cases) == {"cases": 2, "losses": 1, "harmful": 1, "harmful_mean_norm": 2,
                                "direction_cases": 0, "losses_direction": 0,
                                "heading_cases": 1, "losses_heading": 1,
@@ -62,7 +63,7 @@ def test_the_section_leads_with_the_counts(tmp_path):
                                "needless_fail_compass": 1, "needless_unusable": 1,
                                "losses_peers": 1, "losses_oracle": 1,
                                "losses_compass_oracle": 0, "losses_recording_best": 1,
-                               "one_tied": 1,
+                               "one_tied": 1, "passed_over": 1,
                                "needless_fail": 0, "not_written": 1, "recordings": 2}
     write(tmp_path / "generalisation", cases)
     text = generalisation_section(tmp_path)
@@ -71,6 +72,8 @@ def test_the_section_leads_with_the_counts(tmp_path):
             "spread: 2)") in text
     assert "| half | 2 | 1 | 1 | 1 (2) | 0 | 1 | 1 of 1 | 1, 1, 1 |" in text
     assert "against the best peer (navlib, magcal) alone it loses in 1 of 2 (50 %)" in text
+    assert ("in 1 it passed over a fit that could have been worse than no correction on the "
+            "directions not recorded") in text
     assert ("magnitude elsewhere) it loses in 1 of 2 (50 %), writes a correction worse than "
             "raw in 1 and FAILs where a fixed fit would have helped in 1; in 1 of those the best "
             "fixed fit's heading error is still above the gate's 30 deg") in text

@@ -162,6 +162,23 @@ def test_case_and_protocol_tables_count_losses_harm_and_needless_fails():
     assert table.loc["blocks", "wtl:fang"] == "1/0/0"             # 10 raw vs 12: a win
 
 
+def test_the_fits_the_choice_passed_over_are_carried_to_the_cases_and_counted():
+    trials = pd.DataFrame(_rows("a", "band_x", 1.0, {"sphere": 1.0})
+                          + _rows("b", "band_x", 2.0, {"sphere": 1.0})
+                          + _rows("c", "half", 1.0, {"sphere": 1.0}))
+    trials["passed_over"] = ""
+    trials.loc[(trials["dataset"] == "a") & (trials["kind"] == "auto"),
+               "passed_over"] = "twostep;wu_shi_nm"
+    cases = case_table(trials).set_index("dataset")
+    assert list(cases["passed_over"]) == ["twostep;wu_shi_nm", "", ""]
+    table = protocol_table(cases.reset_index()).set_index("protocol")
+    assert table.loc["band_x", "passed_over"] == 1 and table.loc["half", "passed_over"] == 0
+    assert table.loc["all", "passed_over"] == 1
+    # rows written before the column existed: none passed over
+    old = case_table(trials.drop(columns="passed_over"))
+    assert (old["passed_over"] == "").all()
+
+
 def test_harm_is_judged_against_the_raw_field_share_and_beside_by_mean_norm():
     # a large offset: raw spreads 40 % of the field but 4 % of its mean norm
     cases = case_table(pd.DataFrame(_rows("p", "half", 6.0, {"sphere": 6.0}, raw=40.0,

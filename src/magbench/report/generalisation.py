@@ -40,6 +40,8 @@ def headline(cases: pd.DataFrame) -> dict:
             "losses_compass_oracle": int(cases["loss_compass_oracle"].sum()),
             "losses_recording_best": int(cases["loss_recording_best"].sum()),
             "one_tied": int((cases["tied"] == 1).sum()),
+            "passed_over": int((cases["passed_over"].fillna("") != "").sum())
+            if "passed_over" in cases else 0,
             "not_written": int((~cases["written"].astype(bool)).sum()),
             "recordings": int(cases["dataset"].nunique())}
 
@@ -173,7 +175,10 @@ def generalisation_section(results_dir: Path | str, folder: str = FOLDER) -> str
         f"loses to the best fixed method in hindsight in {_pct(h['losses'], h['cases'])}; it "
         f"writes a correction worse than the raw data in {h['harmful']} (by the raw data's "
         f"mean-norm spread: {h['harmful_mean_norm']}) and FAILs where a fixed fit would have "
-        f"helped in {h['needless_fail']}; against the best peer (navlib, magcal) alone it "
+        f"helped in {h['needless_fail']}; in {h['passed_over']} it passed over a fit that "
+        "could have been worse than no correction on the directions not recorded (`calibrate` "
+        "takes each eligible fit in turn as the sensor's model, `passed_over` in the cases "
+        "table); against the best peer (navlib, magcal) alone it "
         f"loses in {_pct(h['losses_peers'], h['cases'])}. By heading, where an attitude "
         f"exists, it loses in {_pct(h['losses_heading'], h['heading_cases'])}. By the "
         "score its choice serves (heading where the recording has an attitude, magnitude "

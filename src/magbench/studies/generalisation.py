@@ -67,6 +67,7 @@ from magbench.engine.sweep import Study, settings_hash
 from magbench.engine.trial import run_method
 from magbench.pipeline.auto import candidate_rounds
 from magbench.pipeline.bootstrap import bootstrap_check
+from magbench.pipeline.choice import PASSED_OVER
 from magbench.pipeline.decision import Decision, decide, written_correction
 from magbench.pipeline.fitting import DEFAULT_MAX_SAMPLES, applicability, fit_recording, is_usable
 from magbench.pipeline.holdout import estimate
@@ -98,7 +99,7 @@ ROW_COLUMNS = ["dataset", "protocol", "algorithm", "kind", "K_fit", "K_test", "s
                "written", "degenerate", "method", "spread_pct", "raw_spread_pct",
                "raw_mean_spread_pct", "direction_deg", "raw_direction_deg", "heading_deg",
                "raw_heading_deg", "field_ratio", "oracle_method", "oracle_pct",
-               "oracle_heading_deg", "error"]
+               "oracle_heading_deg", "passed_over", "error"]
 INTERVAL_COLUMNS = ["dataset", "axis", "method_first", "method_second", "b_first", "b_second",
                     "half_width_first", "half_width_second", "source_first",
                     "source_second", "agree"]
@@ -270,7 +271,7 @@ def _row(rec: Recording, protocol: str, entrant: str, kind: str, fit: Recording,
             "direction_deg": direction, "raw_direction_deg": raw[1],
             "heading_deg": heading, "raw_heading_deg": raw[3], "field_ratio": ratio,
             "oracle_method": "", "oracle_pct": float("nan"),
-            "oracle_heading_deg": float("nan"), "error": error}
+            "oracle_heading_deg": float("nan"), "passed_over": "", "error": error}
 
 
 def _fixed_rows(rec, protocol, fit, test, raw, names, options, seed, timeout, radius,
@@ -403,6 +404,9 @@ def _auto_row(rec, protocol, fit, test, raw, options, seed, timeout, radius, sph
         T, _ = estimate(chosen)
         row["field_ratio"] = float(np.cbrt(abs(np.linalg.det(T))) / radius)
     row.update(_oracle(decision.result.ranked, test, sphere_coverage, reference))
+    # The fits the choice passed over as possibly worse than no correction off the data.
+    row["passed_over"] = ";".join(str(r["algorithm"]) for r in decision.result.ranked
+                                  if str(r.get("note") or "").startswith(PASSED_OVER))
     return row, time.perf_counter() - start
 
 
@@ -660,7 +664,10 @@ def case_table(trials: pd.DataFrame) -> pd.DataFrame:
     ``loss_compass_oracle``: the same losses for the best of calibrate's eligible
     candidates in hindsight (:func:`_oracle`), so that what a better ranking could win is
     told apart from what the candidates and the gate leave. ``tied``: how many fixed
-    methods are within the tolerance of the best (1: only the best itself), and
+    methods are within the tolerance of the best (1: only the best itself);
+    ``passed_over``: the fits calibrate's choice passed over as possibly worse than no
+    correction off the recorded directions (``;``-separated,
+    :func:`~magbench.pipeline.choice.beyond_raw`); and
     ``recording_best`` / ``loss_recording_best``: :func:`_with_recording_best`."""
     import pandas as pd
 
@@ -724,6 +731,8 @@ def case_table(trials: pd.DataFrame) -> pd.DataFrame:
             _beyond_best_direction(oracle_heading, fixed, "heading_deg") if heading
             else row["loss_oracle"])
         row["tied"] = int(np.sum(fixed["spread_pct"].to_numpy(float) <= best_score + tol))
+        passed = auto.get("passed_over", "")
+        row["passed_over"] = passed if isinstance(passed, str) else ""
         for _, r in g[g["kind"] != "auto"].iterrows():
             row[f"pct:{r['algorithm']}"] = _user_score(r) if r["status"] == "ok" else raw
         out.append(row)
@@ -766,8 +775,9 @@ def _wtl(auto: np.ndarray, other: np.ndarray) -> tuple[int, int, int]:
 
 def protocol_table(cases: pd.DataFrame) -> pd.DataFrame:
     """Per protocol (and ``all``): cases, median and worst regret, losses, harmful writes,
-    needless FAILs, FAILs, and wins/ties/losses against each fixed method and peer
-    (``wtl:<entrant>`` as ``W/T/L``)."""
+    needless FAILs, FAILs, the cases where the choice passed over a fit (``passed_over``),
+    and wins/ties/losses against each fixed method and peer (``wtl:<entrant>`` as
+    ``W/T/L``)."""
     import pandas as pd
 
     entrants = [c.removeprefix("pct:") for c in cases.columns if c.startswith("pct:")]
@@ -793,6 +803,7 @@ def protocol_table(cases: pd.DataFrame) -> pd.DataFrame:
                "losses_compass_oracle": int(g["loss_compass_oracle"].sum()),
                "losses_recording_best": int(g["loss_recording_best"].sum()),
                "one_tied": int((g["tied"] == 1).sum()),
+               "passed_over": int((g["passed_over"].fillna("") != "").sum()),
                "not_written": int((~g["written"].astype(bool)).sum())}
         for e in entrants:
             w, t, l_ = _wtl(g["auto_pct"].to_numpy(float), g[f"pct:{e}"].to_numpy(float))
