@@ -76,6 +76,9 @@ def test_install_size_of_a_missing_peer_is_recorded_as_unknown(monkeypatch):
     assert row["package"] == "no-such-peer-package" and np.isnan(row["added_mb"])
 
 
+# A fresh interpreter per tool (magbench twice, each installed peer): the bench's own
+# machinery, which `make bench` exercises in full, at a cost the CI budget cannot spare.
+@pytest.mark.slow
 def test_bench_calibrate_reads_the_commands_own_time_from_fresh_processes(tmp_path):
     from importlib.util import find_spec
 
