@@ -393,6 +393,29 @@ def test_a_fit_passed_over_as_possibly_worse_than_raw_is_not_the_gates_fallback(
         "algorithm"] == "ellipsoid"
 
 
+def test_a_written_fit_that_could_be_worse_than_raw_off_the_data_says_so(monkeypatch):
+    # When every fit that could be written could be worse than none off the recorded
+    # directions, the ranking's choice is written with a warning that says by how much.
+    import magbench.pipeline.choice as choice
+
+    rec = synthetic(600)
+    plain = calibrate_recording(rec, ["ellipsoid", "sphere"], bootstrap=0)
+    assert not any("no correction on the directions not recorded" in w
+                   for w in plain.warnings)
+    real_beyond = choice.beyond_raw
+
+    def every_fit_could_be_worse(ranked):
+        return [{**r, "beyond_raw_pct": 1.25, "beyond_raw_if": "sphere"} if r["eligible"]
+                else r for r in real_beyond(ranked)]
+
+    monkeypatch.setattr(choice, "beyond_raw", every_fit_could_be_worse)
+    out = calibrate_recording(rec, ["ellipsoid", "sphere"], bootstrap=0)
+    assert out.chosen["algorithm"] == plain.chosen["algorithm"]
+    assert f"{plain.chosen['algorithm']} could leave the field 1.25 points more spread than " \
+           "no correction on the directions not recorded (if sphere's model is the " \
+           "sensor's)" in " ".join(out.warnings)
+
+
 @pytest.mark.parametrize(("step", "status"), [(0.0, "PASS"), (0.08, "WARN"), (0.25, "WARN")])
 def test_a_hard_iron_that_steps_halfway_is_never_a_pass(step, status):
     K = 1200

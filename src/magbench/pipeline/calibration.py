@@ -58,6 +58,7 @@ from magbench.core.robust import screen
 from magbench.core.verdict import Gate, coverage_report
 from magbench.methods.registry import get_method
 from magbench.pipeline.bootstrap import bootstrap_check
+from magbench.pipeline.choice import could_be_worse_than_raw
 from magbench.pipeline.gate import _coverage_warnings, _halves_reason, _next_that_passes, judge
 from magbench.pipeline.result import CalibrationResult
 from magbench.pipeline.rounds import ExtraScore, _fit_and_choose, agreed_field
@@ -155,6 +156,13 @@ def calibrate_recording(rec: Recording, candidates: Sequence[str], *,
     if result.fitness["status"] == "FAIL" and not named:
         _next_that_passes(result, gate or Gate(), expected_field, scores)
     _halves_reason(result, gate or Gate())
+    if result.fitness["status"] != "FAIL" and could_be_worse_than_raw(result.chosen):
+        chosen = result.chosen
+        result.warnings.append(
+            f"{chosen['algorithm']} could leave the field {chosen['beyond_raw_pct']:.2f} points "
+            f"more spread than no correction on the directions not recorded (if "
+            f"{chosen['beyond_raw_if']}'s model is the sensor's), as could every other fit "
+            "that could be written; record every direction for a correction that cannot")
     result.bootstrap = bootstrap_check(result, bootstrap, preprocess=preprocess,
                                        options=options, seed=seed)
     return result
