@@ -326,23 +326,29 @@ def test_a_fit_whose_field_is_off_the_data_scale_is_not_ranked_the_next_is_chose
     assert choose(rows, {"ali": None, "fang": None}, gap_deg=0.0).chosen["algorithm"] == "ali"
 
 
-def test_when_the_chosen_fit_fails_the_gate_the_next_that_passes_is_written(monkeypatch):
-    import magbench.pipeline.gate as study
+def _gate_refusing(monkeypatch, row) -> None:
+    """The gate FAILs the fit of ``row`` (known by its field strength) and judges the rest
+    as it would."""
+    import magbench.pipeline.gate as gate_module
+    from magbench.pipeline.holdout import estimate
 
-    rec = synthetic(600)
-    first = calibrate_recording(rec, ["ellipsoid", "sphere"], bootstrap=0)
-    assert first.chosen["algorithm"] == "ellipsoid" and first.fitness["status"] == "PASS"
-    refused = float(np.cbrt(abs(np.linalg.det(
-        np.array([[first.chosen[f"T_{i}{j}"] for j in range(3)] for i in range(3)])))))
-    real_fitness = study.fitness
+    refused = float(np.cbrt(abs(np.linalg.det(estimate(row)[0]))))
+    real_fitness = gate_module.fitness
 
-    def gate_refusing_the_ellipsoid(gate, **kw):     # a reason of the fit's own, not the data's
+    def fitness(gate, **kw):
         out = real_fitness(gate, **kw)
         if abs(kw["field"] / refused - 1) < 1e-12:
             out = {**out, "status": "FAIL", "reasons": ["refused by this test", *out["reasons"]]}
         return out
 
-    monkeypatch.setattr(study, "fitness", gate_refusing_the_ellipsoid)
+    monkeypatch.setattr(gate_module, "fitness", fitness)
+
+
+def test_when_the_chosen_fit_fails_the_gate_the_next_that_passes_is_written(monkeypatch):
+    rec = synthetic(600)
+    first = calibrate_recording(rec, ["ellipsoid", "sphere"], bootstrap=0)
+    assert first.chosen["algorithm"] == "ellipsoid" and first.fitness["status"] == "PASS"
+    _gate_refusing(monkeypatch, first.chosen)    # a reason of the fit's own, not the data's
     out = calibrate_recording(rec, ["ellipsoid", "sphere"], bootstrap=0)
     assert out.chosen["algorithm"] == "sphere" and out.fitness["status"] != "FAIL"
     assert out.how == ("ellipsoid ranked first but fails the gate (refused by this test); "
@@ -359,10 +365,9 @@ def test_a_fit_passed_over_as_possibly_worse_than_raw_is_not_the_gates_fallback(
     # than no correction); when the sphere fit it chose FAILs, the FAIL stands: the raw data
     # it leaves are no worse than that, while the ellipsoid could be.
     import magbench.pipeline.choice as choice
-    import magbench.pipeline.gate as study
 
     rec = synthetic(600)
-    real_beyond, real_fitness = choice.beyond_raw, study.fitness
+    real_beyond = choice.beyond_raw
 
     def ellipsoid_could_be_worse(ranked):
         return [{**r, "beyond_raw_pct": 1.0 if r["algorithm"] == "ellipsoid" else -1.0}
@@ -374,20 +379,11 @@ def test_a_fit_passed_over_as_possibly_worse_than_raw_is_not_the_gates_fallback(
     assert next(r for r in kept.ranked if r["algorithm"] == "ellipsoid")["note"].startswith(
         "passed over: off the recorded directions")
 
-    refused = float(np.cbrt(abs(np.linalg.det(
-        np.array([[kept.chosen[f"T_{i}{j}"] for j in range(3)] for i in range(3)])))))
-
-    def gate_refusing_the_sphere_fit(gate, **kw):
-        out = real_fitness(gate, **kw)
-        if abs(kw["field"] / refused - 1) < 1e-12:
-            out = {**out, "status": "FAIL", "reasons": ["refused by this test", *out["reasons"]]}
-        return out
-
-    monkeypatch.setattr(study, "fitness", gate_refusing_the_sphere_fit)
+    _gate_refusing(monkeypatch, kept.chosen)
     out = calibrate_recording(rec, ["ellipsoid", "sphere"], bootstrap=0)
     assert out.chosen["algorithm"] == "sphere" and out.fitness["status"] == "FAIL"
     assert out.fitness["reasons"][0] == "refused by this test"
-    # the ellipsoid, not passed over, is the fallback as before
+    # with nothing passed over, the ellipsoid (which the gate does not refuse) is chosen
     monkeypatch.setattr(choice, "beyond_raw", real_beyond)
     assert calibrate_recording(rec, ["ellipsoid", "sphere"], bootstrap=0).chosen[
         "algorithm"] == "ellipsoid"

@@ -49,7 +49,8 @@ from magbench.pipeline.holdout import estimate
 
 __all__ = ["ROBUST_ON_CAPS", "SCORES", "THIN_GAP_DEG", "TIE_RTOL", "WHOLE_SPHERE", "Choice",
            "allowed", "annotate", "beyond_raw", "choose", "could_be_worse_than_raw",
-           "eligibility", "find_tie", "gyro_rule", "pick", "rank", "ranking_frame"]
+           "eligibility", "find_tie", "gyro_rule", "passed_over", "pick", "rank",
+           "ranking_frame"]
 
 #: A candidate's row: a plain record (column -> value), so that ``calibrate`` needs no pandas.
 Row = dict
@@ -235,6 +236,12 @@ def could_be_worse_than_raw(row: Mapping) -> bool:
     return float(row.get("beyond_raw_pct", math.nan)) > ROUND_OFF_PCT
 
 
+def passed_over(ranked: Sequence[Mapping]) -> list[str]:
+    """The candidates :func:`pick` passed over as possibly worse than no correction."""
+    return [str(r["algorithm"]) for r in ranked
+            if str(r.get("note") or "").startswith(PASSED_OVER)]
+
+
 def pick(ranked: Sequence[Mapping], refuse: Callable[[Row], str] | None = None
          ) -> tuple[list[Row], Row | None]:
     """The simplest of the tie not refused, else the next eligible one (module notes, 7); of
@@ -288,7 +295,7 @@ def _how(ranked: Sequence[Mapping], chosen: Mapping | None) -> str:
             else "every eligible method was refused"
     tie = [r["algorithm"] for r in ranked if r["tie"]]
     best = next(r for r in ranked if r["eligible"])["algorithm"]
-    passed = [r["algorithm"] for r in ranked if str(r.get("note", "")).startswith(PASSED_OVER)]
+    passed = passed_over(ranked)
     if passed:
         return (f"{', '.join(passed)} could leave the field more spread than no correction "
                 f"off the recorded directions; chosen {chosen['algorithm']}, the first that "

@@ -67,7 +67,7 @@ from magbench.engine.sweep import Study, settings_hash
 from magbench.engine.trial import run_method
 from magbench.pipeline.auto import candidate_rounds
 from magbench.pipeline.bootstrap import bootstrap_check
-from magbench.pipeline.choice import PASSED_OVER
+from magbench.pipeline.choice import passed_over
 from magbench.pipeline.decision import Decision, decide, written_correction
 from magbench.pipeline.fitting import DEFAULT_MAX_SAMPLES, applicability, fit_recording, is_usable
 from magbench.pipeline.holdout import estimate
@@ -405,8 +405,7 @@ def _auto_row(rec, protocol, fit, test, raw, options, seed, timeout, radius, sph
         row["field_ratio"] = float(np.cbrt(abs(np.linalg.det(T))) / radius)
     row.update(_oracle(decision.result.ranked, test, sphere_coverage, reference))
     # The fits the choice passed over as possibly worse than no correction off the data.
-    row["passed_over"] = ";".join(str(r["algorithm"]) for r in decision.result.ranked
-                                  if str(r.get("note") or "").startswith(PASSED_OVER))
+    row["passed_over"] = ";".join(passed_over(decision.result.ranked))
     return row, time.perf_counter() - start
 
 
